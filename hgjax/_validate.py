@@ -1,0 +1,103 @@
+"""Input validation shared by every public entry point.
+
+All checks raise ``TypeError`` for a wrong dtype and ``ValueError`` for a wrong shape or
+value, and always name the argument and quote what was found. They run on the host, before
+anything is traced, so they fire the same way whether or not the caller jits around them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable
+
+import numpy as np
+
+FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
+
+
+def check_points(points: Any, name: str = "points") -> np.ndarray:
+    """Validate a point cloud and return it as a read-only NumPy view (no copy when possible).
+
+    Args:
+      points: array-like of shape (N, 3), float32 or float64, all finite.
+      name: argument name quoted in error messages.
+
+    Returns:
+      np.ndarray of shape (N, 3) with the caller's float dtype. It is a read-only view, so
+      nothing downstream can modify the caller's array.
+
+    Raises:
+      TypeError: if the dtype is not float32 or float64.
+      ValueError: if the shape is not (N, 3) with N >= 1, or a coordinate is NaN or inf.
+    """
+    if points is None:
+        raise TypeError(f"{name} must be an array of shape (N, 3); got None")
+    arr = np.asarray(points)
+    if arr.dtype not in FLOAT_DTYPES:
+        raise TypeError(
+            f"{name} must have dtype float32 or float64; got {arr.dtype}"
+            " (convert with points.astype(np.float32) or np.float64)"
+        )
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3); got {arr.shape}")
+    if arr.shape[0] == 0:
+        raise ValueError(f"{name} must contain at least one point; got shape {arr.shape}")
+    finite = np.isfinite(arr).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        raise ValueError(
+            f"{name} contains {bad.size} point(s) with NaN or inf coordinates"
+            f" (first at row {int(bad[0])}); drop them first, e.g. points[np.isfinite(points).all(1)]"
+        )
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+def check_ratio(ratio: Any, name: str = "ratio") -> float:
+    """Return ``ratio`` as a float after checking 0 < ratio <= 1."""
+    if isinstance(ratio, (bool, np.bool_)) or not isinstance(ratio, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number in (0, 1]; got {type(ratio).__name__}")
+    value = float(ratio)
+    if not (0.0 < value <= 1.0) or math.isnan(value):
+        raise ValueError(f"{name} must be in (0, 1]; got {ratio!r}")
+    return value
+
+
+def n_keep(n_points: int, ratio: float) -> int:
+    """Number of kept points, ceil(ratio * N), computed without float round-up surprises."""
+    m = math.ceil(ratio * n_points - 1e-9 * n_points)
+    return int(min(max(m, 1), n_points))
+
+
+def check_min_points(n_points: int, needed: int, what: str, name: str = "points") -> None:
+    """Raise when a neighbourhood of ``needed`` points cannot be formed from ``n_points``."""
+    if n_points < needed:
+        raise ValueError(f"{name} has {n_points} point(s), too few for {what} (needs at least {needed})")
+
+
+def check_int(value: Any, name: str, *, minimum: int) -> int:
+    """Return ``value`` as an int after checking its type and ``value >= minimum``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer; got {type(value).__name__}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}; got {value}")
+    return int(value)
+
+
+def check_positive(value: Any, name: str) -> float:
+    """Return ``value`` as a float after checking it is finite and > 0."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a positive number; got {type(value).__name__}")
+    value = float(value)
+    if not (value > 0.0 and math.isfinite(value)):
+        raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
+    return value
+
+
+def check_choice(value: Any, name: str, choices: Iterable[str]) -> str:
+    """Return ``value`` after checking it is one of ``choices``."""
+    choices = sorted(choices)
+    if value not in choices:
+        raise ValueError(f"unknown {name} {value!r}; expected one of {choices}")
+    return value

@@ -1,0 +1,126 @@
+"""The cubic hypergraph kernel shared by HKC and HKF (paper Sec. III-A, Fig. 2).
+
+A k x k x k kernel (k odd) has N_k = k^3 voxel centres C = d * {-(k-1)/2, ..., (k-1)/2}^3,
+ordered x slowest and z fastest (index k^2 i + k j + l). The local signal s_i (N_k,) of
+point p_i counts the points q with |q - p_i - C[j]| < d / 2 in every coordinate (strict),
+p_i itself included in the centre voxel.
+
+The spectrum estimated from the centres (row-centred C_n, R = C_n C_n^T) depends only on
+the kernel, never on the data: R has rank 2 and, for a cubic kernel, its two non-zero
+eigenvalues are equal. After normalisation the spectrum is N_k - 2 zeros (high band) and
+two ones (low band), and the low-band projector is exactly R / lambda_max. It is computed
+here once, on the host, in float64.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hgjax import _stream, _validate
+from hgjax.neighbourhoods import SpatialIndex
+from hgjax.scores import _common
+
+
+def check_kernel_size(kernel_size) -> int:
+    k = _validate.check_int(kernel_size, "kernel_size", minimum=3)
+    if k % 2 == 0:
+        raise ValueError(f"kernel_size must be odd (3, 5, ...); got {k}")
+    return k
+
+
+@functools.lru_cache(maxsize=None)
+def integer_offsets(kernel_size: int) -> np.ndarray:
+    """(N_k, 3) integer voxel offsets, x slowest and z fastest."""
+    h = (kernel_size - 1) // 2
+    return np.array(list(itertools.product(range(-h, h + 1), repeat=3)), dtype=np.float64)
+
+
+@functools.lru_cache(maxsize=None)
+def low_band(kernel_size: int) -> tuple[np.ndarray, float]:
+    """Exact low-band projector factors of the kernel spectrum.
+
+    Returns:
+      (B, mu): B (N_k, 3) = 3 C - (C 1) 1^T, an integer matrix proportional to the row-centred
+      centres, and mu = lambda_max(B^T B). The projector onto the low band is B B^T / mu, so
+      low = B (B^T s) / mu, where B^T s is exact for integer counts; low is exactly 0 iff the
+      signal is symmetric about the centre.
+    """
+    c = integer_offsets(kernel_size)
+    b = 3.0 * c - c.sum(axis=1, keepdims=True)
+    mu = float(np.linalg.eigvalsh(b.T @ b).max())
+    return b, mu
+
+
+@functools.lru_cache(maxsize=None)
+def reference_spectrum(kernel_size: int, d: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The spectrum exactly as REFERENCE.md computes it: NumPy ``eigh`` of R for this d.
+
+    Returns:
+      (lam, V, t): lam (N_k,) = eig / max eig (ascending), V (N_k, N_k) the basis NumPy's
+      LAPACK returns (arbitrary inside the degenerate eigenspaces), and the band threshold
+      t = argmax(diff(lam)) + 1.
+    """
+    c = integer_offsets(kernel_size) * d
+    cn = c - c.mean(axis=1, keepdims=True)
+    lam, v = np.linalg.eigh(cn @ cn.T)
+    lam = lam / lam.max()
+    return lam, v, int(np.argmax(np.diff(lam)) + 1)
+
+
+def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Array,
+                 kernel_size: int) -> jax.Array:
+    """Voxel counts s_i (N_k,) of one neighbourhood (the paper's local signal, Fig. 2).
+
+    Args:
+      centre: (3,) the point p_i.
+      nbrs: (K, 3) points of its cube neighbourhood (padding rows masked by ``valid``).
+      valid: (K,) bool.
+      d: voxel spacing (scalar).
+      kernel_size: k (static).
+
+    Returns:
+      (k^3,) counts in the dtype of ``nbrs``.
+    """
+    o = nbrs - centre  # (K, 3)
+    h = (kernel_size - 1) // 2
+    shifts = jnp.arange(-h, h + 1, dtype=o.dtype) * d  # (k,)
+    member = jnp.abs(o[:, :, None] - shifts) < d / 2  # (K, 3, k)
+    member = member & valid[:, None, None]
+    mx, my, mz = (member[:, a, :].astype(o.dtype) for a in range(3))
+    counts = jnp.einsum("ki,kj,kl->ijl", mx, my, mz)
+    return counts.reshape(-1)
+
+
+def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
+    """Split s (N_k,) into (low, high) bands: low = R s / lambda_max, high = s - low.
+
+    This is V diag(lam) V^T s and V diag(1 - lam) V^T s of the paper (Eq. (10) with the
+    Haar-like high-pass G_hat = 1 - lam), computed without a basis: exact and
+    basis-invariant.
+    """
+    b, mu = low_band(kernel_size)
+    b = jnp.asarray(b, dtype=s.dtype)
+    low = b @ (b.T @ s) / jnp.asarray(mu, dtype=s.dtype)
+    return low, s - low
+
+
+def stream_cubes(index: SpatialIndex, kernel, d: float, kernel_size: int, chunk_size, progress: bool,
+                 extra_args=()):
+    """Stream a cube-neighbourhood chunk kernel (HKC, HKF) over the cloud, sorted frame.
+
+    The ROI of each point is the axis-aligned cube of half-width k d / 2, queried chunk by
+    chunk with a capacity that grows until nothing is truncated.
+    """
+    chunk = _common.chunk_size_or_auto(chunk_size, index.n, 32 * kernel_size**3 * 8)
+    half = kernel_size / 2 * d
+
+    def query(rows):
+        return index.cube(half, rows)
+
+    args = (_common.scalar(d, index.points.dtype),) + tuple(extra_args)
+    return _stream.stream(kernel, index, query, chunk_size=chunk, args=args, progress=progress)
