@@ -7,10 +7,13 @@ differentiable soft resampling.
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from hgjax import scores, spectrum
+from hgjax import eval, io, scores, spectrum  # noqa: A004 (hgjax.eval is the evaluation package)
 from hgjax.neighbourhoods import Neighbourhoods, cube, intrinsic_resolution, knn, spatial_order
 from hgjax.resample import METHODS, Method, resample
 from hgjax.select import top_k, weighted_sample
+from hgjax.samplers import *  # noqa: F401,F403  (issue 3: uniform, voxel, fps)
+from hgjax.soft import *  # noqa: F401,F403  (issue 7)
+from hgjax import samplers as _samplers, soft as _soft
 
 try:
     __version__ = _version("hgjax")
@@ -22,6 +25,8 @@ __all__ = [
     "Method",
     "Neighbourhoods",
     "cube",
+    "eval",
+    "io",
     "intrinsic_resolution",
     "knn",
     "resample",
@@ -31,3 +36,4 @@ __all__ = [
     "top_k",
     "weighted_sample",
 ]
+__all__ += _samplers.__all__ + _soft.__all__
