@@ -23,17 +23,23 @@ import numpy as np
 from hgjax.neighbourhoods import SpatialIndex
 
 DEFAULT_CHUNK_BYTES = 64 * 2**20  # working set aimed at per chunk
+BLOCK = 128  # rows per vmapped block; chunk sizes are multiples of it
 
 
 def auto_chunk_size(n: int, bytes_per_point: int) -> int:
     """Rows per chunk so one chunk's working set is about DEFAULT_CHUNK_BYTES.
 
-    The result is a power of two between 1024 and 2**20, and never more than needed for n
-    (then rounded up to a multiple of 8 so tiny clouds compile once per size class).
+    The result is a power of two between 1024 and 2**20, and never more than n rounded up to
+    a multiple of BLOCK.
     """
     rows = DEFAULT_CHUNK_BYTES // max(bytes_per_point, 1)
     rows = 1 << max(10, min(20, int(math.log2(max(rows, 1)))))
-    return min(rows, max(8, -(-n // 8) * 8))
+    return min(rows, round_chunk(n))
+
+
+def round_chunk(chunk_size: int) -> int:
+    """Round a chunk size up to a multiple of BLOCK (the unit every kernel computes in)."""
+    return -(-chunk_size // BLOCK) * BLOCK
 
 
 class PrecisionWarning(UserWarning):

@@ -173,6 +173,48 @@ class SpatialIndex:
                 )
             k = min(2 * k, max_capacity)
 
+    def ball(self, radius: float, rows: slice | np.ndarray = slice(None), *, max_nn: int,
+             capacity: int = 16) -> tuple[np.ndarray, np.ndarray]:
+        """The at most ``max_nn`` nearest points at Euclidean distance in (0, radius].
+
+        The point itself and its exact duplicates (distance 0) are excluded. The query
+        capacity starts at ``capacity`` and doubles for the rows that fill it, until every
+        row holds all its points within ``radius`` or ``max_nn`` of them: rows with more
+        than ``max_nn`` keep the nearest (this cap is part of the GFR graph's definition).
+
+        Args:
+          radius: inclusive Euclidean radius (``np.inf`` for no limit).
+          rows: which sorted-frame rows to query (default all).
+          max_nn: the most neighbours kept per row.
+          capacity: initial number of columns queried.
+
+        Returns:
+          (idx, dist): (R, K) int32 indices (sorted frame) padded with N, and (R, K) float64
+          distances padded with inf, both by increasing distance; K <= max_nn is the largest
+          row count.
+        """
+        queries = self.points[np.arange(self.n)[rows]]
+        bound = np.nextafter(radius, np.inf)  # cKDTree's bound is strict; ours is inclusive
+        dist = np.full((len(queries), max_nn), np.inf)
+        idx = np.full((len(queries), max_nn), self.n, dtype=np.int32)
+        todo = np.arange(len(queries))
+        k = min(capacity, self.n)
+        while todo.size:
+            d, i = self.tree.query(queries[todo], k=k, distance_upper_bound=bound, workers=-1)
+            d, i = d.reshape(todo.size, k), i.reshape(todo.size, k)
+            keep = (i < self.n) & (d > 0)
+            keep &= np.cumsum(keep, axis=1) <= max_nn
+            done = (i[:, -1] == self.n) | (keep.sum(axis=1) == max_nn) | (k == self.n)
+            first = np.argsort(~keep, axis=1, kind="stable")[:, :max_nn]  # kept columns first
+            take = np.take_along_axis(keep, first, axis=1)
+            width = first.shape[1]
+            dist[todo[done], :width] = np.where(take, np.take_along_axis(d, first, axis=1), np.inf)[done]
+            idx[todo[done], :width] = np.where(take, np.take_along_axis(i, first, axis=1), self.n)[done]
+            todo = todo[~done]
+            k = min(2 * k, self.n)
+        width = int((idx < self.n).sum(axis=1).max(initial=0))
+        return idx[:, :width], dist[:, :width]
+
     def chunks(self, chunk_size: int) -> Iterator[slice]:
         """Consecutive sorted-frame row slices of at most ``chunk_size`` rows."""
         for start in range(0, self.n, chunk_size):

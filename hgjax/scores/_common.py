@@ -22,16 +22,26 @@ def map_neighbourhoods(fn: Callable) -> Callable:
     """Turn ``fn(centre (3,), nbrs (K, 3), valid (K,), *args)`` into a chunk kernel.
 
     The returned function takes ``(points_ext (N+1, 3), rows (C,), idx (C, K), *args)``,
-    gathers with the sentinel row, masks with ``idx < N`` and vmaps ``fn`` over the chunk.
-    Scalar ``args`` are broadcast (not mapped).
+    gathers with the sentinel row, masks with ``idx < N`` and vmaps ``fn`` over blocks of
+    exactly ``_stream.BLOCK`` rows (``lax.map`` over the blocks of the chunk). Every row is
+    thus computed by the same compiled block whatever the chunk size, which keeps results
+    bitwise identical across chunk sizes (XLA may pick other reduction orders for other
+    batch shapes). Scalar ``args`` are broadcast (not mapped).
     """
 
-    def kernel(points_ext, rows, idx, *args):
+    def block(points_ext, rows, idx, args):
         n = points_ext.shape[0] - 1
-        centres = points_ext[rows]
-        nbrs = points_ext[idx]
-        valid = idx < n
-        return jax.vmap(fn, in_axes=(0, 0, 0) + (None,) * len(args))(centres, nbrs, valid, *args)
+        batched = jax.vmap(fn, in_axes=(0, 0, 0) + (None,) * len(args))
+        return batched(points_ext[rows], points_ext[idx], idx < n, *args)
+
+    def kernel(points_ext, rows, idx, *args):
+        c = rows.shape[0]
+        if c % _stream.BLOCK:
+            raise ValueError(f"chunk size {c} is not a multiple of {_stream.BLOCK}")
+        blocks = (rows.reshape(c // _stream.BLOCK, _stream.BLOCK),
+                  idx.reshape(c // _stream.BLOCK, _stream.BLOCK, idx.shape[1]))
+        out = jax.lax.map(lambda b: block(points_ext, b[0], b[1], args), blocks)
+        return jax.tree.map(lambda x: x.reshape((c,) + x.shape[2:]), out)
 
     return kernel
 
@@ -47,7 +57,7 @@ def resolution_or_default(index: SpatialIndex, resolution) -> float:
 def chunk_size_or_auto(chunk_size, n: int, bytes_per_point: int) -> int:
     if chunk_size is None:
         return _stream.auto_chunk_size(n, bytes_per_point)
-    return _validate.check_int(chunk_size, "chunk_size", minimum=1)
+    return _stream.round_chunk(_validate.check_int(chunk_size, "chunk_size", minimum=1))
 
 
 def scalar(value: float, dtype) -> jax.Array:

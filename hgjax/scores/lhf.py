@@ -84,7 +84,7 @@ def _invariant_gram(s):
     tol = 8 * n * jnp.finfo(s.dtype).eps * top
     nonzero = mu > tol  # (3,) directions that span range(R)
     inv_sqrt = jnp.where(nonzero, 1 / _safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
-    u = (sn @ w) * inv_sqrt  # (n, 3) orthonormal eigenvectors of R (zero columns if null)
+    u = (sn @ w) * inv_sqrt[None, :]  # (n, 3) orthonormal eigenvectors of R (zero columns if null)
     t_coef = u.T @ s  # (3, 3): row k = projection of the three columns of s on u_k
     res = m - u @ (u.T @ m)  # null-space part of every column of s
     null2 = 3 * jnp.sum(res * res)
@@ -113,7 +113,7 @@ def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: 
     Returns:
       (len(lengths),) gamma in [0, 1].
     """
-    signal = jnp.where(valid[:, None], nbrs - centre, 0)
+    signal = jnp.where(valid[:, None], nbrs - centre[None, :], 0)
     if variant == "reference":
         fn = _reference
     else:

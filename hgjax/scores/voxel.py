@@ -86,10 +86,10 @@ def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Ar
     Returns:
       (k^3,) counts in the dtype of ``nbrs``.
     """
-    o = nbrs - centre  # (K, 3)
+    o = nbrs - centre[None, :]  # (K, 3)
     h = (kernel_size - 1) // 2
     shifts = jnp.arange(-h, h + 1, dtype=o.dtype) * d  # (k,)
-    member = jnp.abs(o[:, :, None] - shifts) < d / 2  # (K, 3, k)
+    member = jnp.abs(o[:, :, None] - shifts[None, None, :]) < d / 2  # (K, 3, k)
     member = member & valid[:, None, None]
     mx, my, mz = (member[:, a, :].astype(o.dtype) for a in range(3))
     counts = jnp.einsum("ki,kj,kl->ijl", mx, my, mz)

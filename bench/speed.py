@@ -1,0 +1,247 @@
+"""Speed and memory of every method against a bare cKDTree kNN query, in one run.
+
+Usage:
+  python bench/speed.py                 # N = 1e4, 1e5, 1e6  -> bench/results/speed.md
+  python bench/speed.py --scale         # adds N = 1e7 (streaming; float32) and a log-log PNG
+  python bench/speed.py --sizes 10000 --methods hkc,lhf --repeats 3 --out /tmp/speed.md
+
+Each (method, N) runs in a fresh subprocess so its peak RSS is its own. Times are medians of
+``--repeats`` calls after one warm-up call; the warm-up's extra time is reported as compile
+time. The yardstick ``cKDTree(points).query(points, k=16, workers=-1)`` (random input order,
+tree build included) is timed in the same run. Clouds are sampled uniformly on the surface of
+a box (``hgjax.eval.box_surface``), float32 at 1e7 and float64 (with x64) below.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+# Methods whose cost must scale to 1e7 (issue 6); the others are timed up to 1e6.
+SCALE_METHODS = ("hkc", "hkf", "lhf", "ea", "gfr")
+NAIVE_POINTS = 20  # points of the naive loop timed at 1e4, extrapolated per point
+
+
+def _cloud(n: int):
+    import numpy as np
+
+    from hgjax.eval import box_surface
+
+    pts = box_surface(n, seed=0)
+    return pts.astype(np.float32) if n >= 10**7 else pts
+
+
+def _run_method(method: str, pts):
+    import jax
+
+    import hgjax
+
+    return hgjax.resample(pts, 0.2, method=method, key=jax.random.key(0))
+
+
+def _build(method: str, pts):
+    """The host neighbourhood build that ``method`` performs (index + query)."""
+    from hgjax.neighbourhoods import SpatialIndex, _resolution
+
+    index = SpatialIndex(pts)
+    if method in ("hkc", "hkf"):
+        index.cube(1.5 * 1.3 * _resolution(index))
+    elif method == "gfr":
+        from hgjax.scores import gfr
+
+        gfr.build_graph(index)
+    elif method in ("lhf", "ea", "pca_ac"):
+        index.knn(16)
+
+
+def worker(kind: str, n: int, repeats: int) -> dict:
+    import jax
+
+    if n < 10**7:
+        jax.config.update("jax_enable_x64", True)
+    pts = _cloud(n)
+    times = []
+    if kind == "knn":
+        import numpy as np
+        from scipy.spatial import cKDTree
+
+        perm = np.random.default_rng(0).permutation(n)  # random order, as users' files come
+        p = pts[perm]
+        for _ in range(repeats):
+            t = time.perf_counter()
+            cKDTree(p).query(p, k=16, workers=-1)
+            times.append(time.perf_counter() - t)
+        return {"median": statistics.median(times), "peak_mb": _peak_mb()}
+    if kind.startswith("naive:"):
+        sys.path.insert(0, str(ROOT / "tests"))
+        import naive
+
+        method = kind.split(":", 1)[1]
+        sub = pts[:NAIVE_POINTS]
+        t = time.perf_counter()
+        if method in ("hkc", "hkf"):
+            d = 1.3 * naive.resolution(pts[:2000])
+            c, lam, v = naive._kernel_spectrum(d)
+            for i in range(NAIVE_POINTS):
+                naive.voxel_signal(pts, i, c, d)
+        else:
+            for i in range(NAIVE_POINTS):
+                import numpy as np
+
+                order = np.argsort(np.linalg.norm(pts - sub[i], axis=1), kind="stable")[:16]
+                s = pts[order] - sub[i]
+                sn = s - s.mean(axis=1, keepdims=True)
+                np.linalg.eigh(sn @ sn.T)
+        per_point = (time.perf_counter() - t) / NAIVE_POINTS
+        return {"median": per_point * n, "peak_mb": _peak_mb()}
+    method = kind
+    t = time.perf_counter()
+    _run_method(method, pts)
+    first = time.perf_counter() - t
+    for _ in range(repeats):
+        t = time.perf_counter()
+        _run_method(method, pts)
+        times.append(time.perf_counter() - t)
+    build = []
+    for _ in range(max(1, repeats // 2)):
+        t = time.perf_counter()
+        _build(method, pts)
+        build.append(time.perf_counter() - t)
+    med = statistics.median(times)
+    return {"median": med, "compile": max(first - med, 0.0), "build": statistics.median(build),
+            "peak_mb": _peak_mb()}
+
+
+def _peak_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _spawn(kind: str, n: int, repeats: int) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--worker", kind, str(n), str(repeats)],
+                         capture_output=True, text=True, cwd=ROOT, check=False)
+    if out.returncode != 0:
+        return {"error": out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "failed"}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _device() -> str:
+    import jax
+
+    d = jax.devices()[0]
+    return f"{d.platform}:{getattr(d, 'device_kind', '?')} x{len(jax.devices())}"
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
+    parser.add_argument("--scale", action="store_true", help="add N = 1e7 and the log-log plot")
+    parser.add_argument("--sizes", default="10000,100000,1000000")
+    parser.add_argument("--methods", default=None, help="comma list (default: all registered)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default=str(HERE / "results" / "speed.md"))
+    args = parser.parse_args(argv)
+    if args.worker:
+        kind, n, repeats = args.worker
+        print(json.dumps(worker(kind, int(n), int(repeats))))
+        return
+
+    import hgjax
+
+    methods = args.methods.split(",") if args.methods else sorted(hgjax.METHODS)
+    sizes = [int(float(s)) for s in args.sizes.split(",")]
+    if args.scale:
+        sizes.append(10**7)
+    rows, results = [], {}
+    for n in sizes:
+        reps = args.repeats if n < 10**7 else 1
+        knn = _spawn("knn", n, reps)
+        results[("knn", n)] = knn
+        print(f"N={n:.0e} knn {knn}", file=sys.stderr, flush=True)
+        for m in methods:
+            if n >= 10**7 and m not in SCALE_METHODS:
+                continue
+            if m in ("fps",) and n > 10**5:
+                continue  # O(N M) by design; reported up to 1e5
+            r = _spawn(m, n, reps)
+            results[(m, n)] = r
+            print(f"N={n:.0e} {m} {r}", file=sys.stderr, flush=True)
+        if n == 10**4:
+            for m in ("hkc", "lhf"):
+                results[(f"naive:{m}", n)] = _spawn(f"naive:{m}", n, 1)
+    lines = [
+        "# Speed and memory",
+        "",
+        f"Command: `python bench/speed.py{' --scale' if args.scale else ''}"
+        f"{'' if args.sizes == '10000,100000,1000000' else ' --sizes ' + args.sizes}"
+        f"{'' if args.methods is None else ' --methods ' + args.methods}`  ",
+        f"Machine: {os.cpu_count()} cores, {platform.processor() or platform.machine()}, device {_device()}, "
+        f"jax {__import__('jax').__version__}, {time.strftime('%Y-%m-%d')}.  ",
+        f"Medians of {args.repeats} calls after a warm-up (1 call at 1e7); ratio = time / bare kNN in the same run;",
+        "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
+        "peak = peak RSS of the process that ran the method (MB).",
+        "",
+        "| N | method | median s | / kNN | build s | JAX part / build | points/s | compile s | peak MB |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for n in sizes:
+        base = results[("knn", n)].get("median", math.nan)
+        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | | | {n / base:,.0f} | | "
+                     f"{results[('knn', n)].get('peak_mb', math.nan):.0f} |")
+        for m in methods:
+            r = results.get((m, n))
+            if r is None:
+                continue
+            if "error" in r:
+                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | |")
+                continue
+            jax_part = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan
+            lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | {r['build']:.3f} | "
+                         f"{jax_part:.2f} | {n / r['median']:,.0f} | {r['compile']:.2f} | {r['peak_mb']:.0f} |")
+    naive_rows = [(m, results[(f"naive:{m}", 10**4)]) for m in ("hkc", "lhf") if (f"naive:{m}", 10**4) in results]
+    if naive_rows:
+        lines += ["", f"Naive NumPy loop at N = 1e4 (tests/naive.py; {NAIVE_POINTS} points timed in this run, "
+                  "extrapolated to all N):", "", "| method | naive s (extrapolated) | hgjax s | speed-up |", "|---|---|---|---|"]
+        for m, r in naive_rows:
+            fast = results[(m, 10**4)]["median"]
+            lines.append(f"| {m} | {r['median']:.1f} | {fast:.3f} | {r['median'] / fast:,.0f}x |")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text("\n".join(lines) + "\n")
+    if args.scale:
+        _plot(results, methods, sizes, Path(args.out).with_suffix(".png"))
+    print("\n".join(lines))
+
+
+def _plot(results, methods, sizes, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for m in ["knn"] + list(methods):
+        xs = [n for n in sizes if "median" in results.get((m, n), {})]
+        if xs:
+            ax.loglog(xs, [results[(m, n)]["median"] for n in xs], "o-" if m != "knn" else "k--",
+                      label="bare kNN k=16" if m == "knn" else m)
+    ax.set_xlabel("points N")
+    ax.set_ylabel("median time (s)")
+    ax.set_title(f"hgjax end to end, {_device()}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main()

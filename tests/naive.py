@@ -1,0 +1,106 @@
+"""Naive NumPy loop-over-points references of every HGSP score (REFERENCE.md, literally).
+
+Deliberately slow and simple: brute-force neighbours, one ``np.linalg.eigh`` per point.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+
+def resolution(points):
+    p = np.asarray(points, dtype=np.float64)
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    return float(d.min(axis=1).mean())
+
+
+def _kernel_spectrum(d, k=3):
+    h = (k - 1) // 2
+    c = np.array(list(itertools.product(range(-h, h + 1), repeat=3)), dtype=np.float64) * d
+    cn = c - c.mean(axis=1, keepdims=True)
+    lam, v = np.linalg.eigh(cn @ cn.T)
+    return c, lam / lam.max(), v
+
+
+def voxel_signal(points, i, c, d):
+    s = np.zeros(len(c))
+    for j, cj in enumerate(c):
+        for q in points:
+            if np.all(np.abs(q - points[i] - cj) < d / 2):
+                s[j] += 1
+    return s
+
+
+def hkc(points, d_factor=1.3, k=3):
+    p = np.asarray(points, dtype=np.float64)
+    d = d_factor * resolution(p)
+    c, lam, v = _kernel_spectrum(d, k)
+    out = np.empty(len(p))
+    for i in range(len(p)):
+        s = voxel_signal(p, i, c, d)
+        high = v @ np.diag(1 - lam) @ v.T @ s
+        low = s - high
+        nl = np.linalg.norm(low)
+        out[i] = np.linalg.norm(high) / nl if nl > 1e-9 * np.linalg.norm(s) else np.inf
+    return out
+
+
+def hkf(points, d_factor=1.3, k=3):
+    p = np.asarray(points, dtype=np.float64)
+    d = d_factor * resolution(p)
+    c, lam, v = _kernel_spectrum(d, k)
+    t = int(np.argmax(np.diff(lam)) + 1)
+    out = np.empty(len(p))
+    for i in range(len(p)):
+        s_hat = np.abs(v.T @ voxel_signal(p, i, c, d))
+        out[i] = s_hat[:t].sum() / s_hat.sum()
+    return out
+
+
+def knn_rows(points, n):
+    p = np.asarray(points, dtype=np.float64)
+    d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+    return np.argsort(d, axis=1, kind="stable")[:, :n]
+
+
+def lhf_single(points, n):
+    p = np.asarray(points, dtype=np.float64)
+    rows = knn_rows(p, n)
+    out = np.empty(len(p))
+    for i in range(len(p)):
+        s = p[rows[i]] - p[i]
+        sn = s - s.mean(axis=1, keepdims=True)
+        lam, v = np.linalg.eigh(sn @ sn.T)
+        lam = np.abs(lam) / np.abs(lam).max()
+        t = int(np.argmax(np.diff(lam)) + 1)
+        tt = np.abs(v.T @ s)
+        out[i] = tt[:t].sum() / tt.sum()
+    return out
+
+
+def lhf(points, ratio, lengths):
+    ga, gb = lhf_single(points, lengths[0]), lhf_single(points, lengths[1])
+    m = int(np.ceil(ratio * len(ga)))
+    big_a, big_b = np.sort(ga)[::-1][m - 1], np.sort(gb)[::-1][m - 1]
+    eps = big_b / (big_a + big_b)
+    return eps * ga + (1 - eps) * gb
+
+
+def lhf_single_invariant(points, n):
+    """Band-energy ratio ||P_high s|| / (||P_high s|| + ||P_low s||) through the n x n eigh."""
+    p = np.asarray(points, dtype=np.float64)
+    rows = knn_rows(p, n)
+    out = np.empty(len(p))
+    for i in range(len(p)):
+        s = p[rows[i]] - p[i]
+        sn = s - s.mean(axis=1, keepdims=True)
+        lam, v = np.linalg.eigh(sn @ sn.T)
+        lam = np.abs(lam) / np.abs(lam).max()
+        t = int(np.argmax(np.diff(lam)) + 1)
+        high = np.linalg.norm(v[:, :t] @ v[:, :t].T @ s)
+        low = np.linalg.norm(v[:, t:] @ v[:, t:].T @ s)
+        out[i] = high / (high + low)
+    return out
