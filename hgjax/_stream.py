@@ -10,8 +10,8 @@ host chunk by chunk, so peak memory grows with the chunk size, not with N.
 
 from __future__ import annotations
 
+import functools
 import math
-import os
 import sys
 import warnings
 from typing import Callable, Sequence
@@ -38,8 +38,9 @@ def auto_chunk_size(n: int, bytes_per_point: int) -> int:
 
 
 def round_chunk(chunk_size: int) -> int:
-    """Round a chunk size up to a multiple of BLOCK (the unit every kernel computes in)."""
-    return -(-chunk_size // BLOCK) * BLOCK
+    """Round a chunk size up to a multiple of :func:`block_rows` (the unit kernels compute in)."""
+    unit = block_rows()
+    return -(-chunk_size // unit) * unit
 
 
 class PrecisionWarning(UserWarning):
@@ -83,13 +84,17 @@ def stream(kernel: Callable, index: SpatialIndex, query: Callable[[slice], np.nd
            chunk_size: int, args: Sequence = (), progress: bool = False):
     """Run ``kernel`` over all points of ``index`` in chunks of ``chunk_size`` rows.
 
+    With several devices in ``jax.devices()`` each chunk's rows are split evenly over them
+    (``shard_map`` over a 1-D mesh named ``"points"``); every device runs the same block
+    kernel on its rows, so results are identical to a single-device run.
+
     Args:
       kernel: jitted per-chunk kernel (see module docstring).
       index: the spatial index whose sorted frame the rows refer to.
       query: host function mapping a row slice to its (R, K) int32 neighbour indices.
-      chunk_size: rows per chunk; every chunk is padded to it.
-      args: extra (traced) kernel arguments.
-      progress: show a tqdm bar on stderr when there are several chunks.
+      chunk_size: rows per chunk, a multiple of :func:`block_rows`; every chunk is padded to it.
+      args: extra (traced) kernel arguments, replicated on every device.
+      progress: show a tqdm bar on stderr when there are more than four chunks.
 
     Returns:
       The kernel outputs (a pytree of NumPy arrays with leading axis N) in the sorted frame.
@@ -97,15 +102,13 @@ def stream(kernel: Callable, index: SpatialIndex, query: Callable[[slice], np.nd
     n = index.n
     dtype = working_dtype(index.points.dtype)
     points_ext = jnp.asarray(np.concatenate([index.points, np.zeros((1, 3), index.points.dtype)]), dtype=dtype)
-    sharding = _point_sharding(chunk_size)
+    run = _sharded(kernel, len(args)) if len(jax.devices()) > 1 else kernel
     outputs = []
     bar = _progress(n, progress and n > 4 * chunk_size)
     for rows in index.chunks(chunk_size):
         ids = _pad_rows(np.arange(rows.start, rows.stop, dtype=np.int32), chunk_size, n)
         idx = _pad_rows(query(rows), chunk_size, n)
-        if sharding is not None:
-            ids, idx = jax.device_put(ids, sharding), jax.device_put(idx, sharding)
-        outputs.append(kernel(points_ext, ids, idx, *args))
+        outputs.append(run(points_ext, ids, idx, *args))
         if bar is not None:
             bar.update(rows.stop - rows.start)
     if bar is not None:
@@ -114,10 +117,15 @@ def stream(kernel: Callable, index: SpatialIndex, query: Callable[[slice], np.nd
     return jax.tree.map(lambda x: x[:n], host)
 
 
-def _point_sharding(chunk_size: int):
-    """NamedSharding of the point axis over all local devices, or None with one device."""
-    devices = jax.devices()
-    if len(devices) == 1 or chunk_size % len(devices) or os.environ.get("HGJAX_NO_SHARDING"):
-        return None
-    mesh = jax.sharding.Mesh(np.array(devices), ("points",))
-    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("points"))
+def block_rows() -> int:
+    """Rows every chunk size must be a multiple of: BLOCK per local device."""
+    return BLOCK * len(jax.devices())
+
+
+@functools.lru_cache(maxsize=None)
+def _sharded(kernel: Callable, n_args: int) -> Callable:
+    """``kernel`` with the point axis of rows and idx split over all local devices."""
+    mesh = jax.sharding.Mesh(np.array(jax.devices()), ("points",))
+    rows, rep = jax.sharding.PartitionSpec("points"), jax.sharding.PartitionSpec()
+    return jax.jit(jax.shard_map(kernel, mesh=mesh, in_specs=(rep, rows, rows) + (rep,) * n_args,
+                                 out_specs=rows, check_vma=False))
