@@ -23,7 +23,7 @@ import numpy as np
 from hgjax.neighbourhoods import SpatialIndex
 
 DEFAULT_CHUNK_BYTES = 64 * 2**20  # working set aimed at per chunk
-BLOCK = 128  # rows per vmapped block; chunk sizes are multiples of it
+BLOCK = 1024  # rows per vmapped block; chunk sizes are multiples of it
 
 
 def auto_chunk_size(n: int, bytes_per_point: int) -> int:

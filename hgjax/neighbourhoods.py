@@ -180,7 +180,8 @@ class SpatialIndex:
         The point itself and its exact duplicates (distance 0) are excluded. The query
         capacity starts at ``capacity`` and doubles for the rows that fill it, until every
         row holds all its points within ``radius`` or ``max_nn`` of them: rows with more
-        than ``max_nn`` keep the nearest (this cap is part of the GFR graph's definition).
+        than ``max_nn`` keep the nearest (this cap is part of the GFR graph's definition;
+        equal distances at the cap are broken in the tree's order).
 
         Args:
           radius: inclusive Euclidean radius (``np.inf`` for no limit).
@@ -195,21 +196,26 @@ class SpatialIndex:
         """
         queries = self.points[np.arange(self.n)[rows]]
         bound = np.nextafter(radius, np.inf)  # cKDTree's bound is strict; ours is inclusive
-        dist = np.full((len(queries), max_nn), np.inf)
-        idx = np.full((len(queries), max_nn), self.n, dtype=np.int32)
-        todo = np.arange(len(queries))
         k = min(capacity, self.n)
+        dist = np.full((len(queries), min(k, max_nn)), np.inf)
+        idx = np.full(dist.shape, self.n, dtype=np.int32)
+        todo = np.arange(len(queries))
         while todo.size:
             d, i = self.tree.query(queries[todo], k=k, distance_upper_bound=bound, workers=-1)
             d, i = d.reshape(todo.size, k), i.reshape(todo.size, k)
-            keep = (i < self.n) & (d > 0)
-            keep &= np.cumsum(keep, axis=1) <= max_nn
-            done = (i[:, -1] == self.n) | (keep.sum(axis=1) == max_nn) | (k == self.n)
-            first = np.argsort(~keep, axis=1, kind="stable")[:, :max_nn]  # kept columns first
-            take = np.take_along_axis(keep, first, axis=1)
-            width = first.shape[1]
-            dist[todo[done], :width] = np.where(take, np.take_along_axis(d, first, axis=1), np.inf)[done]
-            idx[todo[done], :width] = np.where(take, np.take_along_axis(i, first, axis=1), self.n)[done]
+            # Sorted by distance: the zero-distance points form a prefix, hits beyond the
+            # radius a suffix, so the kept columns of a row are one contiguous run.
+            zeros = (d == 0).sum(axis=1)
+            count = np.minimum((i < self.n).sum(axis=1) - zeros, max_nn)
+            done = (i[:, -1] == self.n) | (count == max_nn) | (k == self.n)
+            width = min(k, max_nn)
+            cols = np.minimum(zeros[done, None] + np.arange(width), k - 1)
+            take = np.arange(width) < count[done, None]
+            if width > dist.shape[1]:
+                grow = ((0, 0), (0, width - dist.shape[1]))
+                dist, idx = np.pad(dist, grow, constant_values=np.inf), np.pad(idx, grow, constant_values=self.n)
+            dist[todo[done], :width] = np.where(take, np.take_along_axis(d[done], cols, axis=1), np.inf)
+            idx[todo[done], :width] = np.where(take, np.take_along_axis(i[done], cols, axis=1), self.n)
             todo = todo[~done]
             k = min(2 * k, self.n)
         width = int((idx < self.n).sum(axis=1).max(initial=0))

@@ -7,8 +7,8 @@ from typing import Callable
 
 import numpy as np
 
-from hgjax import _validate, scores
-from hgjax.select import top_k
+from hgjax import _validate, samplers, scores
+from hgjax.select import top_k, weighted_sample
 
 __all__ = ["METHODS", "Method", "resample"]
 
@@ -41,7 +41,42 @@ def _by_score(score: Callable, *, largest: bool, wants_ratio: bool = False) -> C
     return run
 
 
+GFR_MODES = ("random", "top")
+
+
+def _gfr(points, ratio, *, key=None, mode="random", **params):
+    """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores."""
+    mode = _validate.check_choice(mode, "mode", GFR_MODES)
+    if mode == "random":
+        samplers.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
+    values = scores.gfr(points, **params)
+    n, m = values.shape[0], _validate.n_keep(points.shape[0], ratio)
+    if mode == "top":
+        return top_k(values, m, largest=True)
+    total = float(np.sum(values, dtype=np.float64))
+    pi = 0.8 * values.astype(np.float64) / total + 0.2 / n if total > 0 else np.full(n, 1.0 / n)
+    return weighted_sample(key, pi, m)
+
+
+def _pca_ac(points, ratio, *, key=None, **params):
+    """Highest cluster numbers first, then the largest variation, then the lowest index."""
+    del key  # deterministic
+    labels, variation = scores.pca_ac(points, **params)
+    order = np.lexsort((np.arange(labels.shape[0]), -variation, -labels))
+    return order[: _validate.n_keep(points.shape[0], ratio)].astype(np.int64)
+
+
+def _sampler(fn: Callable, *, takes_key: bool = False) -> Callable:
+    """Adapt a sampler ``fn(points, ratio, [key=], **params)`` to the ``Method.run`` signature."""
+
+    def run(points, ratio, *, key=None, **params):
+        return fn(points, ratio, key=key, **params) if takes_key else fn(points, ratio, **params)
+
+    return run
+
+
 PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
+DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
 
 METHODS: dict[str, Method] = {
     "hkc": Method("hkc", _by_score(scores.hkc, largest=False),
@@ -53,6 +88,22 @@ METHODS: dict[str, Method] = {
     "lhf": Method("lhf", _by_score(scores.lhf, largest=True, wants_ratio=True),
                   "local hypergraph filtering: keep the largest two-length sharpness gamma",
                   f"{PAPER}, Alg. 3, Eqs. (14)-(16)"),
+    "gfr": Method("gfr", _gfr,
+                  "graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key,"
+                  ' or mode="top")', "Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018"),
+    "ea": Method("ea", _by_score(scores.ea, largest=True),
+                 "eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
+                 DICTA),
+    "pca_ac": Method("pca_ac", _pca_ac,
+                     "PCA + agglomerative clustering baseline: Ward clusters of the surface variation,"
+                     " sharpest clusters first", DICTA),
+    "uniform": Method("uniform", _sampler(samplers.uniform_sample, takes_key=True),
+                      "uniformly random subset (needs key)", "random down-sampling"),
+    "voxel": Method("voxel", _sampler(samplers.voxel_sample),
+                    "one point per voxel of a grid sized by bisection to reach the count",
+                    "voxel-grid down-sampling"),
+    "fps": Method("fps", _sampler(samplers.farthest_point_sample),
+                  "farthest point sampling from point 0", "Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997"),
 }
 
 

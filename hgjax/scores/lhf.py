@@ -12,9 +12,9 @@ high band (the first t components) from the low band. The single-length sharpnes
 * ``variant="invariant"`` (default): gamma = ||P_high s||_F / (||P_high s||_F +
   ||P_low s||_F), the L1 norm of the two band energies. It is computed from the 3 x 3 Gram
   matrix G = s_n^T s_n, whose non-zero eigenpairs (mu_k, w_k) give those of R
-  (u_k = s_n w_k / sqrt(mu_k)), plus an explicit projection onto the null space. No n x n
-  eigendecomposition, no basis dependence, and gradients that stay finite on degenerate
-  spectra. ``solver="eigh"`` computes the same number through the n x n ``eigh`` (the
+  (u_k = s_n w_k / sqrt(mu_k)), plus an explicit projection onto the null space. Since
+  s_n 1 = 0, that Gram reduces to a 2 x 2 one solved in closed form. No n x n
+  eigendecomposition, no LAPACK call, no basis dependence. ``solver="eigh"`` computes the same number through the n x n ``eigh`` (the
   tests prove the two agree).
 
 Two lengths (N_a, N_b) are combined (Eqs. (15)-(16)): gamma_i = eps gamma_a + (1 - eps)
@@ -73,28 +73,50 @@ def _invariant_eigh(s):
     return _ratio(high * high, low * low)
 
 
+# Orthonormal basis (3, 2) of the plane orthogonal to (1, 1, 1): row-centring projects onto it.
+_PLANE = np.array([[1 / np.sqrt(2), 1 / np.sqrt(6)], [-1 / np.sqrt(2), 1 / np.sqrt(6)], [0.0, -2 / np.sqrt(6)]])
+
+
 def _invariant_gram(s):
-    """Band-energy ratio through the 3 x 3 Gram matrix and an explicit null-space residual."""
+    """Band-energy ratio through a closed-form 2 x 2 Gram eigenproblem (no LAPACK call).
+
+    Row-centring is the projection of each row onto the plane orthogonal to (1, 1, 1), so
+    s_n = y Q^T with y = s Q (n, 2) and Q the fixed orthonormal basis of that plane. The
+    non-zero eigenpairs of R = s_n s_n^T = y y^T are those of the 2 x 2 Gram y^T y: its
+    eigenvector angle is 0.5 atan2(2b, a - c), the eigenvectors of R are z_k / ||z_k|| with
+    z_k = y w_k, and mu_k = ||z_k||^2. The null-space part of s is the residual of the row
+    means m after projection onto span(z_1, z_2), the same for all three columns.
+    """
     n = s.shape[0]
+    q = _PLANE
+    # Small products written out elementwise: XLA fuses them, batched dots of this size are slow.
+    y0 = s[:, 0] * q[0, 0] + s[:, 1] * q[1, 0]
+    y1 = s[:, 0] * q[0, 1] + s[:, 1] * q[1, 1] + s[:, 2] * q[2, 1]
+    y = jnp.stack([y0, y1], axis=1)  # (n, 2) = s Q
+    a, c, b = jnp.sum(y[:, 0] * y[:, 0]), jnp.sum(y[:, 1] * y[:, 1]), jnp.sum(y[:, 0] * y[:, 1])
+    iso = (a == c) & (b == 0)  # isotropic in the plane (or empty): any basis; keep grads finite
+    theta = 0.5 * jnp.arctan2(jnp.where(iso, 0, 2 * b), jnp.where(iso, 1, a - c))
+    cos, sin = jnp.cos(theta), jnp.sin(theta)
+    w = jnp.stack([jnp.stack([-sin, cos]), jnp.stack([cos, sin])], axis=1)  # (2, 2): small, large
+    z = jnp.stack([y0 * w[0, 0] + y1 * w[1, 0], y0 * w[0, 1] + y1 * w[1, 1]], axis=1)  # (n, 2) = y w
+    mu = jnp.sum(z * z, axis=0)  # (2,) eigenvalues of R: mu[0] <= mu[1] up to rounding
+    top = jnp.maximum(mu[0], mu[1])
+    nonzero = mu > 8 * n * jnp.finfo(s.dtype).eps * top
+    inv = jnp.where(nonzero, 1 / _safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
+    u = z * inv[None, :]  # (n, 2) orthonormal eigenvectors of R (zero columns if null)
     m = jnp.mean(s, axis=1)  # (n,) row means: s = s_n + m 1^T
-    sn = s - m[:, None]
-    mu, w = jnp.linalg.eigh(sn.T @ sn)  # ascending; mu[0] = 0 since s_n 1 = 0
-    mu = jnp.maximum(mu, 0)
-    top = mu[2]
-    tol = 8 * n * jnp.finfo(s.dtype).eps * top
-    nonzero = mu > tol  # (3,) directions that span range(R)
-    inv_sqrt = jnp.where(nonzero, 1 / _safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
-    u = (sn @ w) * inv_sqrt[None, :]  # (n, 3) orthonormal eigenvectors of R (zero columns if null)
-    t_coef = u.T @ s  # (3, 3): row k = projection of the three columns of s on u_k
-    res = m - u @ (u.T @ m)  # null-space part of every column of s
+    proj = jnp.sum(u[:, :, None] * s[:, None, :], axis=0)  # (2, 3) = u^T s
+    band2 = jnp.sum(proj * proj, axis=1)  # (2,) energy of s on each eigenvector
+    res = m - jnp.sum(u * jnp.sum(u * m[:, None], axis=0)[None, :], axis=1)  # null-space part of s
     null2 = 3 * jnp.sum(res * res)
-    band2 = jnp.sum(t_coef * t_coef, axis=1)  # (3,)
     # Normalised spectrum: [0]*(n-2), mu1/mu2, 1. The high band takes the mu1 direction
     # when the gap 0 -> mu1/mu2 is smaller than the gap mu1/mu2 -> 1 (argmax picks the first).
-    r = _common.safe_div(mu[1], top, 0.0)
+    r = _common.safe_div(jnp.minimum(mu[0], mu[1]), top, 0.0)
+    small = jnp.where(mu[0] <= mu[1], 0, 1)
+    small2, large2 = band2[small], band2[1 - small]
     mu1_high = r < 0.5
-    high2 = null2 + jnp.where(mu1_high, band2[1], 0)
-    low2 = band2[2] + jnp.where(mu1_high, 0, band2[1])
+    high2 = null2 + jnp.where(mu1_high, small2, 0)
+    low2 = large2 + jnp.where(mu1_high, 0, small2)
     return jnp.where(top > 0, _ratio(high2, low2), 0.0)
 
 

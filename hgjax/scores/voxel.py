@@ -90,10 +90,11 @@ def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Ar
     h = (kernel_size - 1) // 2
     shifts = jnp.arange(-h, h + 1, dtype=o.dtype) * d  # (k,)
     member = jnp.abs(o[:, :, None] - shifts[None, None, :]) < d / 2  # (K, 3, k)
-    member = member & valid[:, None, None]
-    mx, my, mz = (member[:, a, :].astype(o.dtype) for a in range(3))
-    counts = jnp.einsum("ki,kj,kl->ijl", mx, my, mz)
-    return counts.reshape(-1)
+    inside = jnp.all(jnp.any(member, axis=2), axis=1) & valid  # (K,) in some voxel
+    bins = jnp.argmax(member, axis=2)  # (K, 3) voxel coordinate per axis (bins are disjoint)
+    voxel = (bins[:, 0] * kernel_size + bins[:, 1]) * kernel_size + bins[:, 2]
+    hits = (voxel[:, None] == jnp.arange(kernel_size**3)[None, :]) & inside[:, None]
+    return jnp.sum(hits, axis=0).astype(o.dtype)
 
 
 def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
@@ -105,7 +106,8 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
     """
     b, mu = low_band(kernel_size)
     b = jnp.asarray(b, dtype=s.dtype)
-    low = b @ (b.T @ s) / jnp.asarray(mu, dtype=s.dtype)
+    w = jnp.sum(b * s[:, None], axis=0)  # (3,) = B^T s, exact for integer counts
+    low = jnp.sum(b * w[None, :], axis=1) / jnp.asarray(mu, dtype=s.dtype)
     return low, s - low
 
 

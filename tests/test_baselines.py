@@ -1,0 +1,302 @@
+"""Baselines (GFR, EA, PCA-AC) and samplers (uniform, voxel, fps) against naive NumPy loops."""
+
+from __future__ import annotations
+
+import importlib
+
+import jax
+import numpy as np
+import pytest
+from scipy.cluster.hierarchy import fcluster, linkage
+
+import hgjax
+from conftest import TOL
+
+pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")  # hgjax.scores.pca_ac is the function
+
+NEW_METHODS = ("gfr", "ea", "pca_ac", "uniform", "voxel", "fps")
+KEYED = ("gfr", "uniform")
+
+
+# ---------------------------------------------------------------- naive references
+def gfr_naive(points, max_nn=100, radius=None):
+    """REFERENCE.md's GFR score with a dense N x N Laplacian (loops over points)."""
+    p = np.asarray(points, dtype=np.float64)
+    n = len(p)
+    dist = np.sqrt(((p[:, None] - p[None]) ** 2).sum(-1))
+    nearest = np.array([dist[i][dist[i] > 0].min() for i in range(n) if (dist[i] > 0).any()])
+    radius = min(10 * nearest.min(), 2 * nearest.max()) if radius is None else radius
+    edges = []
+    for i in range(n):
+        nbrs = [j for j in np.argsort(dist[i], kind="stable") if 0 < dist[i, j] <= radius]
+        edges += [(i, j) for j in nbrs[:max_nn]]
+    q = np.array([dist[i, j] ** 2 for i, j in edges])
+    w0 = np.zeros((n, n))
+    for (i, j), qq in zip(edges, q):
+        w0[i, j] = np.exp(-qq**2 / (2 * q.var()))
+    w = w0 + w0.T
+    lap = np.diag(w.sum(axis=1)) - w
+    return np.linalg.norm(lap @ p, axis=1)
+
+
+def ea_naive(points, k=16):
+    p = np.asarray(points, dtype=np.float64)
+    out = np.zeros(len(p))
+    for i in range(len(p)):
+        nb = p[np.argsort(((p - p[i]) ** 2).sum(1), kind="stable")[:k]]
+        lam = np.linalg.eigvalsh(np.cov(nb.T, bias=True))
+        out[i] = max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0
+    return out
+
+
+def fps_naive(points, m, start=0):
+    p = np.asarray(points, dtype=np.float64)
+    chosen, min_d = [start], np.full(len(p), np.inf)
+    for _ in range(m - 1):
+        min_d = np.minimum(min_d, ((p - p[chosen[-1]]) ** 2).sum(1))
+        min_d[chosen] = -1
+        chosen.append(int(np.argmax(min_d)))
+    return np.array(chosen)
+
+
+def spacing(points, idx):
+    """Distance from each selected point to the closest one selected before it."""
+    return np.array([np.sqrt(((points[idx[:i]] - points[idx[i]]) ** 2).sum(1).min()) for i in range(1, len(idx))])
+
+
+def cloud(n=300, seed=0, scale=1.0):
+    return np.random.default_rng(seed).random((n, 3)) * scale
+
+
+def degenerate_clouds():
+    rng = np.random.default_rng(5)
+    base = rng.random((60, 3))
+    planar = np.c_[rng.random((80, 2)), np.zeros(80)]
+    return {
+        "duplicates": np.concatenate([base, base[:30], base[:5]]),
+        "coplanar": planar,
+        "all_equal": np.ones((40, 3)),
+    }
+
+
+def tol(dtype):
+    return TOL[np.dtype(dtype)]
+
+
+# ---------------------------------------------------------------- scores vs naive
+@pytest.mark.parametrize("max_nn", [100, 3])
+def test_gfr_matches_naive(dtype, max_nn):
+    p = cloud(300, seed=1, scale=7.0)
+    want = gfr_naive(p, max_nn)
+    got = hgjax.scores.gfr(p.astype(dtype), max_nn=max_nn)
+    assert got.dtype == dtype
+    assert (want > 0).mean() > 0.5  # the radius graph is not trivial
+    np.testing.assert_allclose(got, want, rtol=tol(dtype), atol=tol(dtype) * want.max())
+
+
+def test_gfr_radius_override_matches_naive():
+    p = cloud(300, seed=16)
+    radius = 2 * hgjax.intrinsic_resolution(p)
+    want = gfr_naive(p, 100, radius)
+    assert (want > 0).mean() > 0.9
+    np.testing.assert_allclose(hgjax.scores.gfr(p, radius=radius), want, rtol=1e-10, atol=1e-10 * want.max())
+
+
+def test_gfr_duplicates_match_naive():
+    p = degenerate_clouds()["duplicates"]
+    want = gfr_naive(p)
+    np.testing.assert_allclose(hgjax.scores.gfr(p), want, rtol=1e-10, atol=1e-10 * want.max())
+
+
+@pytest.mark.parametrize("k", [16, 5])
+def test_ea_matches_naive(dtype, k):
+    p = cloud(400, seed=2, scale=3.0)
+    want = ea_naive(p, k)
+    got = hgjax.scores.ea(p.astype(dtype), k=k)
+    assert got.dtype == dtype
+    np.testing.assert_allclose(got, want, rtol=tol(dtype), atol=tol(dtype) * want.max())
+
+
+def test_scores_follow_a_permutation():
+    p = cloud(300, seed=3)
+    perm = np.random.default_rng(0).permutation(len(p))
+    for score in (hgjax.scores.gfr, hgjax.scores.ea):
+        np.testing.assert_allclose(score(p[perm]), score(p)[perm], rtol=1e-12, atol=1e-14)
+
+
+def test_chunk_size(dtype):
+    p = cloud(700, seed=15).astype(dtype)
+    np.testing.assert_array_equal(hgjax.scores.ea(p, chunk_size=128), hgjax.scores.ea(p))
+    base = hgjax.scores.gfr(p)
+    np.testing.assert_allclose(hgjax.scores.gfr(p, chunk_size=128), base, rtol=tol(dtype),
+                               atol=tol(dtype) * base.max())
+
+
+def test_scores_do_not_modify_input():
+    p = cloud(200, seed=4)
+    copy = p.copy()
+    hgjax.scores.gfr(p), hgjax.scores.ea(p), hgjax.scores.pca_ac(p)
+    np.testing.assert_array_equal(p, copy)
+
+
+@pytest.mark.parametrize("name", sorted(degenerate_clouds()))
+def test_degenerate_clouds_give_finite_scores(name):
+    p = degenerate_clouds()[name]
+    for values in (hgjax.scores.gfr(p), hgjax.scores.ea(p), hgjax.scores.pca_ac(p)[1]):
+        assert np.isfinite(values).all() and (values >= 0).all()
+    if name == "all_equal":
+        assert not hgjax.scores.gfr(p).any() and not hgjax.scores.ea(p).any()
+    if name == "coplanar":
+        assert hgjax.scores.ea(p).max() < 1e-12
+
+
+# ---------------------------------------------------------------- PCA-AC
+@pytest.mark.parametrize("round_share", [64, 10**9], ids=["rounds", "heap"])
+def test_ward_1d_matches_scipy(round_share, monkeypatch):
+    monkeypatch.setattr(pca_ac_module, "_ROUND_MIN_SHARE", round_share)
+    rng = np.random.default_rng(6)
+    for trial in range(30):
+        v = rng.random(int(rng.integers(2, 150))) ** int(rng.integers(1, 4))
+        k = int(rng.integers(1, min(len(v), 12) + 1))
+        ours = hgjax.scores.ward_1d(v, k)
+        theirs = fcluster(linkage(v[:, None], method="ward"), k, criterion="maxclust")
+        pairs = set(zip(ours.tolist(), theirs.tolist()))
+        assert len(pairs) == len(set(ours.tolist())) == len(set(theirs.tolist())) == k, trial
+        means = [v[ours == c].mean() for c in range(k)]
+        assert np.all(np.diff(means) > 0)  # numbered by increasing variation
+
+
+def test_pca_ac_keeps_what_ea_keeps():
+    p = cloud(500, seed=7)
+    a = hgjax.resample(p, 0.2, method="pca_ac", n_clusters=4)
+    b = hgjax.resample(p, 0.2, method="ea")
+    assert set(a.tolist()) == set(b.tolist())
+    labels, _ = hgjax.scores.pca_ac(p, n_clusters=4)
+    assert np.all(np.diff(labels[a]) <= 0)  # highest cluster numbers first
+
+
+# ---------------------------------------------------------------- samplers
+def test_fps_matches_naive(dtype):
+    p = cloud(500, seed=8)
+    want = fps_naive(p, 100)
+    got = hgjax.farthest_point_sample(p.astype(dtype), 0.2)
+    if dtype == np.float64:
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(spacing(p, got), spacing(p, want), rtol=tol(dtype))
+
+
+def test_fps_properties():
+    p = np.concatenate([cloud(300, seed=9), cloud(20, seed=9)])  # 20 exact duplicates
+    idx = hgjax.farthest_point_sample(p, 1.0, start=5)
+    assert idx[0] == 5 and len(set(idx.tolist())) == len(p)
+    gaps = spacing(p, idx)
+    assert np.all(np.diff(gaps) <= 0)
+    assert not gaps[-20:].any() and gaps[:-20].all()  # the duplicates come last
+
+
+def test_voxel_one_point_per_voxel():
+    centres = np.stack(np.meshgrid(*[np.arange(4.0)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5
+    p = np.concatenate([centres - 0.01, centres + 0.02, centres])  # tight clusters of three
+    idx = hgjax.voxel_sample(p, 1 / 3)  # 64 voxels, one per cluster, its most central point
+    np.testing.assert_array_equal(np.sort(idx), np.arange(128, 192))
+
+
+def test_voxel_exact_count_with_duplicates():
+    p = np.concatenate([np.zeros((50, 3)), cloud(10, seed=10)])
+    idx = hgjax.voxel_sample(p, 0.5)  # 11 distinct positions < 30 requested
+    assert len(idx) == 30 and len(set(idx.tolist())) == 30
+
+
+@pytest.mark.parametrize("method", KEYED)
+def test_same_key_same_output(method):
+    p = cloud(400, seed=11)
+    run = lambda seed: hgjax.resample(p, 0.2, method=method, key=jax.random.key(seed))
+    np.testing.assert_array_equal(run(0), run(0))
+    assert set(run(0).tolist()) != set(run(1).tolist())
+
+
+def test_gfr_top_mode_keeps_largest_scores():
+    p = cloud(300, seed=12)
+    idx = hgjax.resample(p, 0.1, method="gfr", mode="top")
+    s = hgjax.scores.gfr(p)
+    assert s[idx].min() >= np.sort(s)[-len(idx)]
+
+
+# ---------------------------------------------------------------- registry and errors
+@pytest.mark.parametrize("method", NEW_METHODS)
+@pytest.mark.parametrize("ratio", [0.05, 0.33, 1.0])
+def test_resample_counts(method, ratio):
+    p = cloud(257, seed=13).astype(np.float32)
+    idx = hgjax.resample(p, ratio, method=method, key=jax.random.key(0))
+    assert idx.dtype == np.int64 and idx.shape == (int(np.ceil(ratio * 257)),)
+    assert len(set(idx.tolist())) == len(idx) and idx.min() >= 0 and idx.max() < 257
+
+
+@pytest.mark.parametrize("method", NEW_METHODS)
+@pytest.mark.parametrize("name", sorted(degenerate_clouds()))
+def test_resample_degenerate(method, name):
+    p = degenerate_clouds()[name]
+    idx = hgjax.resample(p, 0.3, method=method, key=jax.random.key(0))
+    assert len(set(idx.tolist())) == len(idx) == int(np.ceil(0.3 * len(p)))
+
+
+@pytest.mark.parametrize("method", KEYED)
+def test_missing_or_bad_key(method):
+    p = cloud(50)
+    with pytest.raises(ValueError, match=r"key=jax\.random\.key\(0\)"):
+        hgjax.resample(p, 0.2, method=method)
+    with pytest.raises(TypeError, match="key"):
+        hgjax.resample(p, 0.2, method=method, key=0)
+
+
+@pytest.mark.parametrize("method", NEW_METHODS)
+def test_bad_ratio_and_points(method):
+    p = cloud(50)
+    for ratio, error in [(0.0, ValueError), (1.5, ValueError), (float("nan"), ValueError), ("a", TypeError)]:
+        with pytest.raises(error, match="ratio"):
+            hgjax.resample(p, ratio, method=method, key=jax.random.key(0))
+    bad = p.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        hgjax.resample(bad, 0.2, method=method, key=jax.random.key(0))
+    with pytest.raises(ValueError, match="shape"):
+        hgjax.resample(p[:, :2], 0.2, method=method, key=jax.random.key(0))
+    with pytest.raises(TypeError, match="dtype"):
+        hgjax.resample(p.astype(int), 0.2, method=method, key=jax.random.key(0))
+
+
+def test_bad_parameters():
+    p = cloud(50)
+    cases = [
+        (lambda: hgjax.resample(p, 0.2, method="gfr", mode="best"), ValueError, "mode"),
+        (lambda: hgjax.scores.gfr(p, variant="invariant"), ValueError, "variant"),
+        (lambda: hgjax.scores.gfr(p, max_nn=0), ValueError, "max_nn"),
+        (lambda: hgjax.scores.gfr(p, radius=-1.0), ValueError, "radius"),
+        (lambda: hgjax.scores.ea(p, k=1), ValueError, "k"),
+        (lambda: hgjax.scores.ea(p, k=51), ValueError, "k=51"),
+        (lambda: hgjax.scores.pca_ac(p, n_clusters=0), ValueError, "n_clusters"),
+        (lambda: hgjax.farthest_point_sample(p, 0.2, start=50), ValueError, "start"),
+        (lambda: hgjax.resample(p, 0.2, method="voxel", size=1.0), TypeError, "size"),
+    ]
+    for call, error, match in cases:
+        with pytest.raises(error, match=match):
+            call()
+
+
+def test_ball_matches_brute_force():
+    p = np.concatenate([cloud(200, seed=14), cloud(10, seed=14)])  # 10 exact duplicates
+    index = hgjax.neighbourhoods.SpatialIndex(p)
+    dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
+    radius = float(np.sort(dist, axis=1)[:, 6].mean())
+    for max_nn in (100, 4):
+        idx, d = index.ball(radius, max_nn=max_nn, capacity=2)
+        for i in range(len(p)):
+            inside = np.flatnonzero((dist[i] > 0) & (dist[i] <= radius))
+            want = inside[np.argsort(dist[i, inside], kind="stable")][:max_nn]
+            got = idx[i][idx[i] < len(p)]
+            if len(inside) <= max_nn:
+                np.testing.assert_array_equal(np.sort(got), np.sort(want))
+            else:  # truncated: the nearest kept (exact duplicates tie in the tree's order)
+                np.testing.assert_allclose(dist[i, got], dist[i, want], rtol=1e-12)
+            np.testing.assert_allclose(d[i][: len(got)], dist[i, got], rtol=1e-12)
+            assert np.all(np.diff(d[i][: len(got)]) >= 0) and np.isinf(d[i][len(got):]).all()
