@@ -46,3 +46,12 @@ def test_compiled_once_for_all_chunks_and_parameter_sweeps():
     n_lhf = lk._cache_size()
     hgjax.scores.lhf(p, ratio=0.3, chunk_size=1024)
     assert lk._cache_size() == n_lhf
+
+
+def test_gfr_scores_are_bitwise_chunk_invariant():
+    p = box_cloud(4000, seed=5)
+    radius = 2.5 * hgjax.intrinsic_resolution(p)  # a well-connected graph with capped rows
+    base = hgjax.scores.gfr(p, radius=radius, max_nn=12)
+    assert (base > 0).mean() > 0.9
+    for chunk in (256, 1000):
+        np.testing.assert_array_equal(hgjax.scores.gfr(p, radius=radius, max_nn=12, chunk_size=chunk), base)

@@ -15,8 +15,8 @@ C++ implementation builds (REFERENCE.md, "GFR baseline"):
 No N x N matrix is formed: the neighbour lists are fixed-capacity (C, K) chunks and
 (L P)_i = sum_j W_ij (p_i - p_j) is accumulated chunk by chunk, the W0 part as a row sum and
 the W0^T part as a segment sum (scatter-add) onto the neighbours. The order of that sum
-follows the chunks (and, on GPU, the device's atomics), so scores agree across chunk sizes
-and devices to rounding level, not bitwise.
+is the global (row, column) order whatever the chunk size, so scores are bitwise
+independent of chunking on CPU (a GPU's atomic scatter-add may reorder at rounding level).
 
 Degenerate clouds: minNN and maxNN are taken over distances to the nearest *distinct*
 point, so exact duplicates do not shrink the radius to 0 (on clouds without duplicates this
@@ -62,11 +62,17 @@ def gfr_neighbourhood(centre, nbrs, valid, two_var):
 
 
 @functools.partial(jax.jit, donate_argnums=(0,))
-def _accumulate(acc, points_ext, rows, idx, two_var):
-    """Add one chunk's edges to acc (N + 1, 3) = L P (row N is a sink for padding)."""
+def _accumulate(acc_t, points_ext, rows, idx, two_var):
+    """One chunk of L P: its W0 rows, and its W0^T edges added into acc_t (N + 1, 3).
+
+    The W0 part sum_j w_ij (p_i - p_j) is row-local and returned per row. The W0^T part is a
+    scatter-add whose updates XLA applies one at a time in (row, column) order, so every
+    row of acc_t receives its terms in the same global order whatever the chunking: the
+    scores are bitwise independent of the chunk size. Row N is a sink for padding.
+    """
     c = _common.map_neighbourhoods(gfr_neighbourhood)(points_ext, rows, idx, two_var)  # (C, K, 3)
-    acc = acc.at[rows].add(-jnp.sum(c, axis=1))  # W0: sum_j w_ij (p_i - p_j) on row i
-    return acc.at[idx.reshape(-1)].add(c.reshape(-1, 3))  # W0^T: w_ij (p_j - p_i) on row j
+    acc_t = acc_t.at[idx.reshape(-1)].add(c.reshape(-1, 3))  # w_ij (p_j - p_i) onto row j
+    return acc_t, -jnp.sum(c, axis=1)
 
 
 def _radius(index: SpatialIndex, chunk_size: int) -> float:
@@ -85,14 +91,18 @@ def _graph(index: SpatialIndex, radius: float, max_nn: int, chunk_size: int):
     for rows in index.chunks(chunk_size):
         idx, dist = index.ball(radius, rows, max_nn=max_nn, capacity=capacity)
         capacity = max(16, 1 << idx.shape[1].bit_length())  # spatial order: the next chunk is alike
-        q = dist[idx < index.n] ** 2
         chunks.append(idx)
-        if q.size:  # Chan et al.'s pairwise update of (count, mean, sum of squared deviations)
-            qm = q.mean()
-            delta, total = qm - mean, count + q.size
-            m2 += np.sum((q - qm) ** 2) + delta * delta * count * q.size / total
-            mean += delta * q.size / total
-            count = total
+        # Chan et al.'s pairwise update of (count, mean, sum of squared deviations), block by
+        # block of _stream.BLOCK rows: the same sequence of updates whatever the chunk size.
+        for start in range(0, idx.shape[0], _stream.BLOCK):
+            sub = slice(start, start + _stream.BLOCK)
+            q = dist[sub][idx[sub] < index.n] ** 2
+            if q.size:
+                qm = q.mean()
+                delta, total = qm - mean, count + q.size
+                m2 += np.sum((q - qm) ** 2) + delta * delta * count * q.size / total
+                mean += delta * q.size / total
+                count = total
     return chunks, (m2 / count if count else 0.0)
 
 
@@ -110,8 +120,7 @@ def gfr(points, *, variant: str = "reference", max_nn: int = MAX_NN, radius: flo
         sampled uniformly at random, minNN is far below the typical spacing and the
         reference graph is nearly empty (most scores 0); pass e.g. ``2 *
         hgjax.intrinsic_resolution(points)`` for a connected graph.
-      chunk_size: points per chunk (default: automatic). It changes the order in which the
-        segment sums add up, hence the scores at rounding level only.
+      chunk_size: points per chunk (default: automatic). Does not change results.
       progress: show a progress bar on stderr for long runs.
 
     Returns:
@@ -142,15 +151,17 @@ def gfr(points, *, variant: str = "reference", max_nn: int = MAX_NN, radius: flo
     dtype = _stream.working_dtype(pts.dtype)
     points_ext = jnp.asarray(np.concatenate([index.points, np.zeros((1, 3), pts.dtype)]), dtype=dtype)
     two_var = jnp.asarray(2 * var, dtype=dtype)
-    acc = jnp.zeros((n + 1, 3), dtype=dtype)
+    acc_t, row_parts = jnp.zeros((n + 1, 3), dtype=dtype), []
     bar = _stream._progress(n, progress and len(chunks) > 4)
     for rows, idx in zip(index.chunks(chunk), chunks):
         ids = _stream._pad_rows(np.arange(rows.start, rows.stop, dtype=np.int32), chunk, n)
         idx = np.pad(idx, ((0, chunk - idx.shape[0]), (0, k - idx.shape[1])), constant_values=n)
-        acc = _accumulate(acc, points_ext, ids, idx, two_var)
+        acc_t, row_part = _accumulate(acc_t, points_ext, ids, idx, two_var)
+        row_parts.append(row_part)
         if bar is not None:
             bar.update(rows.stop - rows.start)
     if bar is not None:
         bar.close()
-    score = jnp.sqrt(jnp.sum(acc[:n] * acc[:n], axis=1))
+    lp = jnp.concatenate(row_parts)[:n] + acc_t[:n]  # (L P) = W0 rows + W0^T rows
+    score = jnp.sqrt(jnp.sum(lp * lp, axis=1))
     return _common.finish(index, score, pts.dtype)
