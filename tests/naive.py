@@ -34,18 +34,20 @@ def voxel_signal(points, i, c, d):
     return s
 
 
+def hkc_point(p, i, c, lam, v, d):
+    """Reference beta (Eq. 11) of point i, straight from REFERENCE.md."""
+    s = voxel_signal(p, i, c, d)
+    high = v @ np.diag(1 - lam) @ v.T @ s
+    low = s - high
+    nl = np.linalg.norm(low)
+    return np.linalg.norm(high) / nl if nl > 1e-9 * np.linalg.norm(s) else np.inf
+
+
 def hkc(points, d_factor=1.3, k=3):
     p = np.asarray(points, dtype=np.float64)
     d = d_factor * resolution(p)
     c, lam, v = _kernel_spectrum(d, k)
-    out = np.empty(len(p))
-    for i in range(len(p)):
-        s = voxel_signal(p, i, c, d)
-        high = v @ np.diag(1 - lam) @ v.T @ s
-        low = s - high
-        nl = np.linalg.norm(low)
-        out[i] = np.linalg.norm(high) / nl if nl > 1e-9 * np.linalg.norm(s) else np.inf
-    return out
+    return np.array([hkc_point(p, i, c, lam, v, d) for i in range(len(p))])
 
 
 def hkf(points, d_factor=1.3, k=3):
@@ -66,19 +68,21 @@ def knn_rows(points, n):
     return np.argsort(d, axis=1, kind="stable")[:, :n]
 
 
+def lhf_point(p, i, n):
+    """Reference gamma (Eq. 14) of point i: brute-force neighbours, one n x n eigh."""
+    rows = np.argsort(np.linalg.norm(p - p[i], axis=1), kind="stable")[:n]
+    s = p[rows] - p[i]
+    sn = s - s.mean(axis=1, keepdims=True)
+    lam, v = np.linalg.eigh(sn @ sn.T)
+    lam = np.abs(lam) / np.abs(lam).max()
+    t = int(np.argmax(np.diff(lam)) + 1)
+    tt = np.abs(v.T @ s)
+    return tt[:t].sum() / tt.sum()
+
+
 def lhf_single(points, n):
     p = np.asarray(points, dtype=np.float64)
-    rows = knn_rows(p, n)
-    out = np.empty(len(p))
-    for i in range(len(p)):
-        s = p[rows[i]] - p[i]
-        sn = s - s.mean(axis=1, keepdims=True)
-        lam, v = np.linalg.eigh(sn @ sn.T)
-        lam = np.abs(lam) / np.abs(lam).max()
-        t = int(np.argmax(np.diff(lam)) + 1)
-        tt = np.abs(v.T @ s)
-        out[i] = tt[:t].sum() / tt.sum()
-    return out
+    return np.array([lhf_point(p, i, n) for i in range(len(p))])
 
 
 def lhf(points, ratio, lengths):
