@@ -1,3 +1,120 @@
-"""Placeholder; filled in by its issue."""
+"""Pictures of a resampling: the original cloud and the kept points side by side.
 
-__all__: list[str] = []
+Needs matplotlib, which is not a runtime dependency: install the ``plot`` extra
+(``pip install "hgjax[plot]"``). matplotlib is imported only when a function here is
+called, and figures are built without pyplot (no global state, any backend).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["show_resampling"]
+
+
+def _matplotlib():
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as err:
+        raise ImportError("hgjax.plot needs matplotlib; install the plot extra: pip install 'hgjax[plot]'") from err
+    return Figure
+
+
+def _rank_colours(scores: np.ndarray) -> np.ndarray:
+    """Scores mapped to [0, 1] by rank, so +inf and heavy tails do not wash out the map."""
+    order = np.argsort(np.nan_to_num(scores, nan=-np.inf, posinf=np.finfo(np.float64).max), kind="stable")
+    ranks = np.empty(scores.shape[0])
+    ranks[order] = np.arange(scores.shape[0])
+    return ranks / max(scores.shape[0] - 1, 1)
+
+
+def _marker_size(n: int) -> float:
+    return float(np.clip(4000.0 / max(n, 1), 0.3, 8.0))
+
+
+def show_resampling(points, kept, *, scores=None, view: Sequence[float] = (25.0, -60.0),
+                    fig=None, title: str | None = None, path=None, cmap: str = "viridis",
+                    panel_size: float = 4.0):
+    """Draw the original cloud and the kept points side by side, with equal axes.
+
+    Args:
+      points: (N, 3) the original cloud.
+      kept: (M,) indices of the kept points (e.g. from :func:`hgjax.resample`), or a mapping
+        from panel titles to such index arrays to draw one panel per method.
+      scores: optional (N,) per-point scores; when given, points are coloured by the
+        score's rank (dark = low) in every panel instead of a flat colour.
+      view: (elevation, azimuth) of the camera in degrees (default (25, -60)).
+      fig: a ``matplotlib.figure.Figure`` to draw into (default: a new one).
+      title: figure title (default none).
+      path: when given, the figure is also saved there (format from the extension).
+      cmap: matplotlib colour map used with ``scores`` (default ``"viridis"``).
+      panel_size: width and height of each panel in inches (default 4).
+
+    Returns:
+      The ``matplotlib.figure.Figure``, with one 3D axes per panel: the original first.
+
+    Raises:
+      ImportError: matplotlib is not installed (install the ``plot`` extra).
+      TypeError, ValueError: invalid points, indices out of range, or scores of the
+        wrong shape.
+
+    Examples:
+      >>> import numpy as np
+      >>> pts = np.random.default_rng(0).random((100, 3))
+      >>> fig = show_resampling(pts, np.arange(20), title="first 20")
+      >>> len(fig.axes)
+      2
+    """
+    from hgjax import _validate
+
+    Figure = _matplotlib()
+    pts = np.asarray(_validate.check_points(points), dtype=np.float64)
+    n = pts.shape[0]
+    panels: Mapping[str, np.ndarray] = kept if isinstance(kept, Mapping) else {"kept": kept}
+    panels = {name: _check_indices(idx, n, name) for name, idx in panels.items()}
+    colours = None
+    if scores is not None:
+        scores = np.asarray(scores, dtype=np.float64)
+        if scores.shape != (n,):
+            raise ValueError(f"scores must have shape (N,) = ({n},); got {scores.shape}")
+        colours = _rank_colours(scores)
+    if fig is None:
+        fig = Figure(figsize=(panel_size * (len(panels) + 1), panel_size + 0.5 * bool(title)))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-12)
+    entries = [(f"original ({n} points)", np.arange(n))]
+    entries += [(f"{name} ({idx.size} points)", idx) for name, idx in panels.items()]
+    for i, (label, idx) in enumerate(entries):
+        ax = fig.add_subplot(1, len(entries), i + 1, projection="3d")
+        sub = pts[idx]
+        style = dict(s=_marker_size(idx.size), linewidths=0, depthshade=False)
+        if colours is not None:
+            ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], c=colours[idx], cmap=cmap, vmin=0.0, vmax=1.0, **style)
+        else:
+            ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], color="0.55" if i == 0 else "C3", **style)
+        for axis, c in zip("xyz", centre):
+            getattr(ax, f"set_{axis}lim")(c - half, c + half)
+        ax.set_box_aspect((1.0, 1.0, 1.0))
+        ax.view_init(elev=float(view[0]), azim=float(view[1]))
+        ax.set_axis_off()
+        ax.set_title(label, fontsize=10)
+    top = 1.0 - 0.35 / fig.get_figheight()  # room for the panel titles
+    if title:
+        fig.suptitle(title, y=1.0 - 0.08 / fig.get_figheight(), va="top")
+        top -= 0.45 / fig.get_figheight()
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=top, wspace=0.0)
+    if path is not None:
+        fig.savefig(path, dpi=150)
+    return fig
+
+
+def _check_indices(indices, n: int, name: str) -> np.ndarray:
+    idx = np.asarray(indices)
+    if idx.dtype.kind not in "iu" or idx.ndim != 1:
+        raise TypeError(f"kept[{name!r}] must be a 1-D integer index array; got dtype {idx.dtype},"
+                        f" shape {idx.shape}")
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise ValueError(f"kept[{name!r}] has indices outside [0, {n}); got range [{idx.min()}, {idx.max()}]")
+    return idx

@@ -41,7 +41,7 @@ def test_compiled_once_for_all_chunks_and_parameter_sweeps():
     hgjax.scores.hkc(box_cloud(5000, seed=4), chunk_size=1024)  # same shapes, other data
     hgjax.scores.hkc(p, chunk_size=1024, d_factor=1.6)  # float parameters are traced
     assert kernel._cache_size() == before
-    lk = lhf_module._chunk_kernel((8, 16), "invariant", "gram")
+    lk = lhf_module._chunk_kernel(lhf_module.DEFAULT_LENGTHS, "invariant", "gram")
     hgjax.scores.lhf(p, ratio=0.2, chunk_size=1024)
     n_lhf = lk._cache_size()
     hgjax.scores.lhf(p, ratio=0.3, chunk_size=1024)

@@ -42,7 +42,7 @@ from hgjax import spectrum
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "lhf", "lhf_neighbourhood", "lhf_single"]
 
-DEFAULT_LENGTHS = (8, 16)
+DEFAULT_LENGTHS = (4, 8)
 SOLVERS = ("eigh", "gram")
 
 
@@ -140,7 +140,13 @@ def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: 
         fn = _reference
     else:
         fn = _invariant_gram if solver == "gram" else _invariant_eigh
-    return jnp.stack([fn(signal[:n]) for n in lengths])
+    out = []
+    for n in lengths:
+        # Serialise the lengths: two batched LAPACK eigh calls running concurrently inside one
+        # XLA CPU program can deadlock in jaxlib's thread pool (seen with jax 0.10.2).
+        signal = jax.lax.optimization_barrier((signal, out))[0] if out else signal
+        out.append(fn(signal[:n]))
+    return jnp.stack(out)
 
 
 @functools.lru_cache(maxsize=None)
@@ -226,8 +232,8 @@ def lhf(points, *, ratio: float, lengths=DEFAULT_LENGTHS, variant: str = "invari
     Args:
       points: (N, 3) float32 or float64, N >= max(lengths).
       ratio: resampling ratio alpha in (0, 1]; sets the weight eps (Eq. (16)).
-      lengths: (N_a, N_b), each >= 3 and counting the point itself. Default (8, 16), chosen
-        on the edge benchmark (see README). Static: new values compile a new kernel.
+      lengths: (N_a, N_b), each >= 3 and counting the point itself. Default (4, 8): the best
+        of (4, 8) ... (16, 32) on the edge benchmark (bench/results/edge_defaults.md). Static: new values compile a new kernel.
       variant: ``"invariant"`` (default) or ``"reference"``; see the module docstring.
       solver: ``"gram"`` (default) or ``"eigh"`` for the invariant variant.
       chunk_size: points per streamed chunk (default: automatic). Does not change results.

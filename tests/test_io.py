@@ -1,0 +1,296 @@
+"""hgjax.io: real files round-trip, PCD as PCL writes it, clear errors naming the file."""
+
+import pathlib
+import struct
+
+import numpy as np
+import pytest
+
+from hgjax import io
+
+DATA = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SCANS = sorted((DATA / "scans").glob("*.ply"))
+MESHES = sorted(p for p in (DATA / "meshes").iterdir() if p.suffix != ".md")
+
+
+# ------------------------------------------------------------------ PCD writer (the PCL spec)
+
+def _pack_rgb(colors):
+    c = colors.astype(np.uint32)
+    return ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).view(np.float32)
+
+
+def _lzf_compress(data: bytes) -> bytes:
+    """A naive greedy LZF compressor (liblzf format) so the fixture has back references."""
+    out, lit, i, n = bytearray(), bytearray(), 0, len(data)
+
+    def flush():
+        while lit:
+            chunk = lit[:32]
+            out.append(len(chunk) - 1)
+            out.extend(chunk)
+            del lit[:32]
+
+    while i < n:
+        best_len, best_off = 0, 0
+        for off in range(1, min(i, 8192) + 1):
+            length = 0
+            while length < 264 and i + length < n and data[i - off + length] == data[i + length]:
+                length += 1  # may overlap the output being written: LZF allows that
+            if length > best_len:
+                best_len, best_off = length, off
+        if best_len >= 3:
+            flush()
+            length, off = best_len - 2, best_off - 1
+            if length < 7:
+                out.append((length << 5) | (off >> 8))
+            else:
+                out.append((7 << 5) | (off >> 8))
+                out.append(length - 7)
+            out.append(off & 0xFF)
+            i += best_len
+        else:
+            lit.append(data[i])
+            i += 1
+    flush()
+    return bytes(out)
+
+
+def write_pcd(path, xyz, rgb, normals, intensity, data="ascii", width=None):
+    n = xyz.shape[0]
+    width = width or n
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        "FIELDS x y z rgb normal_x normal_y normal_z intensity\n"
+        "SIZE 4 4 4 4 4 4 4 2\nTYPE F F F F F F F U\nCOUNT 1 1 1 1 1 1 1 1\n"
+        f"WIDTH {width}\nHEIGHT {n // width}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {data}\n"
+    )
+    cols = [("x", "<f4", xyz[:, 0]), ("y", "<f4", xyz[:, 1]), ("z", "<f4", xyz[:, 2]),
+            ("rgb", "<f4", _pack_rgb(rgb)), ("normal_x", "<f4", normals[:, 0]),
+            ("normal_y", "<f4", normals[:, 1]), ("normal_z", "<f4", normals[:, 2]),
+            ("intensity", "<u2", intensity)]
+    with open(path, "wb") as fh:
+        fh.write(header.encode())
+        if data == "ascii":
+            for i in range(n):
+                fh.write((" ".join(repr(float(np.float32(c[i]))) if f == "<f4" else str(int(c[i]))
+                                   for _, f, c in cols) + "\n").encode())
+        elif data == "binary":
+            table = np.empty(n, [(name, f) for name, f, _ in cols])
+            for name, _, c in cols:
+                table[name] = c
+            fh.write(table.tobytes())
+        else:  # binary_compressed: fields stored one after another, then LZF
+            raw = b"".join(np.asarray(c, f).tobytes() for _, f, c in cols)
+            packed = _lzf_compress(raw)
+            fh.write(struct.pack("<II", len(packed), len(raw)) + packed)
+
+
+@pytest.fixture
+def pcd_cloud():
+    rng = np.random.default_rng(1)
+    n = 24
+    xyz = rng.normal(size=(n, 3)).astype(np.float32)
+    xyz[:, 2] = np.round(xyz[:, 2], 1)  # repeated bytes, so the compressor finds matches
+    xyz[5] = np.nan  # an organised cloud's invalid points
+    xyz[17, 1] = np.nan
+    rgb = rng.integers(0, 256, size=(n, 3), dtype=np.uint8)
+    normals = np.tile(np.float32([0, 0, 1]), (n, 1))
+    intensity = rng.integers(0, 60000, size=n).astype(np.uint16)
+    return xyz, rgb, normals, intensity
+
+
+@pytest.mark.parametrize("data", ["ascii", "binary", "binary_compressed"])
+def test_pcd_as_pcl_writes_it(tmp_path, pcd_cloud, data):
+    xyz, rgb, normals, intensity = pcd_cloud
+    path = tmp_path / f"cloud_{data}.pcd"
+    write_pcd(path, xyz, rgb, normals, intensity, data=data, width=6)
+    with pytest.warns(io.NonFinitePointsWarning, match="dropped 2 of 24 points"):
+        got = io.read_points(path)
+    ok = np.isfinite(xyz).all(1)
+    np.testing.assert_array_equal(got.points, xyz[ok].astype(np.float64))
+    np.testing.assert_array_equal(got.attributes["colors"], rgb[ok])
+    np.testing.assert_array_equal(got.attributes["normals"], normals[ok])
+    np.testing.assert_array_equal(got.attributes["intensity"], intensity[ok])
+    assert got.attributes["intensity"].dtype == np.uint16
+
+
+def test_lzf_back_references_round_trip():
+    rng = np.random.default_rng(0)
+    data = bytes(rng.integers(0, 4, 3000).astype(np.uint8)) + b"ab" * 400 + bytes(300)
+    packed = _lzf_compress(data)
+    assert len(packed) < len(data) / 2  # it really used back references, long and overlapping
+    assert io.lzf_decompress(packed, len(data)) == data
+    with pytest.raises(ValueError, match="LZF"):
+        io.lzf_decompress(packed[:-5], len(data))
+
+
+def test_pcd_errors_name_the_file(tmp_path, pcd_cloud):
+    path = tmp_path / "trunc.pcd"
+    write_pcd(path, *pcd_cloud, data="binary")
+    path.write_bytes(path.read_bytes()[:-40])
+    with pytest.raises(io.PointCloudReadError, match=f"{path}.*truncated"):
+        io.read_points(path)
+    path.write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nPOINTS 1\nDATA zip\n")
+    with pytest.raises(io.PointCloudReadError, match="unknown PCD DATA 'zip'"):
+        io.read_points(path)
+
+
+# ------------------------------------------------------------------ real files
+
+@pytest.mark.parametrize("path", SCANS, ids=lambda p: p.name)
+@pytest.mark.parametrize("binary", [True, False], ids=["binary", "ascii"])
+def test_scans_round_trip_with_colour(tmp_path, path, binary):
+    src = io.read_points(path, samples=None if binary else 5000)  # ascii is slow: a subset
+    assert src.points.dtype == np.float64 and np.isfinite(src.points).all()
+    out = tmp_path / "out.ply"
+    scores = np.linspace(0.0, 1.0, len(src))
+    io.write_points(out, src.points, attributes=src.attributes, scores=scores, binary=binary)
+    back = io.read_points(out)
+    np.testing.assert_array_equal(back.points, src.points)
+    assert set(back.attributes) == set(src.attributes) | {"score"}
+    for name, value in src.attributes.items():
+        np.testing.assert_array_equal(back.attributes[name], value)
+    np.testing.assert_allclose(back.attributes["score"], scores, rtol=1e-7)
+
+
+def test_scan_with_rgb_keeps_colour():
+    data = io.read_points(DATA / "scans" / "scan_table_mug.ply", samples=1000)
+    assert data.attributes["colors"].dtype == np.uint8
+    assert data.attributes["colors"].shape == (1000, 4)
+    assert len(np.unique(data.attributes["colors"][:, 0])) > 10  # real colours, not a default
+
+
+@pytest.mark.parametrize("path", MESHES, ids=lambda p: p.name)
+def test_every_shared_mesh_reads(path):
+    data = io.read_points(path, samples=500, seed=3)
+    assert data.points.shape == (500, 3) and np.isfinite(data.points).all()
+    np.testing.assert_allclose(np.linalg.norm(data.attributes["normals"], axis=1), 1.0, atol=1e-6)
+    assert np.ptp(data.points, axis=0).max() > 0
+    np.testing.assert_array_equal(io.read_points(path, samples=500, seed=3).points, data.points)
+    assert not np.array_equal(io.read_points(path, samples=500, seed=4).points, data.points)
+
+
+def test_samples_on_a_point_cloud_takes_a_seeded_subset():
+    path = DATA / "scans" / "scan_lamppost.ply"
+    full = io.read_points(path)
+    assert len(full) == 1771
+    sub = io.read_points(path, samples=100, seed=7)
+    assert len(sub) == 100
+    rows = {tuple(p) for p in full.points}
+    assert all(tuple(p) in rows for p in sub.points)
+    np.testing.assert_array_equal(sub.points, io.read_points(path, samples=100, seed=7).points)
+    assert len(io.read_points(path, samples=10**6)) == 1771
+
+
+# ------------------------------------------------------------------ XYZ / NPY
+
+def test_xyz_with_and_without_header(tmp_path):
+    table = np.array([[0.0, 1.0, 2.0, 7.0], [3.0, 4.0, 5.0, 8.0]])
+    plain = tmp_path / "plain.xyz"
+    np.savetxt(plain, table)
+    data = io.read_points(plain)
+    np.testing.assert_array_equal(data.points, table[:, :3])
+    np.testing.assert_array_equal(data.attributes["column_3"], table[:, 3])
+    named = tmp_path / "named.txt"
+    named.write_text("//X Y Z R G B\n0 0 0 255 0 10\n1 1 1 0 128 20\n")
+    data = io.read_points(named)
+    np.testing.assert_array_equal(data.attributes["colors"], [[255, 0, 10], [0, 128, 20]])
+    csv = tmp_path / "c.txt"
+    csv.write_text("x,y,z,label\n0,0,0,1\n1,2,3,0\n")
+    np.testing.assert_array_equal(io.read_points(csv).attributes["label"], [1.0, 0.0])
+
+
+def test_xyz_written_by_write_points_reads_back(tmp_path):
+    pts = np.random.default_rng(0).random((5, 3))
+    path = tmp_path / "k.xyz"
+    io.write_points(path, pts, attributes={"normals": np.tile([0.0, 0.0, 1.0], (5, 1))},
+                    scores=np.arange(5.0))
+    back = io.read_points(path)
+    np.testing.assert_allclose(back.points, pts, rtol=1e-8)
+    np.testing.assert_array_equal(back.attributes["score"], np.arange(5.0))
+    assert back.attributes["normals"].shape == (5, 3)
+
+
+def test_npy_plain_and_structured(tmp_path):
+    pts = np.arange(12.0).reshape(4, 3)
+    np.save(tmp_path / "a.npy", pts)
+    np.testing.assert_array_equal(io.read_points(tmp_path / "a.npy").points, pts)
+    rec = np.zeros(3, [("x", "f4"), ("y", "f4"), ("z", "f4"), ("label", "i4")])
+    rec["label"] = [1, 2, 3]
+    np.save(tmp_path / "b.npy", rec)
+    np.testing.assert_array_equal(io.read_points(tmp_path / "b.npy").attributes["label"], [1, 2, 3])
+
+
+def test_nan_points_dropped_with_count(tmp_path):
+    path = tmp_path / "nan.xyz"
+    path.write_text("0 0 0\nnan 1 1\n1 1 1\n2 2 nan\n")
+    with pytest.warns(io.NonFinitePointsWarning, match="dropped 2 of 4"):
+        assert len(io.read_points(path)) == 2
+    path.write_text("nan 0 0\n")
+    with pytest.raises(io.PointCloudReadError, match="all 1 points"):
+        io.read_points(path)
+
+
+# ------------------------------------------------------------------ errors
+
+BAD_FILES = {
+    "empty.ply": b"",
+    "text.ply": b"hello world\n",
+    "noise.stl": bytes(range(256)) * 2,
+    "noise.glb": bytes(range(256)) * 2,
+    "two_columns.xyz": b"1 2\n3 4\n",
+    "words.xyz": b"x y z\na b c\n",
+    "only_comment.txt": b"# nothing here\n",
+    "zero.ply": b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+                b"property float z\nend_header\n",
+    "pickle.npy": b"\x93NUMPY\x01\x00v\x00{'descr': '|O', 'fortran_order': False, 'shape': (1,), }" + b" " * 50
+                  + b"\n",
+    "nonsense.foo": b"abc",
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_FILES))
+def test_unreadable_files_raise_one_clear_error(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(BAD_FILES[name])
+    with pytest.raises(io.PointCloudReadError) as info:
+        io.read_points(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_file_is_file_not_found(tmp_path):
+    with pytest.raises(FileNotFoundError, match="missing.ply: no such file"):
+        io.read_points(tmp_path / "missing.ply")
+    with pytest.raises(io.PointCloudReadError, match="directory"):
+        io.read_points(tmp_path)
+
+
+def test_write_points_validates_and_does_not_modify(tmp_path):
+    pts = np.random.default_rng(0).random((4, 3)).astype(np.float32)
+    before = pts.copy()
+    with pytest.raises(ValueError, match="attribute 'label' must have shape"):
+        io.write_points(tmp_path / "a.ply", pts, attributes={"label": np.zeros(3)})
+    with pytest.raises(ValueError, match="unknown extension '.obj'"):
+        io.write_points(tmp_path / "a.obj", pts)
+    with pytest.raises(ValueError, match=r"attributes\['colors'\] must have shape"):
+        io.write_points(tmp_path / "a.ply", pts, attributes={"colors": np.zeros((4, 2))})
+    io.write_points(tmp_path / "a.ply", pts, attributes={"label": np.arange(4, dtype=np.int64),
+                                                          "feat": np.ones((4, 2))})
+    np.testing.assert_array_equal(pts, before)
+    back = io.read_points(tmp_path / "a.ply")
+    np.testing.assert_array_equal(back.points, pts)
+    np.testing.assert_array_equal(back.attributes["label"], np.arange(4))
+    assert {"feat_0", "feat_1"} <= set(back.attributes)
+    header = (tmp_path / "a.ply").read_bytes().split(b"end_header")[0].decode()
+    assert "property float x" in header and "property int label" in header
+
+
+def test_write_indices(tmp_path):
+    io.write_indices(tmp_path / "i.npy", np.array([3, 1], dtype=np.int32))
+    got = np.load(tmp_path / "i.npy")
+    assert got.dtype == np.int64 and got.tolist() == [3, 1]
+    with pytest.raises(ValueError, match=".npy"):
+        io.write_indices(tmp_path / "i.txt", np.array([1]))
+    with pytest.raises(TypeError, match="integer"):
+        io.write_indices(tmp_path / "i.npy", np.array([1.0]))
