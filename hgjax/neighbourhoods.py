@@ -43,6 +43,12 @@ class Neighbourhoods(NamedTuple):
     Attributes:
       points: (N, 3) float coordinates.
       idx: (N, K) int32 neighbour indices into ``points``, padded with the sentinel N.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.Neighbourhoods(np.zeros((2, 3)), np.array([[0, 2], [1, 0]], np.int32))
+      >>> nb.mask.tolist()
+      [[True, False], [True, True]]
     """
 
     points: np.ndarray
@@ -76,6 +82,11 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
 
     Returns:
       (N,) int64 permutation ``perm`` such that ``points[perm]`` is spatially ordered.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> hgjax.spatial_order(np.array([[1.0, 1, 1], [0, 0, 0], [1, 0, 0]])).tolist()
+      [1, 2, 0]
     """
     p = np.asarray(points, dtype=np.float64)
     lo = p.min(axis=0)

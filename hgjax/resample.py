@@ -22,6 +22,11 @@ class Method:
       run: ``run(points, ratio, *, key, **params) -> indices (M,)`` on validated points.
       summary: one line for the README and ``--help``.
       citation: where the method comes from.
+
+    Examples:
+      >>> import hgjax
+      >>> hgjax.METHODS["hkc"].citation
+      'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)'
     """
 
     name: str

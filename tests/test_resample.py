@@ -107,8 +107,8 @@ def test_bad_ratio_type_and_parameters():
 
 
 def test_too_few_points_for_the_neighbourhood():
-    with pytest.raises(ValueError, match="points has 10 point.*LHF with length 16.*at least 16"):
-        hgjax.resample(cloud(10), 0.2, method="lhf")
+    with pytest.raises(ValueError, match="points has 5 point.*LHF with length 8.*at least 8"):
+        hgjax.resample(cloud(5), 0.2, method="lhf")
     with pytest.raises(ValueError, match="too few for HKC"):
         hgjax.scores.hkc(cloud(1))
 

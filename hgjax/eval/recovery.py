@@ -65,6 +65,12 @@ class Recovery(NamedTuple):
       status: ``"ok"``, or why the recovery is empty: ``"too_few_points"`` (fewer than 4
         kept points), ``"flat"`` (kept points coplanar or collinear) or ``"empty"`` (no
         alpha kept a tetrahedron).
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> empty = hgjax.eval.recover(np.zeros((3, 3)), np.random.default_rng(0).random((50, 3)))
+      >>> empty.status, empty.points.shape
+      ('too_few_points', (0, 3))
     """
 
     points: np.ndarray

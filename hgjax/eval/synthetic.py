@@ -72,6 +72,12 @@ class EdgeCloud(NamedTuple):
       resolution: intrinsic resolution of the clean cloud.
       delta: absolute half-width of the edge band (0.0 for real clouds).
       name: a short description.
+
+    Examples:
+      >>> import hgjax
+      >>> cloud = hgjax.eval.box_union_cloud(seed=0, n_points=1000)
+      >>> cloud.points.shape, cloud.edge_mask.shape
+      ((1000, 3), (1000,))
     """
 
     points: np.ndarray

@@ -37,6 +37,12 @@ def ea_neighbourhood(centre, nbrs, valid):
 
     Returns:
       Scalar c in [0, 1/3]; 0 when all valid points coincide.
+
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> flat = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+      >>> float(hgjax.scores.ea_neighbourhood(jnp.zeros(3), flat, jnp.ones(4, bool)))
+      0.0
     """
     x = jnp.where(valid[:, None], nbrs - centre[None, :], 0)
     count = jnp.sum(valid).astype(x.dtype)

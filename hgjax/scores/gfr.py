@@ -54,6 +54,12 @@ def gfr_neighbourhood(centre, nbrs, valid, two_var):
     Returns:
       (K, 3) w_ij (p_j - p_i) with w_ij = exp(-q^2 / (2 v)), q = ||p_j - p_i||^2; zero rows
       for padding.
+
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> nbrs = jnp.array([[1.0, 0, 0], [0, 0, 0]])
+      >>> hgjax.scores.gfr_neighbourhood(jnp.zeros(3), nbrs, jnp.array([True, False]), 2.0).tolist()
+      [[0.6065306597126334, 0.0, 0.0], [0.0, 0.0, 0.0]]
     """
     d = nbrs - centre[None, :]
     q = jnp.sum(d * d, axis=1)

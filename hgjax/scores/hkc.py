@@ -39,6 +39,12 @@ def hkc_neighbourhood(centre, nbrs, valid, d, *, kernel_size: int = 3):
 
     Returns:
       Scalar beta >= 0, +inf when the low band is 0.
+
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> nbrs = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+      >>> round(float(hgjax.scores.hkc_neighbourhood(jnp.zeros(3), nbrs, jnp.ones(3, bool), 1.0)), 4)
+      8.9443
     """
     s = voxel.local_signal(centre, nbrs, valid, d, kernel_size)
     low, high = voxel.low_high(s, kernel_size)

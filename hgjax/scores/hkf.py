@@ -46,6 +46,12 @@ def hkf_neighbourhood(centre, nbrs, valid, d, v=None, t=None, *, kernel_size: in
 
     Returns:
       Scalar sigma in [0, 1].
+
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> nbrs = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+      >>> round(float(hgjax.scores.hkf_neighbourhood(jnp.zeros(3), nbrs, jnp.ones(3, bool), 1.0)), 4)
+      0.8994
     """
     s = voxel.local_signal(centre, nbrs, valid, d, kernel_size)
     if variant == "reference":

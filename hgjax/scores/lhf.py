@@ -134,6 +134,13 @@ def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: 
 
     Returns:
       (len(lengths),) gamma in [0, 1].
+
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> nbrs = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]])
+      >>> g = hgjax.scores.lhf_neighbourhood(jnp.zeros(3), nbrs, jnp.ones(4, bool), lengths=(3, 4))
+      >>> g.shape
+      (2,)
     """
     signal = jnp.where(valid[:, None], nbrs - centre[None, :], 0)
     if variant == "reference":
@@ -214,6 +221,11 @@ def combine(gamma_a, gamma_b, ratio: float):
     Returns:
       (N,) eps gamma_a + (1 - eps) gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), where
       Gamma is the ceil(alpha N)-th largest value of each (0.5 when both Gammas are 0).
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> hgjax.scores.lhf_combine(np.array([0.2, 0.4]), np.array([0.1, 0.3]), 0.5).round(3).tolist()
+      [0.143, 0.343]
     """
     ratio = _validate.check_ratio(ratio)
     ga, gb = np.asarray(gamma_a), np.asarray(gamma_b)
