@@ -8,10 +8,9 @@ HGSP = ("hkc", "hkf", "lhf")
 VARIANTS = ("invariant", "reference")
 # LHF's reference variant (batched n x n eigh) stalled for minutes on 2000-point clouds on
 # this machine (see the report); it runs only with --with-lhf-reference.
-SLOW = {"lhf-ref"}
 
 
-def method_runs(*, include_slow=False):
+def method_runs():
     """(label, method, params) for every registered method; HGSP methods in both variants.
 
     Looked up at call time, so methods registered later (baselines) are picked up.
@@ -22,7 +21,7 @@ def method_runs(*, include_slow=False):
             runs += [(f"{name}-{v[:3]}", name, {"variant": v}) for v in VARIANTS]
         else:
             runs.append((name, name, {}))
-    return [r for r in runs if include_slow or r[0] not in SLOW]
+    return runs
 
 
 def synthetic_clouds(*, n_shapes, n_points, rotate, noise):

@@ -76,7 +76,7 @@ def plot(path, xs, series, xlabel, ylabel):
 
 
 def table(args, out, command):
-    runs = method_runs(include_slow=args.with_lhf_reference)
+    runs = method_runs()
     noises = hgjax.eval.NOISE_LEVELS if not args.quick else (0.0, 0.2)
     res = {}  # (rotate, noise, label) -> metrics
     t0 = time.time()
@@ -158,7 +158,7 @@ def defaults(args, out, command):
     sets = {s: synthetic_clouds(n_shapes=args.n_shapes, n_points=args.n_points, rotate=s[0], noise=s[1])
             for s in settings}
     candidates = [(f"lhf {v[:3]} lengths={ln}", "lhf", {"variant": v, "lengths": ln})
-                  for v in (("invariant", "reference") if args.with_lhf_reference else ("invariant",))
+                  for v in ("invariant", "reference")
                   for ln in lengths]
     candidates += [(f"{m} {v[:3]} d_factor={f}", m, {"variant": v, "d_factor": f})
                    for m in ("hkc", "hkf") for v in ("invariant", "reference") for f in factors]
@@ -178,7 +178,6 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="tiny run (2 shapes, 600 points)")
     parser.add_argument("--defaults", action="store_true", help="parameter study into edge_defaults.md")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
-    parser.add_argument("--with-lhf-reference", action="store_true", help="also run lhf variant='reference'")
     parser.add_argument("--n-shapes", type=int, default=None)
     parser.add_argument("--n-points", type=int, default=None)
     args = parser.parse_args(argv)
