@@ -107,7 +107,11 @@ def stream(kernel: Callable, index: SpatialIndex, query: Callable[[slice], np.nd
     bar = _progress(n, progress and n > 4 * chunk_size)
     for rows in index.chunks(chunk_size):
         ids = _pad_rows(np.arange(rows.start, rows.stop, dtype=np.int32), chunk_size, n)
-        idx = _pad_rows(query(rows), chunk_size, n)
+        idx = _pad_rows(query(rows), chunk_size, n)  # overlaps with the previous chunk's kernel
+        if outputs:
+            # At most one kernel in flight: two programs calling LAPACK eigh at the same time
+            # can deadlock in jaxlib's CPU thread pool (seen with jax 0.10.2).
+            jax.block_until_ready(outputs[-1])
         outputs.append(run(points_ext, ids, idx, *args))
         if bar is not None:
             bar.update(rows.stop - rows.start)
