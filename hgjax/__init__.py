@@ -5,7 +5,15 @@ Robust Point Cloud Resampling", IEEE TIP 31 (2022), with baselines, evaluation a
 differentiable soft resampling.
 """
 
+import os as _os
 from importlib.metadata import PackageNotFoundError, version as _version
+
+# jaxlib 0.10's CPU runtime can deadlock when batched LAPACK eigh calls (LHF reference,
+# EA) run inside XLA's concurrency-optimised scheduler; turning it off avoids the hang. It
+# takes effect only if JAX's CPU backend has not been initialised before hgjax is imported.
+_FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
+if _FLAG.split("=")[0] not in _os.environ.get("XLA_FLAGS", ""):
+    _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
 
 from hgjax import eval, io, scores, spectrum  # noqa: A004 (hgjax.eval is the evaluation package)
 from hgjax.neighbourhoods import Neighbourhoods, cube, intrinsic_resolution, knn, spatial_order
