@@ -171,7 +171,7 @@ def soft_hkc_neighbourhood(centre, nbrs, valid, d, tau, *, kernel_size: int = 3)
     """
     s = soft_local_signal(centre, nbrs, valid, d, tau, kernel_size=kernel_size)
     low, high = voxel.low_high(s, kernel_size)
-    return _lhf._ratio(jnp.sum(high * high), jnp.sum(low * low))
+    return _common.band_ratio(jnp.sum(high * high), jnp.sum(low * low))
 
 
 def _soft_gram_ratios(signals, tau):
@@ -190,7 +190,7 @@ def _soft_gram_ratios(signals, tau):
         mu = jnp.maximum(mu, 0)
         top = mu[2]
         nonzero = mu > 8 * s.shape[0] * jnp.finfo(s.dtype).eps * top  # (3,) directions spanning range(R)
-        inv_sqrt = jnp.where(nonzero, 1 / _lhf._safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
+        inv_sqrt = jnp.where(nonzero, 1 / _common.safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
         u = (sn @ w) * inv_sqrt[None, :]  # (n, 3) orthonormal eigenvectors of R, or zero columns
         t_coef = u.T @ s  # (3, 3)
         res = m - u @ (u.T @ m)  # null-space part of every column of s
@@ -200,7 +200,7 @@ def _soft_gram_ratios(signals, tau):
         p_high = jax.nn.sigmoid((0.5 - r) / tau)
         high2 = 3 * jnp.sum(res * res) + p_high * band2[1]
         low2 = band2[2] + (1 - p_high) * band2[1]
-        out.append(jnp.where(top > 0, _lhf._ratio(high2, low2), 0.0))
+        out.append(jnp.where(top > 0, _common.band_ratio(high2, low2), 0.0))
     return jnp.stack(out)
 
 
@@ -263,7 +263,7 @@ def soft_gfr(points, idx):
     flow = _map(_gfr.gfr_neighbourhood, points, nb, 2 * var_q)  # (N, K-1, 3): W0_ij (p_j - p_i)
     # (L P)_i = sum_j W_ij (p_i - p_j): row i gets -flow(i->j), and row j gets +flow(i->j).
     lp = (-jnp.sum(flow, axis=1)).at[nb].add(flow, mode="drop")
-    return _lhf._safe_sqrt(jnp.sum(lp * lp, axis=-1))
+    return _common.safe_sqrt(jnp.sum(lp * lp, axis=-1))
 
 
 # ---------------------------------------------------------------------------------------

@@ -74,3 +74,15 @@ def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:
 def finish(index: SpatialIndex, values: np.ndarray, dtype) -> np.ndarray:
     """Return sorted-frame ``values`` in the caller's order and dtype."""
     return index.to_caller(np.asarray(values, dtype=dtype))
+
+
+def safe_sqrt(x: jax.Array) -> jax.Array:
+    """sqrt(x) for x > 0 and 0 elsewhere, with finite gradients at 0."""
+    ok = x > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
+
+
+def band_ratio(high2: jax.Array, low2: jax.Array) -> jax.Array:
+    """sqrt(high2) / (sqrt(high2) + sqrt(low2)) from squared band energies; 0 when both vanish."""
+    h, l = safe_sqrt(high2), safe_sqrt(low2)
+    return safe_div(h, h + l, 0.0)

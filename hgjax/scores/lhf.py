@@ -46,17 +46,6 @@ DEFAULT_LENGTHS = (4, 8)
 SOLVERS = ("eigh", "gram")
 
 
-def _safe_sqrt(x):
-    ok = x > 0
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1)), 0)
-
-
-def _ratio(high2, low2):
-    """sqrt(high2) / (sqrt(high2) + sqrt(low2)), 0 when both vanish."""
-    h, l = _safe_sqrt(high2), _safe_sqrt(low2)
-    return _common.safe_div(h, h + l, 0.0)
-
-
 def _reference(s):
     """Eq. (14) through the n x n eigh (L1 over the eigensolver's basis)."""
     lam, v = spectrum.estimate_spectrum(s)
@@ -70,7 +59,7 @@ def _invariant_eigh(s):
     lam, v = spectrum.estimate_spectrum(s)
     t = spectrum.band_threshold(lam)
     _, _, high, low = spectrum.band_energies(v, t, s)
-    return _ratio(high * high, low * low)
+    return _common.band_ratio(high * high, low * low)
 
 
 # Orthonormal basis (3, 2) of the plane orthogonal to (1, 1, 1): row-centring projects onto it.
@@ -102,7 +91,7 @@ def _invariant_gram(s):
     mu = jnp.sum(z * z, axis=0)  # (2,) eigenvalues of R: mu[0] <= mu[1] up to rounding
     top = jnp.maximum(mu[0], mu[1])
     nonzero = mu > 8 * n * jnp.finfo(s.dtype).eps * top
-    inv = jnp.where(nonzero, 1 / _safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
+    inv = jnp.where(nonzero, 1 / _common.safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
     u = z * inv[None, :]  # (n, 2) orthonormal eigenvectors of R (zero columns if null)
     m = jnp.mean(s, axis=1)  # (n,) row means: s = s_n + m 1^T
     proj = jnp.sum(u[:, :, None] * s[:, None, :], axis=0)  # (2, 3) = u^T s
@@ -117,7 +106,7 @@ def _invariant_gram(s):
     mu1_high = r < 0.5
     high2 = null2 + jnp.where(mu1_high, small2, 0)
     low2 = large2 + jnp.where(mu1_high, 0, small2)
-    return jnp.where(top > 0, _ratio(high2, low2), 0.0)
+    return jnp.where(top > 0, _common.band_ratio(high2, low2), 0.0)
 
 
 def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant",
