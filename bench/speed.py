@@ -102,16 +102,16 @@ def worker(kind: str, n: int, repeats: int) -> dict:
             for i in range(NAIVE_POINTS):
                 naive.hkc_point(pts, i, c, lam, v, d)
         else:  # lhf, default lengths: one reference gamma per length
+            from hgjax.scores.lhf import DEFAULT_LENGTHS
+
             for i in range(NAIVE_POINTS):
-                naive.lhf_point(pts, i, 8), naive.lhf_point(pts, i, 16)
+                for length in DEFAULT_LENGTHS:
+                    naive.lhf_point(pts, i, length)
         per_point = (time.perf_counter() - t) / NAIVE_POINTS
         return {"median": per_point * n, "peak_mb": _peak_mb()}
     method = kind
-    if n >= 10**7:  # one call, compile included (the kernels' chunk shape is the one at 1e6)
-        t = time.perf_counter()
-        _run_method(method, pts)
-        return {"median": time.perf_counter() - t, "compile": math.nan, "build": math.nan,
-                "peak_mb": _peak_mb()}
+    if n >= 10**7:
+        return _scale_worker(method, pts, repeats)
     t = time.perf_counter()
     _run_method(method, pts)
     first = time.perf_counter() - t
@@ -127,6 +127,32 @@ def worker(kind: str, n: int, repeats: int) -> dict:
     med = statistics.median(times)
     return {"median": med, "compile": max(first - med, 0.0), "build": statistics.median(build),
             "peak_mb": _peak_mb()}
+
+
+def _scale_worker(method: str, pts, repeats: int) -> dict:
+    """1e7 float32: a warm-up and a timed call, then 1e6 float32 in the same process.
+
+    The 1e7 time is the second call (compile = first - second; a new N compiles a new kernel
+    since the cloud is a kernel argument). The per-point time at 1e6 comes from a float32 cloud
+    timed like the 1e7 one, so the ratio compares like with like.
+    """
+    import numpy as np
+
+    calls = []
+    for _ in range(2):
+        t = time.perf_counter()
+        _run_method(method, pts)
+        calls.append(time.perf_counter() - t)
+    small = _cloud(10**6).astype(np.float32)
+    _run_method(method, small)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        _run_method(method, small)
+        times.append(time.perf_counter() - t)
+    return {"median": calls[1], "compile": max(calls[0] - calls[1], 0.0), "build": math.nan,
+            "us_per_point": calls[1] / len(pts) * 1e6,
+            "us_per_point_1e6": statistics.median(times) / 10**6 * 1e6, "peak_mb": _peak_mb()}
 
 
 def _peak_mb() -> float:
@@ -170,8 +196,8 @@ def main(argv=None) -> None:
         sizes.append(10**7)
     rows, results = [], {}
     for n in sizes:
-        reps = args.repeats if n < 10**7 else 1
-        knn = _spawn("knn", n, reps)
+        reps = args.repeats
+        knn = _spawn("knn", n, reps if n < 10**7 else 1)
         results[("knn", n)] = knn
         print(f"N={n:.0e} knn {knn}", file=sys.stderr, flush=True)
         for m in methods:
@@ -193,8 +219,8 @@ def main(argv=None) -> None:
         f"{'' if args.methods is None else ' --methods ' + args.methods}`  ",
         f"Machine: {os.cpu_count()} cores, {platform.processor() or platform.machine()}, device {_device()}, "
         f"jax {__import__('jax').__version__}, {time.strftime('%Y-%m-%d')}.  ",
-        f"Medians of {args.repeats} calls after a warm-up; at 1e7 one call including compilation, build not",
-        "timed separately; ratio = time / bare kNN in the same run;",
+        f"Medians of {args.repeats} calls after a warm-up (at 1e7: the second of two calls, float32, build not",
+        "timed separately); ratio = time / bare kNN in the same run;",
         "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
         "peak = peak RSS of the process that ran the method (MB).",
         "",
@@ -215,6 +241,14 @@ def main(argv=None) -> None:
             jax_part = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7
             lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | {r['build']:.3f} | "
                          f"{jax_part:.2f} | {n / r['median']:,.0f} | {r['compile']:.2f} | {r['peak_mb']:.0f} |")
+    scale_rows = [(m, results[(m, 10**7)]) for m in methods if "us_per_point" in results.get((m, 10**7), {})]
+    if scale_rows:
+        lines += ["", "Time per point, float32, 1e7 against 1e6 timed in the same process (medians of "
+                  f"{args.repeats} calls at 1e6; target ratio <= 1.3):", "",
+                  "| method | us/point 1e6 | us/point 1e7 | ratio |", "|---|---|---|---|"]
+        for m, r in scale_rows:
+            lines.append(f"| {m} | {r['us_per_point_1e6']:.3f} | {r['us_per_point']:.3f} | "
+                         f"{r['us_per_point'] / r['us_per_point_1e6']:.2f} |")
     naive_rows = [(m, results[(f"naive:{m}", 10**4)]) for m in ("hkc", "lhf") if (f"naive:{m}", 10**4) in results]
     if naive_rows:
         lines += ["", f"Naive NumPy loop at N = 1e4 (tests/naive.py; {NAIVE_POINTS} points timed in this run, "

@@ -94,7 +94,16 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0 else 0.0
     q = ((p - lo) * scale).astype(np.uint64)
     code = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
-    return np.lexsort((p[:, 2], p[:, 1], p[:, 0], code))
+    order = np.argsort(code, kind="stable")
+    # Points sharing a Morton cell are rare; sort just those runs by their coordinates.
+    sorted_code = code[order]
+    tied = np.zeros(len(order), dtype=bool)
+    tied[1:] = sorted_code[1:] == sorted_code[:-1]
+    tied[:-1] |= tied[1:]
+    if tied.any():
+        sub = order[tied]
+        order[tied] = sub[np.lexsort((p[sub, 2], p[sub, 1], p[sub, 0], code[sub]))]
+    return order
 
 
 class SpatialIndex:
@@ -129,7 +138,7 @@ class SpatialIndex:
         Returns:
           (R, k) int32 indices (sorted frame), column 0 the point itself.
         """
-        row_ids = np.arange(self.n)[rows]
+        row_ids = self.row_ids(rows)
         k_eff = min(k, self.n)
         _, idx = self.tree.query(self.points[row_ids], k=k_eff, workers=-1)
         idx = idx.reshape(len(row_ids), k_eff)
@@ -166,7 +175,7 @@ class SpatialIndex:
         Raises:
           ValueError: if some cube holds more than ``max_capacity`` points.
         """
-        queries = self.points[np.arange(self.n)[rows]]
+        queries = self.points[rows]
         k = capacity
         while True:
             _, idx = self.tree.query(queries, k=k, p=np.inf, distance_upper_bound=half_width,
@@ -205,7 +214,7 @@ class SpatialIndex:
           distances padded with inf, both by increasing distance; K <= max_nn is the largest
           row count.
         """
-        queries = self.points[np.arange(self.n)[rows]]
+        queries = self.points[rows]
         bound = np.nextafter(radius, np.inf)  # cKDTree's bound is strict; ours is inclusive
         k = min(capacity, self.n)
         dist = np.full((len(queries), min(k, max_nn)), np.inf)
@@ -231,6 +240,12 @@ class SpatialIndex:
             k = min(2 * k, self.n)
         width = int((idx < self.n).sum(axis=1).max(initial=0))
         return idx[:, :width], dist[:, :width]
+
+    def row_ids(self, rows: slice | np.ndarray) -> np.ndarray:
+        """The sorted-frame row numbers that ``rows`` selects, as an int64 array."""
+        if isinstance(rows, slice):
+            return np.arange(*rows.indices(self.n))
+        return np.asarray(rows, dtype=np.int64)
 
     def chunks(self, chunk_size: int) -> Iterator[slice]:
         """Consecutive sorted-frame row slices of at most ``chunk_size`` rows."""

@@ -69,3 +69,15 @@ def test_spatial_index_chunks_cover_rows():
     index = SpatialIndex(cloud(103))
     rows = np.concatenate([np.arange(s.start, s.stop) for s in index.chunks(10)])
     np.testing.assert_array_equal(rows, np.arange(103))
+
+
+def test_spatial_order_breaks_shared_cells_by_coordinates():
+    # Two far-apart points stretch the grid, so the 300 points near the origin share a
+    # handful of Morton cells and the coordinate tie-break decides their order.
+    p = np.concatenate([cloud(300) * 1e-9, [[1.0, 1.0, 1.0], [-1.0, 0.5, 0.0]]])
+    order = hgjax.spatial_order(p)
+    np.testing.assert_array_equal(np.sort(order), np.arange(len(p)))
+    perm = np.random.default_rng(4).permutation(len(p))
+    np.testing.assert_array_equal(p[perm][hgjax.spatial_order(p[perm])], p[order])
+    tied = p[order][1:-1]  # the near-origin points, between the two far ones in Z order
+    assert (np.diff(tied[:, 0]) >= 0).all()  # one cell here: sorted by x
