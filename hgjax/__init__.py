@@ -19,9 +19,19 @@ from hgjax import eval, io, scores, spectrum  # noqa: A004 (hgjax.eval is the ev
 from hgjax.neighbourhoods import Neighbourhoods, cube, intrinsic_resolution, knn, spatial_order
 from hgjax.resample import METHODS, Method, resample
 from hgjax.select import top_k, weighted_sample
-from hgjax.samplers import *  # noqa: F401,F403  (issue 3: uniform, voxel, fps)
-from hgjax.soft import *  # noqa: F401,F403  (issue 7)
-from hgjax import samplers as _samplers, soft as _soft
+from hgjax.samplers import farthest_point_sample, uniform_sample, voxel_sample
+from hgjax.soft import (
+    SOFT_METHODS,
+    soft_gfr,
+    soft_hkc_neighbourhood,
+    soft_lhf_neighbourhood,
+    soft_local_signal,
+    soft_neighbourhoods,
+    soft_resample,
+    soft_scores,
+    soft_select,
+    soft_weights,
+)
 
 try:
     __version__ = _version("hgjax")
@@ -32,16 +42,28 @@ __all__ = [
     "METHODS",
     "Method",
     "Neighbourhoods",
+    "SOFT_METHODS",
     "cube",
     "eval",
-    "io",
+    "farthest_point_sample",
     "intrinsic_resolution",
+    "io",
     "knn",
     "resample",
     "scores",
+    "soft_gfr",
+    "soft_hkc_neighbourhood",
+    "soft_lhf_neighbourhood",
+    "soft_local_signal",
+    "soft_neighbourhoods",
+    "soft_resample",
+    "soft_scores",
+    "soft_select",
+    "soft_weights",
     "spatial_order",
     "spectrum",
     "top_k",
+    "uniform_sample",
+    "voxel_sample",
     "weighted_sample",
 ]
-__all__ += _samplers.__all__ + _soft.__all__
