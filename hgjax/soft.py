@@ -18,13 +18,16 @@ sorts. This module makes the whole path from coordinates to keep weights differe
      signals, so both names return the bounded beta / (1 + beta) = ||high|| / (||high|| +
      ||low||) with guarded square roots; for the cubic kernel this is also HKF's invariant
      sigma (Eq. (12)), so ``"hkc"`` and ``"hkf"`` are the same smooth score. Lower is sharper.
-   * ``"lhf"``: the basis-free band-energy ratio of Eq. (14) through the 3 x 3 Gram matrix
-     (as :mod:`hgjax.scores.lhf`), with two changes that make it differentiable
-     everywhere: the Gram eigendecomposition has a custom JVP that drops the mixing terms
-     of (near-)degenerate eigenvalue pairs (exact for the band energies, which are
-     invariant inside a degenerate eigenspace; ``jnp.linalg.eigh`` gives NaN there), and
-     the hard band switch (is mu1 / mu2 < 1/2?) becomes sigmoid((1/2 - mu1 / mu2) / tau).
-     The two lengths are combined as in Eqs. (15)-(16). Higher is sharper.
+   * ``"lhf"``: the invariant gamma of Eq. (14), the Haar-expected L1 band ratio of
+     :mod:`hgjax.scores.lhf`, computed by the same closed-form 2 x 2 Gram code
+     (:func:`hgjax.scores.lhf.gram_bands`, no LAPACK call), whose autodiff
+     derivatives are the true ones. The two hard steps on r = mu1 / mu2 become smooth
+     switches: the mu1 direction is high band with weight sigmoid((1/2 - r) / tau), and
+     u1, u2 count as one 2-D eigenspace (the hard kernel's mu1 = mu2 case) with weight
+     exp(-((1 - r) / tau)^2), which keeps gamma and its gradient continuous where the
+     eigenvectors turn fast (mu1 near mu2). gamma still jumps where rank(R) drops
+     (collinear signals, or a plane containing the direction (1, 1, 1)), with finite
+     gradients. The two lengths are combined as in Eqs. (15)-(16). Higher is sharper.
    * ``"ea"``: surface variation l0 / (l0 + l1 + l2) of the k-nearest covariance (EA
      baseline, Bazazian et al. 2015), exactly :func:`hgjax.scores.ea.ea_neighbourhood`:
      an eigenvalue (no eigenvector) has a finite derivative even when degenerate, and the
@@ -77,36 +80,6 @@ __all__ = [
 SOFT_METHODS: dict[str, bool] = {"hkc": False, "hkf": False, "lhf": True, "ea": True, "gfr": True}
 
 BISECTION_STEPS = 64
-
-
-# ---------------------------------------------------------------------------------------
-# Safe 3 x 3 eigendecomposition.
-
-
-@jax.custom_jvp
-def _safe_eigh(a: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``jnp.linalg.eigh`` whose JVP stays finite on (near-)degenerate eigenvalues.
-
-    The standard JVP dv = V (F o V^T dA V) with F_ij = 1 / (w_j - w_i) is kept, except that
-    F_ij = 0 where |w_j - w_i| <= sqrt(eps) max|w|: the rotation inside a degenerate
-    eigenspace is undetermined, and any function invariant to it (a projector onto the whole
-    eigenspace, a band energy) has exactly this derivative.
-    """
-    w, v = jnp.linalg.eigh(a)
-    return w, v
-
-
-@_safe_eigh.defjvp
-def _safe_eigh_jvp(primals, tangents):
-    (a,), (da,) = primals, tangents
-    w, v = _safe_eigh(a)
-    vt = jnp.swapaxes(v, -1, -2)
-    vdv = vt @ da @ v
-    gap = w[..., None, :] - w[..., :, None]  # gap[i, j] = w_j - w_i
-    tol = jnp.sqrt(jnp.finfo(a.dtype).eps) * jnp.max(jnp.abs(w), axis=-1)[..., None, None]
-    ok = jnp.abs(gap) > tol  # False on the diagonal and inside degenerate pairs
-    f = jnp.where(ok, 1 / jnp.where(ok, gap, 1), 0)
-    return (w, v), (jnp.diagonal(vdv, axis1=-2, axis2=-1), v @ (f * vdv))
 
 
 # ---------------------------------------------------------------------------------------
@@ -174,45 +147,38 @@ def soft_hkc_neighbourhood(centre, nbrs, valid, d, tau, *, kernel_size: int = 3)
     return _common.band_ratio(jnp.sum(high * high), jnp.sum(low * low))
 
 
-def _soft_gram_ratios(signals, tau):
-    """Band-energy ratios of Eq. (14) for signals s (n_l, 3), smooth and NaN-free.
-
-    Same quantities as ``hgjax.scores.lhf._invariant_gram`` (Gram eigenpairs, explicit
-    null-space residual) with the safe eigendecomposition and a sigmoid band switch. The
-    Gram matrices of all signals go through ONE batched eigh: two LAPACK eigh calls that XLA
-    runs concurrently can deadlock jaxlib's CPU thread pool (seen with jax 0.10.2, 2 cores).
-    """
-    means = [jnp.mean(s, axis=1) for s in signals]  # (n,) row means: s = s_n + m 1^T
-    centred = [s - m[:, None] for s, m in zip(signals, means)]
-    mus, ws = _safe_eigh(jnp.stack([sn.T @ sn for sn in centred]))  # ascending; mu[0] = 0 (s_n 1 = 0)
-    out = []
-    for s, m, sn, mu, w in zip(signals, means, centred, mus, ws):
-        mu = jnp.maximum(mu, 0)
-        top = mu[2]
-        nonzero = mu > 8 * s.shape[0] * jnp.finfo(s.dtype).eps * top  # (3,) directions spanning range(R)
-        inv_sqrt = jnp.where(nonzero, 1 / _common.safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
-        u = (sn @ w) * inv_sqrt[None, :]  # (n, 3) orthonormal eigenvectors of R, or zero columns
-        t_coef = u.T @ s  # (3, 3)
-        res = m - u @ (u.T @ m)  # null-space part of every column of s
-        band2 = jnp.sum(t_coef * t_coef, axis=1)  # (3,)
-        # Spectrum [0]*(n-2), r, 1 with r = mu1/mu2: the mu1 direction is high band when r < 1/2.
-        r = _common.safe_div(mu[1], top, 0.0)
-        p_high = jax.nn.sigmoid((0.5 - r) / tau)
-        high2 = 3 * jnp.sum(res * res) + p_high * band2[1]
-        low2 = band2[2] + (1 - p_high) * band2[1]
-        out.append(jnp.where(top > 0, _common.band_ratio(high2, low2), 0.0))
-    return jnp.stack(out)
+def _soft_l1_ratio(s, tau):
+    """Smooth invariant gamma of one signal s (n, 3); see :func:`soft_lhf_neighbourhood`."""
+    bands = _lhf.gram_bands(s)
+    high = jax.nn.sigmoid((0.5 - bands.ratio) / tau)
+    pair = jnp.exp(-jnp.square((1 - bands.ratio) / tau))
+    return _lhf.band_l1_ratio(bands, high, pair)
 
 
 def soft_lhf_neighbourhood(centre, nbrs, valid, tau, *, lengths=_lhf.DEFAULT_LENGTHS):
     """Smooth single-length LHF sharpness gamma (Eq. (14)) of one k-nearest neighbourhood.
 
+    The invariant (Haar-expected L1) gamma of :mod:`hgjax.scores.lhf`: the eigenspace sums
+    of :func:`hgjax.scores.lhf.gram_bands` (closed-form 2 x 2 Gram, shared with the hard
+    kernel) combined by :func:`hgjax.scores.lhf.band_l1_ratio` with smooth switches of
+    r = mu1 / mu2 instead of the hard steps:
+
+    * band: the mu1 direction is high band with weight sigmoid((1/2 - r) / tau);
+    * pair: u1, u2 count as one 2-D eigenspace (Haar factor 4 / pi) with weight
+      q = exp(-((1 - r) / tau)^2). The 1-D terms |u_k^T s| turn with the eigenvectors, whose
+      derivative grows like 1 / (mu2 - mu1); since 1 - q = O((1 - r)^2), gamma and its
+      gradient stay continuous at mu1 = mu2, where the hard gamma jumps.
+
+    gamma still jumps where rank(R) drops (the null space gains a dimension: collinear
+    signals, or a plane containing the direction (1, 1, 1)); gradients stay finite there.
+
     Args:
       centre: (3,) the point.
       nbrs: (K, 3) the point itself then its neighbours by distance, K >= max(lengths).
       valid: (K,) bool; padding rows contribute a zero offset.
-      tau: softness of the band switch on mu1 / mu2 (scalar > 0, traced); tau -> 0 gives
-        the hard switch of :func:`hgjax.scores.lhf_single`.
+      tau: softness of the switches on r = mu1 / mu2 (band split at 1/2, 2-D eigenspace at
+        1; scalar > 0, traced); tau -> 0 gives the hard invariant gamma of
+        :func:`hgjax.scores.lhf_single` (except for r within a few tau of 1/2 or 1).
       lengths: tuple of lengths n (static), each counting the point itself.
 
     Returns:
@@ -227,7 +193,7 @@ def soft_lhf_neighbourhood(centre, nbrs, valid, tau, *, lengths=_lhf.DEFAULT_LEN
       [0.0, 0.0]
     """
     signal = jnp.where(valid[:, None], nbrs - centre[None, :], 0)
-    return _soft_gram_ratios([signal[:n] for n in lengths], tau)
+    return jnp.stack([_soft_l1_ratio(signal[:n], tau) for n in lengths])
 
 
 def soft_gfr(points, idx):
@@ -316,7 +282,7 @@ def soft_scores(points, idx, *, method: str = "hkc", d=None, tau=0.1, ratio: flo
       d: voxel spacing for ``"hkc"``/``"hkf"`` (traced; :func:`soft_neighbourhoods`
         returns the one it used for the ROI).
       tau: softness of the smooth pieces (traced): voxel membership relative to d for
-        HKC/HKF, band switch for LHF; unused by EA and GFR.
+        HKC/HKF, switches on mu1 / mu2 for LHF; unused by EA and GFR.
       ratio: resampling ratio in (0, 1], needed by ``"lhf"`` to combine its two lengths
         (Eqs. (15)-(16)); static.
       kernel_size: odd k of the HKC/HKF kernel (static).
@@ -492,8 +458,9 @@ def _neighbourhood_args(method, kernel_size, roi_margin, capacity, k, lengths):
     return dict(method=method, kernel_size=kernel_size, roi_margin=roi_margin, capacity=capacity, k=k)
 
 
-def soft_neighbourhoods(points, *, method: str = "hkc", d_factor: float = 1.3, resolution: float | None = None,
-                        kernel_size: int = 3, roi_margin: float = 0.5, capacity: int = 64, k: int = 16,
+def soft_neighbourhoods(points, *, method: str = "hkc", d_factor: float = voxel.DEFAULT_D_FACTOR,
+                        resolution: float | None = None, kernel_size: int = 3, roi_margin: float = 0.5,
+                        capacity: int = 128, k: int = 16,
                         lengths=_lhf.DEFAULT_LENGTHS):
     """Host step of soft resampling: the fixed integer neighbourhoods (not jittable).
 
@@ -502,7 +469,8 @@ def soft_neighbourhoods(points, *, method: str = "hkc", d_factor: float = 1.3, r
     Args:
       points: (N, 3) float32 or float64 (concrete, not a tracer).
       method: a key of :data:`SOFT_METHODS`.
-      d_factor: voxel spacing d = d_factor * resolution (HKC/HKF).
+      d_factor: voxel spacing d = d_factor * resolution (HKC/HKF); the default is the hard
+        scores' default for the invariant variant (``voxel.DEFAULT_D_FACTOR``).
       resolution: override the intrinsic resolution (default: computed).
       kernel_size: odd k of the HKC/HKF kernel.
       roi_margin: HKC/HKF ROI is the cube of half-width (k / 2 + roi_margin) d, a little
@@ -534,8 +502,8 @@ def soft_neighbourhoods(points, *, method: str = "hkc", d_factor: float = 1.3, r
 
 
 def soft_resample(points, ratio: float, *, method: str = "hkc", temperature=0.05, tau=0.1,
-                  d_factor=1.3, resolution=None, kernel_size: int = 3, roi_margin: float = 0.5,
-                  capacity: int = 64, k: int = 16, lengths=_lhf.DEFAULT_LENGTHS):
+                  d_factor=voxel.DEFAULT_D_FACTOR, resolution=None, kernel_size: int = 3, roi_margin: float = 0.5,
+                  capacity: int = 128, k: int = 16, lengths=_lhf.DEFAULT_LENGTHS):
     """Differentiable soft resampling: per-point keep weights summing to ratio * N.
 
     The neighbourhoods are built on the host through ``jax.pure_callback`` on

@@ -6,6 +6,7 @@ Deliberately slow and simple: brute-force neighbours, one ``np.linalg.eigh`` per
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -93,8 +94,42 @@ def lhf(points, ratio, lengths):
     return eps * ga + (1 - eps) * gb
 
 
+def haar_l1_factor(d):
+    """d c_d = E ||Q^T x||_1 / ||x||_2 for Q a Haar-random orthonormal basis of R^d."""
+    return d * math.gamma(d / 2) / (math.sqrt(math.pi) * math.gamma((d + 1) / 2))
+
+
+def eigenspaces(lam, tol):
+    """Groups of consecutive column indices whose ascending eigenvalues agree within tol."""
+    groups, start = [], 0
+    for j in range(1, len(lam) + 1):
+        if j == len(lam) or lam[j] - lam[start] > tol:
+            groups.append(list(range(start, j)))
+            start = j
+    return groups
+
+
+def lhf_invariant_signal(s, lam, v):
+    """Haar-expected L1 band ratio of one signal s (n, 3) from ANY eigenbasis (lam, v) of R.
+
+    Each eigenspace E of dimension d contributes d c_d sum_k ||V_E^T s_k||_2, the expected
+    L1 norm of Eq. (14)'s coefficients over a random orthonormal basis of E.
+    """
+    n = len(s)
+    if np.abs(lam).max() == 0:
+        return 0.0
+    lam = np.abs(lam) / np.abs(lam).max()
+    t = int(np.argmax(np.diff(lam)) + 1)
+    high = total = 0.0
+    for g in eigenspaces(lam, 8 * n * np.finfo(np.float64).eps):
+        a = haar_l1_factor(len(g)) * np.linalg.norm(v[:, g].T @ s, axis=0).sum()
+        total += a
+        high += a if g[0] < t else 0.0
+    return high / total if total > 0 else 0.0
+
+
 def lhf_single_invariant(points, n):
-    """Band-energy ratio ||P_high s|| / (||P_high s|| + ||P_low s||) through the n x n eigh."""
+    """Haar-expected L1 band ratio (hgjax's invariant LHF) through one n x n eigh per point."""
     p = np.asarray(points, dtype=np.float64)
     rows = knn_rows(p, n)
     out = np.empty(len(p))
@@ -102,9 +137,5 @@ def lhf_single_invariant(points, n):
         s = p[rows[i]] - p[i]
         sn = s - s.mean(axis=1, keepdims=True)
         lam, v = np.linalg.eigh(sn @ sn.T)
-        lam = np.abs(lam) / np.abs(lam).max()
-        t = int(np.argmax(np.diff(lam)) + 1)
-        high = np.linalg.norm(v[:, :t] @ v[:, :t].T @ s)
-        low = np.linalg.norm(v[:, t:] @ v[:, t:].T @ s)
-        out[i] = high / (high + low)
+        out[i] = lhf_invariant_signal(s, lam, v)
     return out

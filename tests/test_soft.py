@@ -150,26 +150,67 @@ def test_gradients_finite_on_degenerate_clouds(method):
             assert np.isfinite(np.asarray(g)).all(), case
 
 
-def test_safe_eigh_is_finite_where_eigh_is_not():
-    """jnp.linalg.eigh's JVP divides by eigenvalue gaps: NaN on a degenerate spectrum."""
-    a = jnp.diag(jnp.array([1.0, 1.0, 2.0]))
-    da = jnp.asarray(np.random.default_rng(9).standard_normal((3, 3)))
-    da = da + da.T
-    _, (_, dv_plain) = jax.jvp(jnp.linalg.eigh, (a,), (da,))
-    assert not np.isfinite(np.asarray(dv_plain)).all()
-    (w, v), (dw, dv) = jax.jvp(soft._safe_eigh, (a,), (da,))
-    assert np.isfinite(np.asarray(dv)).all()
-    np.testing.assert_allclose(dw, jnp.diagonal(v.T @ da @ v), rtol=1e-12)
-    # The projector onto the degenerate pair is smooth, and its derivative is exact.
-    def proj(b):
-        v = soft._safe_eigh(a + (b + b.T) / 2)[1][:, :2]
-        return v @ v.T
+def isotropic_signal(seed=14):
+    """(7, 3) LHF signal with mu1 = mu2 (one 2-D eigenspace of R) and a null-space part."""
+    s = np.concatenate([np.zeros((1, 3)), np.eye(3), -np.eye(3)])
+    return s + np.r_[0, np.random.default_rng(seed).normal(size=6)][:, None]  # shifts along (1, 1, 1) keep R
 
-    check_grads(jax.jit(proj), (jnp.zeros((3, 3)),), order=1, modes=("fwd", "rev"), eps=1e-6)
-    # The smooth LHF ratio on symmetric (degenerate) and empty signals: finite gradients.
-    sym = jnp.array([[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [1, 1, 1.0]])
-    smooth = jax.jit(jax.vmap(jax.grad(lambda s: soft._soft_gram_ratios([s], 0.05)[0])))
-    assert np.isfinite(np.asarray(smooth(jnp.stack([sym, jnp.zeros((8, 3))])))).all()
+
+def soft_gamma(s, tau):
+    n = s.shape[0]
+    return soft.soft_lhf_neighbourhood(jnp.zeros(3, s.dtype), s, jnp.ones(n, bool), tau, lengths=(n,))[0]
+
+
+def hard_gamma(s):
+    n = s.shape[0]
+    return hgjax.scores.lhf_neighbourhood(jnp.zeros(3, s.dtype), s, jnp.ones(n, bool), lengths=(n,))[0]
+
+
+def test_soft_lhf_is_continuous_where_the_hard_one_jumps_at_equal_eigenvalues():
+    """mu1 = mu2: the hard gamma switches to the 2-D eigenspace's Haar factor, the soft one blends."""
+    s = jnp.asarray(isotropic_signal())
+    d = jnp.asarray(np.random.default_rng(15).normal(size=s.shape)).at[0].set(0)
+    assert float(soft_gamma(s, 1e-9)) == pytest.approx(float(hard_gamma(s)), rel=1e-12)
+    hard_jump = abs(float(hard_gamma(s + 1e-9 * d)) - float(hard_gamma(s)))
+    soft_steps = [abs(float(soft_gamma(s + e * d, 0.1)) - float(soft_gamma(s, 0.1))) for e in (1e-3, 1e-6, 1e-9)]
+    assert hard_jump > 1e-3
+    assert soft_steps == sorted(soft_steps, reverse=True) and soft_steps[-1] < 1e-8
+
+
+def test_soft_lhf_gradients_are_exact_at_and_near_equal_eigenvalues():
+    """The eigenvector angle's derivative grows like 1 / (mu2 - mu1); the gradient stays exact."""
+    s = jnp.asarray(isotropic_signal())
+    d = jnp.asarray(np.random.default_rng(16).normal(size=s.shape)).at[0].set(0)
+    f = jax.jit(soft_gamma)
+    for e in (0.0, 1e-9, 1e-6, 1e-3, 0.3):
+        check_grads(lambda x: f(x, 0.1), (s + e * d,), order=1, modes=("fwd", "rev"), eps=1e-6)
+
+
+def test_soft_lhf_gradients_finite_on_degenerate_signals(dtype):
+    """Symmetric, empty, collinear, duplicate and near-isotropic signals at tiny and huge scales."""
+    rng = np.random.default_rng(17)
+    line = np.outer(np.r_[0, rng.random(7)], [1.0, 2.0, 3.0])
+    sym = np.array([[0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1], [1, 1, 1.0]])
+    near_iso = np.r_[isotropic_signal(), np.zeros((1, 3))] + 1e-6 * np.r_[np.zeros((1, 3)), rng.normal(size=(7, 3))]
+    dup = np.repeat(np.r_[np.zeros((1, 3)), rng.random((3, 3))], 2, axis=0)
+    signals = np.stack([line, sym, near_iso, dup, np.zeros((8, 3))])
+    grad = jax.jit(jax.vmap(jax.grad(soft_gamma), in_axes=(0, None)))
+    for scale in (1e-12, 1e-6, 1.0, 1e6, 1e12):
+        g = grad(jnp.asarray(scale * signals, dtype), jnp.asarray(0.1, dtype))
+        assert g.dtype == dtype
+        assert np.isfinite(np.asarray(g)).all(), scale
+        assert float(jnp.abs(g[2]).max()) > 0  # not frozen: the near-isotropic signal has a gradient
+
+
+def test_soft_lhf_at_low_tau_is_the_hard_kernel_on_degenerate_signals():
+    rng = np.random.default_rng(18)
+    clouds = [rng.random((40, 3)), np.outer(rng.random(40), [1.0, 2.0, 3.0]), np.c_[rng.random((40, 2)), np.zeros(40)],
+              np.repeat(rng.random((10, 3)), 4, axis=0)]
+    for p in clouds:
+        idx = hgjax.knn(p, 8).idx
+        sig = jnp.asarray(p[idx] - p[:, None, :])  # (40, 8, 3)
+        np.testing.assert_allclose(jax.vmap(soft_gamma, in_axes=(0, None))(sig, 1e-12), jax.vmap(hard_gamma)(sig),
+                                   rtol=1e-12, atol=1e-14)
 
 
 # ------------------------------------------------------------------------- tau -> 0

@@ -7,9 +7,10 @@ s_oi = V diag(1 - lam) V^T s_i (Eq. (10)), and the local smoothness is
     beta_i = ||s_oi||_2 / ||s_i - s_oi||_2                                   (Eq. (11)).
 
 Lower beta means sharper; resampling keeps the smallest. Because 1 - lam is constant on
-each eigenspace, beta does not depend on the eigensolver's basis: both variants compute the
-same value, through the exact low-band projector (R / lambda_max), so ``variant`` only
-exists for a uniform API. beta is +inf where the low band is exactly zero (signals
+each eigenspace, beta does not depend on the eigensolver's basis: for a given d both variants
+compute the same value, through the exact low-band projector (R / lambda_max). The variants
+differ only in the default d factor: 1.3 for ``"reference"`` (REFERENCE.md) and 2.5 for
+``"invariant"`` (bench/results/edge_defaults.md). beta is +inf where the low band is exactly zero (signals
 symmetric about the centre, e.g. interior points of an axis-aligned flat face).
 """
 
@@ -57,15 +58,17 @@ def _chunk_kernel(kernel_size: int):
     return jax.jit(_common.map_neighbourhoods(fn))
 
 
-def hkc(points, *, variant: str = "invariant", d_factor: float = 1.3, kernel_size: int = 3,
+def hkc(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
         resolution: float | None = None, chunk_size: int | None = None,
         progress: bool = False) -> np.ndarray:
     """HKC local smoothness beta per point (paper Eq. (11)); lower is sharper.
 
     Args:
       points: (N, 3) float32 or float64, N >= 2.
-      variant: ``"invariant"`` or ``"reference"``; identical for HKC (see module docstring).
-      d_factor: voxel spacing d = d_factor * resolution (REFERENCE.md: 1.3).
+      variant: ``"invariant"`` or ``"reference"``; they differ only in the default d_factor.
+      d_factor: voxel spacing d = d_factor * resolution. Default: 1.3 (REFERENCE.md) for
+        ``variant="reference"``, 2.5 (``voxel.DEFAULT_D_FACTOR``, tuned on the edge benchmark)
+        for ``"invariant"``.
       kernel_size: odd k of the k x k x k kernel (default 3, N_k = 27). Static: a new value
         compiles a new kernel.
       resolution: override the intrinsic resolution (default: computed).
@@ -86,8 +89,8 @@ def hkc(points, *, variant: str = "invariant", d_factor: float = 1.3, kernel_siz
       ((200,), dtype('float64'))
     """
     pts = _validate.check_points(points)
-    _common.check_variant(variant)
-    d_factor = _validate.check_positive(d_factor, "d_factor")
+    variant = _common.check_variant(variant)
+    d_factor = voxel.d_factor_or_default(d_factor, variant)
     kernel_size = voxel.check_kernel_size(kernel_size)
     _validate.check_min_points(pts.shape[0], 2, "HKC")
     index = SpatialIndex(pts)

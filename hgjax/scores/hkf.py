@@ -69,7 +69,7 @@ def _chunk_kernel(kernel_size: int, variant: str):
     return jax.jit(_common.map_neighbourhoods(fn))
 
 
-def hkf(points, *, variant: str = "invariant", d_factor: float = 1.3, kernel_size: int = 3,
+def hkf(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
         resolution: float | None = None, chunk_size: int | None = None,
         progress: bool = False) -> np.ndarray:
     """HKF local smoothness sigma per point (paper Eq. (12)); lower is sharper.
@@ -78,7 +78,9 @@ def hkf(points, *, variant: str = "invariant", d_factor: float = 1.3, kernel_siz
       points: (N, 3) float32 or float64, N >= 2.
       variant: ``"invariant"`` (default, basis-free band energies) or ``"reference"``
         (the paper's L1 ratio in NumPy's eigenbasis); see the module docstring.
-      d_factor: voxel spacing d = d_factor * resolution (REFERENCE.md: 1.3).
+      d_factor: voxel spacing d = d_factor * resolution. Default: 1.3 (REFERENCE.md) for
+        ``variant="reference"``, 2.5 (``voxel.DEFAULT_D_FACTOR``, tuned on the edge benchmark)
+        for ``"invariant"``.
       kernel_size: odd k of the k x k x k kernel (default 3). Static: recompiles.
       resolution: override the intrinsic resolution (default: computed).
       chunk_size: points per streamed chunk (default: automatic). Does not change results.
@@ -99,7 +101,7 @@ def hkf(points, *, variant: str = "invariant", d_factor: float = 1.3, kernel_siz
     """
     pts = _validate.check_points(points)
     variant = _common.check_variant(variant)
-    d_factor = _validate.check_positive(d_factor, "d_factor")
+    d_factor = voxel.d_factor_or_default(d_factor, variant)
     kernel_size = voxel.check_kernel_size(kernel_size)
     _validate.check_min_points(pts.shape[0], 2, "HKF")
     index = SpatialIndex(pts)
