@@ -103,12 +103,11 @@ def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Ar
     o = nbrs - centre[None, :]  # (K, 3)
     h = (kernel_size - 1) // 2
     shifts = jnp.arange(-h, h + 1, dtype=o.dtype) * d  # (k,)
-    member = jnp.abs(o[:, :, None] - shifts[None, None, :]) < d / 2  # (K, 3, k)
-    inside = jnp.all(jnp.any(member, axis=2), axis=1) & valid  # (K,) in some voxel
-    bins = jnp.argmax(member, axis=2)  # (K, 3) voxel coordinate per axis (bins are disjoint)
-    voxel = (bins[:, 0] * kernel_size + bins[:, 1]) * kernel_size + bins[:, 2]
-    hits = (voxel[:, None] == jnp.arange(kernel_size**3)[None, :]) & inside[:, None]
-    return jnp.sum(hits, axis=0).astype(o.dtype)
+    # Per-axis slab membership (bins are disjoint); a voxel is the product of its three slabs,
+    # so the counts are the separable sum over K of mx[x] my[y] mz[z] (exact small integers).
+    member = (jnp.abs(o[:, :, None] - shifts[None, None, :]) < d / 2).astype(o.dtype)  # (K, 3, k)
+    mx = member[:, 0, :] * valid[:, None].astype(o.dtype)  # (K, k)
+    return jnp.einsum("kx,ky,kz->xyz", mx, member[:, 1, :], member[:, 2, :]).reshape(kernel_size**3)
 
 
 def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
