@@ -106,7 +106,9 @@ def test_check_grads_scores(method):
         f, args = (lambda p, tau, d: soft.soft_scores(p, idx, method=method, d=d, tau=tau)), (pts, 0.3, d)
     else:
         f, args = (lambda p, tau: soft.soft_scores(p, idx, method=method, tau=tau, ratio=RATIO)), (pts, 0.3)
-    check_grads(jax.jit(f), args, order=1, modes=("fwd", "rev"), eps=1e-5)
+    # LHF's weight eps (Eq. (16)) is an order statistic of the gammas, smooth only piecewise:
+    # on this cloud a step of 1e-5 crosses one of its kinks, 1e-6 does not.
+    check_grads(jax.jit(f), args, order=1, modes=("fwd", "rev"), eps=1e-6)
 
 
 def test_check_grads_weights():

@@ -169,29 +169,36 @@ def gram_bands(s) -> GramBands:
     n = s.shape[0]
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it; squares and 1 / det then neither underflow nor overflow.
-    s = jnp.ldexp(s, -jnp.frexp(jnp.max(jnp.abs(s)))[1])
+    e = -jnp.frexp(jnp.max(jnp.abs(s)))[1]
+    h = e // 2  # two exact power-of-two factors: 2^e alone can overflow (max|s| subnormal)
+    one = jnp.ones((), s.dtype)
+    s = s * jnp.ldexp(one, h) * jnp.ldexp(one, e - h)
     q = jnp.asarray(_PLANE, s.dtype)  # NumPy float64 scalars would promote a float32 s under x64
     # Small products written out elementwise: XLA fuses them, batched dots of this size are slow.
     y0 = s[:, 0] * q[0, 0] + s[:, 1] * q[1, 0]
-    y1 = s[:, 0] * q[0, 1] + s[:, 1] * q[1, 1] + s[:, 2] * q[2, 1]
-    y = jnp.stack([y0, y1], axis=1)  # (n, 2) = s Q
-    a, c, b = jnp.sum(y[:, 0] * y[:, 0]), jnp.sum(y[:, 1] * y[:, 1]), jnp.sum(y[:, 0] * y[:, 1])
+    y1 = s[:, 0] * q[0, 1] + s[:, 1] * q[1, 1] + s[:, 2] * q[2, 1]  # y = s Q (n, 2)
+    # One pass over the n rows: every term below except the residual is a function of the
+    # Gram G = y^T y = [[a, b], [b, c]] and of vy = y^T s (2, 3).
+    a, c, b = jnp.sum(y0 * y0), jnp.sum(y1 * y1), jnp.sum(y0 * y1)
+    vy = jnp.stack([jnp.sum(y0[:, None] * s, axis=0), jnp.sum(y1[:, None] * s, axis=0)])  # (2, 3)
     # Isotropic in the plane (or empty), or so nearly that atan2's derivative 1 / (x^2 + y^2)
     # would overflow: any basis, with a zero angle derivative (finite gradients).
     iso = (a - c) * (a - c) + 4 * b * b == 0
     theta = 0.5 * jnp.arctan2(jnp.where(iso, 0, 2 * b), jnp.where(iso, 1, a - c))
     cos, sin = jnp.cos(theta), jnp.sin(theta)
     w = jnp.stack([jnp.stack([-sin, cos]), jnp.stack([cos, sin])], axis=1)  # (2, 2): small, large
-    z = jnp.stack([y0 * w[0, 0] + y1 * w[1, 0], y0 * w[0, 1] + y1 * w[1, 1]], axis=1)  # (n, 2) = y w
-    mu = jnp.sum(z * z, axis=0)  # (2,) eigenvalues of R: mu[0] <= mu[1] up to rounding
+    # Eigenvalues mu_k = w_k^T G w_k of R (>= 0; mu[0] <= mu[1] up to rounding).
+    mu = jnp.maximum(a * w[0] * w[0] + 2 * b * w[0] * w[1] + c * w[1] * w[1], 0)  # (2,)
     top = jnp.maximum(mu[0], mu[1])
     tol = _degeneracy_tol(n, s.dtype)
     nonzero = mu > tol * top
-    inv = jnp.where(nonzero, 1 / _common.safe_sqrt(jnp.where(nonzero, mu, 1)), 0)
-    u = z * inv[None, :]  # (n, 2) orthonormal eigenvectors of R (zero columns if null)
-    m = jnp.mean(s, axis=1)  # (n,) row means: s = s_n + m 1^T
-    proj = jnp.sum(u[:, :, None] * s[:, None, :], axis=0)  # (2, 3) = u^T s
-    one_d = jnp.sum(jnp.abs(proj), axis=1)  # (2,) L1 on each eigenvector (0 for a null column)
+    inv2 = jnp.where(nonzero, 1 / jnp.where(nonzero, mu, 1), 0)  # (2,) 1 / mu_k, 0 if null
+    # Eigenvectors of R: u_k = y w_k / sqrt(mu_k) (zero if null): u^T s = w^T vy / sqrt(mu).
+    wv = w[0][:, None] * vy[0][None, :] + w[1][:, None] * vy[1][None, :]  # (2, 3) = w^T vy
+    proj = wv * _common.safe_sqrt(inv2)[:, None]  # (2, 3)
+    # (2,) L1 on each eigenvector (0 for a null column); sums over 2 or 3 terms are written
+    # out: XLA would make each a separate reduction call.
+    one_d = jnp.abs(proj[:, 0]) + jnp.abs(proj[:, 1]) + jnp.abs(proj[:, 2])
     ratio = _common.safe_div(jnp.minimum(mu[0], mu[1]), top, 0.0)
     # Projections onto range(R) (pair, null), invariant to the angle. For ratio >= 1/2
     # (cond(G) <= 2) they go through G^{-1} = adj(G) / det instead of the eigenvectors: the
@@ -200,18 +207,23 @@ def gram_bands(s) -> GramBands:
     # the well-conditioned route (G^{-1} is not, as mu1 -> 0).
     near = ratio >= 0.5
     inv_det = 1 / jnp.where(near, a * c - b * b, 1)
-    vy = jnp.sum(y[:, :, None] * s[:, None, :], axis=0)  # (2, 3) = y^T s
     quad = (c * vy[0] * vy[0] - 2 * b * vy[0] * vy[1] + a * vy[1] * vy[1]) * inv_det  # (3,) ||P s_k||^2
-    vm = jnp.sum(y * m[:, None], axis=0)  # (2,) = y^T m
-    fit = y0 * ((c * vm[0] - b * vm[1]) * inv_det) + y1 * ((a * vm[1] - b * vm[0]) * inv_det)  # (n,) P m
-    norms = jnp.where(near, quad, jnp.sum(proj * proj, axis=0))  # (3,) ||P s_k||^2
-    res = m - jnp.where(near, fit, jnp.sum(u * jnp.sum(u * m[:, None], axis=0)[None, :], axis=1))  # P_null s_k
+    norms = jnp.where(near, quad, proj[0] * proj[0] + proj[1] * proj[1])  # (3,) ||P s_k||^2
+    # Null part: res = m - y g with m the row means (s = s_n + m 1^T), y^T m = vy 1 / 3 and
+    # g = G^+ y^T m the plane-fit coefficients; a second pass keeps res explicit (no cancellation).
+    vm = (vy[:, 0] + vy[:, 1] + vy[:, 2]) / 3  # (2,) = y^T m
+    g_near = jnp.stack([c * vm[0] - b * vm[1], a * vm[1] - b * vm[0]]) * inv_det
+    f = inv2 * (w[0] * vm[0] + w[1] * vm[1])  # (2,) (w_k^T vm) / mu_k
+    g_eig = w[:, 0] * f[0] + w[:, 1] * f[1]  # sum_k w_k (w_k^T vm) / mu_k
+    g = jnp.where(near, g_near, g_eig)  # (2,)
+    res = (s[:, 0] + s[:, 1] + s[:, 2]) / 3 - (y0 * g[0] + y1 * g[1])  # (n,) P_null s_k
     first_small = mu[0] <= mu[1]
     return GramBands(
         null=3 * _null_factor(jnp.sum(nonzero), n, s.dtype) * _common.safe_sqrt(jnp.sum(res * res)),
         small=jnp.where(first_small, one_d[0], one_d[1]),
         large=jnp.where(first_small, one_d[1], one_d[0]),
-        pair=_haar_l1_factor(2) * jnp.sum(_common.safe_sqrt(norms)),
+        pair=_haar_l1_factor(2) * (_common.safe_sqrt(norms[0]) + _common.safe_sqrt(norms[1])
+                                   + _common.safe_sqrt(norms[2])),
         ratio=ratio,
         equal=nonzero[0] & nonzero[1] & (jnp.abs(mu[1] - mu[0]) <= tol * top),
         top=top,
