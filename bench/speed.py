@@ -58,17 +58,22 @@ def _build(method: str, pts):
     """The host neighbourhood build that ``method`` performs (index + query)."""
     from hgjax.neighbourhoods import SpatialIndex, _resolution
 
+    from hgjax.scores import voxel
+    from hgjax.scores.lhf import DEFAULT_LENGTHS
+
     index = SpatialIndex(pts)
-    method = method.partition(":")[0]
-    if method in ("hkc", "hkf"):
-        index.cube(1.5 * 1.3 * _resolution(index))
+    method, _, variant = method.partition(":")
+    if method in ("hkc", "hkf"):  # the cube of half-width 1.5 d with the variant's default d
+        index.cube(1.5 * voxel.d_factor_or_default(None, variant or "invariant") * _resolution(index))
     elif method == "gfr":
         import importlib
 
         gfr = importlib.import_module("hgjax.scores.gfr")
         chunk = 2**15
         gfr._graph(index, gfr._radius(index, chunk), gfr.MAX_NN, chunk)
-    elif method in ("lhf", "ea", "pca_ac"):
+    elif method == "lhf":
+        index.knn(max(DEFAULT_LENGTHS))
+    elif method in ("ea", "pca_ac"):
         index.knn(16)
 
 

@@ -491,7 +491,7 @@ def soft_neighbourhoods(points, *, method: str = "hkc", d_factor: float = voxel.
       >>> import numpy as np, hgjax
       >>> idx, d = hgjax.soft_neighbourhoods(np.random.default_rng(0).random((50, 3)), method="lhf")
       >>> idx.shape
-      (50, 8)
+      (50, 12)
     """
     pts = _validate.check_points(points)
     d_factor = _validate.check_positive(d_factor, "d_factor")

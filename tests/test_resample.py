@@ -107,7 +107,7 @@ def test_bad_ratio_type_and_parameters():
 
 
 def test_too_few_points_for_the_neighbourhood():
-    with pytest.raises(ValueError, match="points has 5 point.*LHF with length 8.*at least 8"):
+    with pytest.raises(ValueError, match="points has 5 point.*LHF with length 12.*at least 12"):
         hgjax.resample(cloud(5), 0.2, method="lhf")
     with pytest.raises(ValueError, match="too few for HKC"):
         hgjax.scores.hkc(cloud(1))
