@@ -20,6 +20,7 @@ from hgjax.neighbourhoods import Neighbourhoods, cube, intrinsic_resolution, knn
 from hgjax.resample import METHODS, Method, resample
 from hgjax.select import top_k, weighted_sample
 from hgjax.samplers import farthest_point_sample, uniform_sample, voxel_sample
+from hgjax import samplers as _samplers, soft as _soft
 from hgjax.soft import (
     SOFT_METHODS,
     soft_gfr,
@@ -42,28 +43,16 @@ __all__ = [
     "METHODS",
     "Method",
     "Neighbourhoods",
-    "SOFT_METHODS",
     "cube",
     "eval",
-    "farthest_point_sample",
     "intrinsic_resolution",
     "io",
     "knn",
     "resample",
     "scores",
-    "soft_gfr",
-    "soft_hkc_neighbourhood",
-    "soft_lhf_neighbourhood",
-    "soft_local_signal",
-    "soft_neighbourhoods",
-    "soft_resample",
-    "soft_scores",
-    "soft_select",
-    "soft_weights",
     "spatial_order",
     "spectrum",
     "top_k",
-    "uniform_sample",
-    "voxel_sample",
     "weighted_sample",
 ]
+__all__ += _samplers.__all__ + _soft.__all__  # each module's own list, imported by name above
