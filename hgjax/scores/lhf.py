@@ -90,6 +90,38 @@ def _null_factor(rank, n, dtype):
     return jnp.asarray([_haar_l1_factor(n - r) for r in range(3)], dtype=dtype)[rank]
 
 
+def _pow2(k, dtype):
+    """2.0 ** k in ``dtype`` for an integer array k in the normal exponent range (exact bits)."""
+    info = jnp.finfo(dtype)
+    return jax.lax.bitcast_convert_type((k + (info.maxexp - 1)) << info.nmant, dtype)
+
+
+def _unit_scale(s):
+    """s times the power of two that brings max|s| into [1/2, 1) (an all-zero s stays 0).
+
+    Exact, so every rounding after it scales with it. The exponent comes from a max over the
+    exponent bits (one integer reduction: XLA would recompute a frexp chain in every fusion
+    that reads the scale); a subnormal max|s| is brought to [2^-p, 1) with p the mantissa
+    bits. Two factors, because 2^e alone can overflow.
+    """
+    info = jnp.finfo(s.dtype)
+    bits = jnp.int64 if info.bits == 64 else jnp.int32
+    field = (jax.lax.bitcast_convert_type(jax.lax.stop_gradient(s), bits) >> info.nmant) & (2 * info.maxexp - 1)
+    e = (info.maxexp - 2) - jnp.max(field)  # max|s| in [2^(E - bias), 2^(E - bias + 1))
+    h = e >> 1
+    return s * _pow2(h, s.dtype) * _pow2(e - h, s.dtype)
+
+
+def _row_sum(x):
+    """Sum over the last axis, written out as adds for short axes (XLA CPU reductions are slow there)."""
+    if x.shape[-1] > 32:
+        return jnp.sum(x, axis=-1)
+    out = x[..., 0]
+    for j in range(1, x.shape[-1]):
+        out = out + x[..., j]
+    return out
+
+
 def _degeneracy_tol(n, dtype):
     """Relative eigenvalue tolerance for 'zero' and 'equal' (both solvers use it)."""
     return 8 * n * jnp.finfo(dtype).eps
@@ -146,13 +178,20 @@ def gram_bands(s) -> GramBands:
 
     Row-centring is the projection of each row onto the plane orthogonal to (1, 1, 1), so
     s_n = y Q^T with y = s Q (n, 2) and Q the fixed orthonormal basis of that plane. The
-    non-zero eigenpairs of R = s_n s_n^T = y y^T are those of the 2 x 2 Gram y^T y: its
-    eigenvector angle is 0.5 atan2(2b, a - c), the eigenvectors of R are z_k / ||z_k|| with
-    z_k = y w_k, and mu_k = ||z_k||^2. The null-space part of s is the residual res of the
-    row means m after projection onto span(z_1, z_2), the same for all three columns, so the
-    null space contributes 3 d c_d ||res||. No LAPACK call. Autodiff gives the true
-    derivatives; where the 2 x 2 Gram is exactly isotropic the eigenvectors are any basis
-    with a zero angle derivative, which only the basis-dependent 1-D sums see (the
+    non-zero eigenpairs of R = s_n s_n^T = y y^T are those of the 2 x 2 Gram G = y^T y: with
+    G w_k = mu_k w_k, the eigenvectors of R are u_k = z_k / ||z_k||, z_k = y w_k, and mu_k =
+    ||z_k||^2. The null-space part of s is the residual res of the row means m after
+    projection onto span(z_1, z_2), the same for all three columns, so the null space
+    contributes 3 d c_d ||res||. No LAPACK call.
+
+    Three passes over the n rows, each one fused loop with its sums written out:
+    1. G and vm = y^T m, which give w_k in closed form and mu_l, u_l^T s_k;
+    2. z_s = y w_s, which gives mu_s = ||z_s||^2 and u_s^T s_k. From G, mu_s would be a
+       difference of O(mu_l) terms (relative error ~eps mu_l / mu_s); summed, it is not;
+    3. res = m - y g with g = G^+ vm the plane-fit coefficients of m (explicit, so no
+       cancellation when res is small).
+    Autodiff gives the true derivatives; where G is isotropic to rounding the eigenvectors
+    are any basis with zero derivative, which only the basis-dependent 1-D sums see (the
     pair and null sums go through G^{-1} there). s is first scaled by a power of two and
     everything is computed in its dtype.
 
@@ -167,67 +206,83 @@ def gram_bands(s) -> GramBands:
       (only their ratios are meaningful).
     """
     n = s.shape[0]
+    info = jnp.finfo(s.dtype)
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it; squares and 1 / det then neither underflow nor overflow.
-    e = -jnp.frexp(jnp.max(jnp.abs(s)))[1]
-    h = e // 2  # two exact power-of-two factors: 2^e alone can overflow (max|s| subnormal)
-    one = jnp.ones((), s.dtype)
-    s = s * jnp.ldexp(one, h) * jnp.ldexp(one, e - h)
+    s = _unit_scale(s)
     q = jnp.asarray(_PLANE, s.dtype)  # NumPy float64 scalars would promote a float32 s under x64
     # Small products written out elementwise: XLA fuses them, batched dots of this size are slow.
-    y0 = s[:, 0] * q[0, 0] + s[:, 1] * q[1, 0]
-    y1 = s[:, 0] * q[0, 1] + s[:, 1] * q[1, 1] + s[:, 2] * q[2, 1]  # y = s Q (n, 2)
-    # One pass over the n rows: every term below except the residual is a function of the
-    # Gram G = y^T y = [[a, b], [b, c]] and of vy = y^T s (2, 3).
-    a, c, b = jnp.sum(y0 * y0), jnp.sum(y1 * y1), jnp.sum(y0 * y1)
-    vy = jnp.stack([jnp.sum(y0[:, None] * s, axis=0), jnp.sum(y1[:, None] * s, axis=0)])  # (2, 3)
-    # Isotropic in the plane (or empty), or so nearly that atan2's derivative 1 / (x^2 + y^2)
-    # would overflow: any basis, with a zero angle derivative (finite gradients).
-    iso = (a - c) * (a - c) + 4 * b * b == 0
-    theta = 0.5 * jnp.arctan2(jnp.where(iso, 0, 2 * b), jnp.where(iso, 1, a - c))
-    cos, sin = jnp.cos(theta), jnp.sin(theta)
-    w = jnp.stack([jnp.stack([-sin, cos]), jnp.stack([cos, sin])], axis=1)  # (2, 2): small, large
-    # Eigenvalues mu_k = w_k^T G w_k of R (>= 0; mu[0] <= mu[1] up to rounding).
-    mu = jnp.maximum(a * w[0] * w[0] + 2 * b * w[0] * w[1] + c * w[1] * w[1], 0)  # (2,)
-    top = jnp.maximum(mu[0], mu[1])
+    x0, x1, x2 = s[:, 0], s[:, 1], s[:, 2]
+    y0 = x0 * q[0, 0] + x1 * q[1, 0]  # y = s Q (n, 2); Q[2, 0] = 0
+    y1 = x0 * q[0, 1] + x1 * q[1, 1] + x2 * q[2, 1]
+    m = (x0 + x1 + x2) / 3  # (n,) row means: s = s_n + m 1^T
+
+    # Pass 1: G = [[a, b], [b, c]] and vm; y^T s = y^T s_n + vm 1^T = G Q^T + vm 1^T.
+    a, c, b, vm0, vm1 = (_row_sum(u * v) for u, v in ((y0, y0), (y1, y1), (y0, y1), (y0, m), (y1, m)))
+    # Eigenvectors of G in closed form: with d = (a - c) / 2, r = sqrt(d^2 + b^2) and rho =
+    # b / (r + |d|) (|rho| <= 1), w_l = (1, rho) for d >= 0 and (rho, 1) for d < 0, normalised;
+    # w_s = w_l turned by 90 degrees. Everything below is invariant to the sign of w. No
+    # trigonometry: XLA CPU would recompute it in every fusion that reads the angle.
+    # Isotropic to rounding (r <= eps (a + c), or r^2 so small that its derivatives, ~1 / r^2,
+    # would overflow): w_l = (1, 0) with zero derivative; then mu_s = mu_l to the degeneracy
+    # tolerance and only the pair and null sums, which do not use w, count.
+    d = (a - c) / 2
+    r2 = d * d + b * b
+    iso = r2 <= jnp.maximum(jnp.square(info.eps * (a + c)), jnp.sqrt(info.tiny))
+    rho = jnp.where(iso, 0, b / (jnp.sqrt(jnp.where(iso, 1, r2)) + jnp.abs(d)))
+    k = jax.lax.rsqrt(1 + rho * rho)
+    first = (d >= 0) | iso
+    cos = jnp.where(first, 1, rho) * k  # w_l = (cos, sin), w_s = (-sin, cos)
+    sin = jnp.where(first, rho, 1) * k
+    mu_l = a * cos * cos + 2 * b * sin * cos + c * sin * sin  # w_l^T G w_l
     tol = _degeneracy_tol(n, s.dtype)
-    nonzero = mu > tol * top
-    inv2 = jnp.where(nonzero, 1 / jnp.where(nonzero, mu, 1), 0)  # (2,) 1 / mu_k, 0 if null
-    # Eigenvectors of R: u_k = y w_k / sqrt(mu_k) (zero if null): u^T s = w^T vy / sqrt(mu).
-    wv = w[0][:, None] * vy[0][None, :] + w[1][:, None] * vy[1][None, :]  # (2, 3) = w^T vy
-    proj = wv * _common.safe_sqrt(inv2)[:, None]  # (2, 3)
-    # (2,) L1 on each eigenvector (0 for a null column); sums over 2 or 3 terms are written
-    # out: XLA would make each a separate reduction call.
-    one_d = jnp.abs(proj[:, 0]) + jnp.abs(proj[:, 1]) + jnp.abs(proj[:, 2])
-    ratio = _common.safe_div(jnp.minimum(mu[0], mu[1]), top, 0.0)
-    # Projections onto range(R) (pair, null), invariant to the angle. For ratio >= 1/2
+    nz_l = mu_l > 0
+    inv_l = jnp.where(nz_l, 1 / jnp.where(nz_l, mu_l, 1), 0)
+    # u_l^T s_k = w_l^T vy_k / sqrt(mu_l) = sqrt(mu_l) w_l^T q_k + w_l^T vm / sqrt(mu_l) (q_k row k of Q)
+    vm_l = cos * vm0 + sin * vm1
+    p_l = _common.safe_sqrt(mu_l) * (cos * q[:, 0] + sin * q[:, 1]) + vm_l * _common.safe_sqrt(inv_l)  # (3,)
+
+    # Pass 2: z_s = y w_s.
+    z_s = cos * y1 - sin * y0
+    mu_s, vm_s, zx0, zx1, zx2 = (_row_sum(z_s * v) for v in (z_s, m, x0, x1, x2))
+    top = jnp.maximum(mu_s, mu_l)
+    nz_s = mu_s > tol * top
+    inv_s = jnp.where(nz_s, 1 / jnp.where(nz_s, mu_s, 1), 0)
+    p_s = jnp.stack([zx0, zx1, zx2]) * _common.safe_sqrt(inv_s)  # (3,) u_s^T s_k, 0 if null
+    ratio = _common.safe_div(jnp.minimum(mu_s, mu_l), top, 0.0)
+    # Projections onto range(R) (pair, null), invariant to the basis. For ratio >= 1/2
     # (cond(G) <= 2) they go through G^{-1} = adj(G) / det instead of the eigenvectors: the
-    # angle's derivative grows like 1 / (mu2 - mu1), and its rounding would swamp their
-    # gradients near mu1 = mu2. Below 1/2 the gap is >= mu2 / 2 and the eigenvectors are
-    # the well-conditioned route (G^{-1} is not, as mu1 -> 0).
+    # eigenvectors' derivatives grow like 1 / (mu_l - mu_s), and their rounding would swamp
+    # the gradients near mu_s = mu_l. Below 1/2 the gap is >= mu_l / 2 and the eigenvectors
+    # are the well-conditioned route (G^{-1} is not, as mu_s -> 0).
     near = ratio >= 0.5
     inv_det = 1 / jnp.where(near, a * c - b * b, 1)
-    quad = (c * vy[0] * vy[0] - 2 * b * vy[0] * vy[1] + a * vy[1] * vy[1]) * inv_det  # (3,) ||P s_k||^2
-    norms = jnp.where(near, quad, proj[0] * proj[0] + proj[1] * proj[1])  # (3,) ||P s_k||^2
-    # Null part: res = m - y g with m the row means (s = s_n + m 1^T), y^T m = vy 1 / 3 and
-    # g = G^+ y^T m the plane-fit coefficients; a second pass keeps res explicit (no cancellation).
-    vm = (vy[:, 0] + vy[:, 1] + vy[:, 2]) / 3  # (2,) = y^T m
-    g_near = jnp.stack([c * vm[0] - b * vm[1], a * vm[1] - b * vm[0]]) * inv_det
-    f = inv2 * (w[0] * vm[0] + w[1] * vm[1])  # (2,) (w_k^T vm) / mu_k
-    g_eig = w[:, 0] * f[0] + w[:, 1] * f[1]  # sum_k w_k (w_k^T vm) / mu_k
-    g = jnp.where(near, g_near, g_eig)  # (2,)
-    res = (s[:, 0] + s[:, 1] + s[:, 2]) / 3 - (y0 * g[0] + y1 * g[1])  # (n,) P_null s_k
-    first_small = mu[0] <= mu[1]
+    vy0 = a * q[:, 0] + b * q[:, 1] + vm0  # (3,) y_0^T s_k
+    vy1 = b * q[:, 0] + c * q[:, 1] + vm1  # (3,) y_1^T s_k
+    quad = (c * vy0 * vy0 - 2 * b * vy0 * vy1 + a * vy1 * vy1) * inv_det  # (3,) ||P s_k||^2
+    norms = jnp.where(near, quad, p_s * p_s + p_l * p_l)  # (3,) ||P s_k||^2
+    f_s, f_l = inv_s * vm_s, inv_l * vm_l  # (w^T vm) / mu (vm_s = z_s^T m = w_s^T vm)
+    g0 = jnp.where(near, (c * vm0 - b * vm1) * inv_det, cos * f_l - sin * f_s)
+    g1 = jnp.where(near, (a * vm1 - b * vm0) * inv_det, sin * f_l + cos * f_s)
+
+    # Pass 3: res = m - y g = P_null s_k, the same for k = 1, 2, 3.
+    res = m - (y0 * g0 + y1 * g1)
+    rank = nz_s.astype(jnp.int32) + nz_l.astype(jnp.int32)
+    first_small = mu_s <= mu_l
     return GramBands(
-        null=3 * _null_factor(jnp.sum(nonzero), n, s.dtype) * _common.safe_sqrt(jnp.sum(res * res)),
-        small=jnp.where(first_small, one_d[0], one_d[1]),
-        large=jnp.where(first_small, one_d[1], one_d[0]),
-        pair=_haar_l1_factor(2) * (_common.safe_sqrt(norms[0]) + _common.safe_sqrt(norms[1])
-                                   + _common.safe_sqrt(norms[2])),
+        null=3 * _null_factor(rank, n, s.dtype) * _common.safe_sqrt(_row_sum(res * res)),
+        small=jnp.where(first_small, _l1(p_s), _l1(p_l)),
+        large=jnp.where(first_small, _l1(p_l), _l1(p_s)),
+        pair=_haar_l1_factor(2) * _l1(_common.safe_sqrt(norms)),
         ratio=ratio,
-        equal=nonzero[0] & nonzero[1] & (jnp.abs(mu[1] - mu[0]) <= tol * top),
+        equal=nz_s & (jnp.abs(mu_l - mu_s) <= tol * top),
         top=top,
     )
+
+
+def _l1(v):
+    """|v_0| + |v_1| + |v_2| for a (3,) vector, written out (XLA would make a reduction call)."""
+    return jnp.abs(v[0]) + jnp.abs(v[1]) + jnp.abs(v[2])
 
 
 def band_l1_ratio(bands: GramBands, high, pair):

@@ -102,12 +102,20 @@ def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Ar
     """
     o = nbrs - centre[None, :]  # (K, 3)
     h = (kernel_size - 1) // 2
-    shifts = jnp.arange(-h, h + 1, dtype=o.dtype) * d  # (k,)
-    # Per-axis slab membership (bins are disjoint); a voxel is the product of its three slabs,
-    # so the counts are the separable sum over K of mx[x] my[y] mz[z] (exact small integers).
-    member = (jnp.abs(o[:, :, None] - shifts[None, None, :]) < d / 2).astype(o.dtype)  # (K, 3, k)
-    mx = member[:, 0, :] * valid[:, None].astype(o.dtype)  # (K, k)
-    return jnp.einsum("kx,ky,kz->xyz", mx, member[:, 1, :], member[:, 2, :]).reshape(kernel_size**3)
+    # Per-axis slab j of each neighbour (|o - (j - h) d| < d / 2; the slabs are disjoint), then
+    # its voxel code (N_k outside the kernel or padding), then the counts by a scatter-add of
+    # ones (exact small integers, in any order). On XLA CPU this is 1.5x faster than the
+    # contraction over K of the slab memberships, and much faster than comparing the codes
+    # with every voxel (XLA recomputes the codes for each comparison).
+    slab = jnp.zeros(o.shape, jnp.int32)
+    found = jnp.zeros(o.shape, bool)
+    for j in range(kernel_size):
+        hit = jnp.abs(o - (j - h) * d) < d / 2  # (K, 3)
+        slab, found = slab + j * hit, found | hit
+    inside = valid & found[:, 0] & found[:, 1] & found[:, 2]
+    n_k = kernel_size**3
+    code = jnp.where(inside, (slab[:, 0] * kernel_size + slab[:, 1]) * kernel_size + slab[:, 2], n_k)  # (K,)
+    return jnp.zeros(n_k + 1, o.dtype).at[code].add(1)[:n_k]
 
 
 def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
@@ -119,8 +127,9 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
     """
     b, mu = low_band(kernel_size)
     b = jnp.asarray(b, dtype=s.dtype)
-    w = jnp.sum(b * s[:, None], axis=0)  # (3,) = B^T s, exact for integer counts
-    low = jnp.sum(b * w[None, :], axis=1) / jnp.asarray(mu, dtype=s.dtype)
+    # Reductions over the minor axis only, sums of 3 written out: XLA CPU is slow otherwise.
+    w = jnp.sum(b.T * s[None, :], axis=1)  # (3,) = B^T s, exact for integer counts
+    low = (b[:, 0] * w[0] + b[:, 1] * w[1] + b[:, 2] * w[2]) / jnp.asarray(mu, dtype=s.dtype)
     return low, s - low
 
 
