@@ -269,20 +269,16 @@ def gram_bands(s) -> GramBands:
     res = m - (y0 * g0 + y1 * g1)
     rank = nz_s.astype(jnp.int32) + nz_l.astype(jnp.int32)
     first_small = mu_s <= mu_l
+    l1_s, l1_l = _row_sum(jnp.abs(p_s)), _row_sum(jnp.abs(p_l))  # L1 over the 3 columns
     return GramBands(
         null=3 * _null_factor(rank, n, s.dtype) * _common.safe_sqrt(_row_sum(res * res)),
-        small=jnp.where(first_small, _l1(p_s), _l1(p_l)),
-        large=jnp.where(first_small, _l1(p_l), _l1(p_s)),
-        pair=_haar_l1_factor(2) * _l1(_common.safe_sqrt(norms)),
+        small=jnp.where(first_small, l1_s, l1_l),
+        large=jnp.where(first_small, l1_l, l1_s),
+        pair=_haar_l1_factor(2) * _row_sum(_common.safe_sqrt(norms)),
         ratio=ratio,
         equal=nz_s & (jnp.abs(mu_l - mu_s) <= tol * top),
         top=top,
     )
-
-
-def _l1(v):
-    """|v_0| + |v_1| + |v_2| for a (3,) vector, written out (XLA would make a reduction call)."""
-    return jnp.abs(v[0]) + jnp.abs(v[1]) + jnp.abs(v[2])
 
 
 def band_l1_ratio(bands: GramBands, high, pair):
