@@ -1,4 +1,4 @@
-"""Reading and writing point clouds: every format trimesh reads, plus XYZ/TXT, NPY and PCD.
+"""Reading and writing point clouds: PLY, XYZ/TXT, NPY, PCD, LAS/LAZ, and every mesh trimesh reads.
 
 Host-side file IO for the command line and for scripts; nothing here is traced by JAX.
 
@@ -15,41 +15,67 @@ Readers, chosen by the file extension (case-insensitive):
   first three columns are x, y, z and extra columns are kept as ``column_3``, ...
 - ``.npy``: an (N, 3+) numeric array (extra columns as for XYZ) or a structured array with
   fields ``x``, ``y``, ``z``.
-- ``.pcd`` (PCL): ``DATA ascii``, ``binary`` and ``binary_compressed`` (LZF, decompressed
-  here in pure Python). A packed ``rgb``/``rgba`` field becomes ``colors``; ``normal_x``
-  ... become ``normals``.
+- ``.pcd`` (PCL; needs ``pip install "hgjax[pcd]"``): ``DATA ascii``, ``binary`` and
+  ``binary_compressed``, read through pypcd4. A packed ``rgb``/``rgba`` field becomes
+  ``colors`` (in ascii files it may be written as the packed float or, as PCL does, as
+  the packed unsigned integer); ``normal_x`` ... become ``normals``; fields named ``_``
+  (padding) are skipped; a field with COUNT C > 1 is kept as an (N, C) attribute.
+- ``.las`` / ``.laz`` (LAS 1.0-1.4, every point format; needs ``pip install "hgjax[las]"``),
+  read through laspy (LAZ through lazrs): ``points`` are the real coordinates
+  X * scale + offset in float64 (exact for every int32 X), every other dimension of the
+  point format and every extra dimension is an attribute under its laspy name in its
+  stored dtype (``intensity``, ``return_number``, ``classification``, ``gps_time``,
+  ``scan_angle`` or ``scan_angle_rank``, ...; scaled extra dimensions as float64), except
+  ``red green blue``, which become ``colors`` (N, 3) uint16. The file's
+  :class:`laspy.LasHeader` is kept as :attr:`PointData.header`.
 
 For an input that is already a point cloud, ``samples`` is ignored when it is None or at
 least the number of points; when smaller it selects a seeded random subset (in file
 order). Points with a NaN or inf coordinate are dropped with a :class:`NonFinitePointsWarning`
-that says how many. Every failure raises :class:`PointCloudReadError` naming the file.
+that says how many. Every failure raises :class:`PointCloudReadError` naming the file; a
+missing optional package raises :class:`ImportError` naming the extra to install.
+
+Writers (:func:`write_points`) cover the same point-cloud formats, chosen by the extension
+(:data:`WRITE_EXTENSIONS`). Every write goes to a temporary file in the target's directory
+that is then renamed onto the target, so an interrupted or failed write never leaves a
+partial file and writing onto the file that was read never destroys it midway.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import importlib
+import math
 import os
 import re
+import secrets
 import warnings
-from typing import Mapping
+from typing import Any, BinaryIO, Callable, Mapping
 
 import numpy as np
 
 __all__ = [
+    "DEFAULT_SAMPLES",
     "NonFinitePointsWarning",
     "PointCloudNotFoundError",
     "PointCloudReadError",
+    "PointCloudWriteError",
     "PointData",
+    "WRITE_EXTENSIONS",
+    "check_writable",
     "read_points",
     "write_indices",
     "write_points",
 ]
 
 DEFAULT_SAMPLES = 20000
-WRITE_EXTENSIONS = (".ply", ".xyz", ".txt")
+WRITE_EXTENSIONS = (".ply", ".xyz", ".txt", ".npy", ".pcd", ".las", ".laz")
 
 _COLOR_NAMES = (("red", "green", "blue", "alpha"), ("r", "g", "b", "a"))
 _NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
+_EXTRAS = {".las": "las", ".laz": "las", ".pcd": "pcd"}
+_MODULES = {"las": ("laspy", "lazrs"), "pcd": ("pypcd4",)}
 
 
 class PointCloudReadError(ValueError):
@@ -58,6 +84,10 @@ class PointCloudReadError(ValueError):
 
 class PointCloudNotFoundError(PointCloudReadError, FileNotFoundError):
     """The file to read does not exist (also a :class:`FileNotFoundError`)."""
+
+
+class PointCloudWriteError(ValueError):
+    """A point cloud cannot be written to a path; the message names the path and the cause."""
 
 
 class NonFinitePointsWarning(UserWarning):
@@ -71,8 +101,13 @@ class PointData:
     Attributes:
       points: (N, 3) float64 coordinates, all finite.
       attributes: per-point arrays with leading axis N, by name: ``colors`` (N, 3) or
-        (N, 4) uint8, ``normals`` (N, 3) float, and any extra columns of the file.
+        (N, 4) uint8 ((N, 3) uint16 from LAS/LAZ), ``normals`` (N, 3) float, and any other
+        column of the file.
       source: the file it was read from (None when built in memory).
+      header: the source file's header when the format has one that :func:`write_points`
+        needs to write the points back the same way: the :class:`laspy.LasHeader` of a
+        LAS/LAZ file (point format, version, scale, offset, extra dimensions, VLRs); None
+        for other formats.
 
     Examples:
       >>> import numpy as np
@@ -84,6 +119,7 @@ class PointData:
     points: np.ndarray
     attributes: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
     source: str | None = None
+    header: Any = None
 
     def __len__(self) -> int:
         return self.points.shape[0]
@@ -95,7 +131,7 @@ class PointData:
           indices: (M,) integer indices (or an (N,) boolean mask).
 
         Returns:
-          A new :class:`PointData` of M points with the same source.
+          A new :class:`PointData` of M points with the same source and header.
 
         Examples:
           >>> import numpy as np
@@ -104,7 +140,16 @@ class PointData:
         """
         indices = np.asarray(indices)
         return PointData(self.points[indices], {k: v[indices] for k, v in self.attributes.items()},
-                         self.source)
+                         self.source, self.header)
+
+
+def _require(extra: str, what: str) -> tuple:
+    """Import the optional packages of ``extra`` (e.g. laspy and lazrs for ``las``)."""
+    try:
+        return tuple(importlib.import_module(name) for name in _MODULES[extra])
+    except ImportError as err:
+        raise ImportError(f"{what} needs the optional package {err.name!r}:"
+                          f' pip install "hgjax[{extra}]"') from err
 
 
 # ----------------------------------------------------------------------------- reading
@@ -115,17 +160,20 @@ def read_points(path, *, samples: int | None = None, seed: int = 0) -> PointData
 
     Args:
       path: file path; the format comes from the extension (see the module docstring).
+        The file is never modified.
       samples: for meshes, the number of surface samples (default 20000); for point
         clouds, a seeded random subset of this size when smaller than the cloud (default
         None: all points).
       seed: integer seed of the surface sampling or the subset (default 0).
 
     Returns:
-      :class:`PointData` with (N, 3) float64 finite points and per-point attributes.
+      :class:`PointData` with (N, 3) float64 finite points, per-point attributes and, for
+      LAS/LAZ, the file's header.
 
     Raises:
       PointCloudNotFoundError: the file does not exist.
       PointCloudReadError: the file is empty, cannot be parsed, or holds no finite point.
+      ImportError: the optional package for the format (PCD, LAS/LAZ) is not installed.
       TypeError, ValueError: ``samples`` or ``seed`` is not a valid integer.
 
     Warns:
@@ -152,27 +200,32 @@ def read_points(path, *, samples: int | None = None, seed: int = 0) -> PointData
     if os.path.getsize(path) == 0:
         raise PointCloudReadError(f"cannot read {path}: the file is empty")
     ext = os.path.splitext(path)[1].lower()
+    if ext in _EXTRAS:
+        _require(_EXTRAS[ext], f"reading {path}")
+    header, is_mesh = None, False
     try:
         if ext in (".xyz", ".txt"):
-            columns, is_mesh = _read_text(path), False
+            columns = _read_text(path)
         elif ext == ".npy":
-            columns, is_mesh = _read_npy(path), False
+            columns = _read_npy(path)
         elif ext == ".pcd":
-            columns, is_mesh = _read_pcd(path), False
+            columns = _read_pcd(path)
+        elif ext in (".las", ".laz"):
+            columns, header = _read_las(path)
         else:
             columns, is_mesh = _read_trimesh(path, samples or DEFAULT_SAMPLES, seed)
     except PointCloudReadError:
         raise
     except Exception as err:  # any parser failure becomes one clear error naming the file
         raise PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
-    data = _to_point_data(columns, path)
+    data = _to_point_data(columns, path, header)
     if not is_mesh and samples is not None and samples < len(data):
         keep = np.sort(np.random.default_rng(seed).choice(len(data), samples, replace=False))
         data = data.subset(keep)
     return data
 
 
-def _to_point_data(columns: dict[str, np.ndarray], path: str) -> PointData:
+def _to_point_data(columns: dict[str, np.ndarray], path: str, header: Any) -> PointData:
     """Group named (N,) columns into points, colors, normals and the remaining attributes."""
     names = {name.lower(): name for name in columns}
     if not all(c in names for c in "xyz"):
@@ -182,7 +235,7 @@ def _to_point_data(columns: dict[str, np.ndarray], path: str) -> PointData:
     for group in _COLOR_NAMES:
         present = [names[c] for c in group if c in names and names[c] in columns]
         if len(present) >= 3 and present[:3] == [names[c] for c in group[:3]]:
-            attributes["colors"] = np.stack([_as_uint8(columns.pop(c)) for c in present], axis=1)
+            attributes["colors"] = _as_uint8(np.stack([columns.pop(c) for c in present], axis=1))
             break
     for group in _NORMAL_NAMES:
         if all(c in names and names[c] in columns for c in group):
@@ -200,16 +253,27 @@ def _to_point_data(columns: dict[str, np.ndarray], path: str) -> PointData:
                       NonFinitePointsWarning, stacklevel=3)
         points = points[finite]
         attributes = {k: v[finite] for k, v in attributes.items()}
-    return PointData(points, attributes, path)
+    return PointData(points, attributes, path, header)
 
 
 def _as_uint8(values: np.ndarray) -> np.ndarray:
-    """Colour channel as uint8; floats in [0, 1] are scaled by 255."""
+    """Colours (N, C) as uint8: floats in [0, 1] are scaled by 255, integers above 255 (16-bit
+    colour, as in LAS) by 255 / 65535."""
     values = np.asarray(values)
     if values.dtype.kind == "f":
         scale = 255.0 if values.size and np.nanmax(values) <= 1.0 else 1.0
         values = np.rint(np.nan_to_num(values) * scale)
+    elif values.dtype.kind in "iu" and values.size and values.max() > 255:
+        values = np.rint(values / 257.0)
     return np.clip(values, 0, 255).astype(np.uint8)
+
+
+def _as_uint16(values: np.ndarray) -> np.ndarray:
+    """Colours (N, C) as LAS's 16-bit channels: uint16 is kept, 8-bit colour is scaled by 257."""
+    values = np.asarray(values)
+    if values.dtype == np.uint16:
+        return values
+    return _as_uint8(values).astype(np.uint16) * np.uint16(257)
 
 
 def _read_trimesh(path: str, samples: int, seed: int) -> tuple[dict[str, np.ndarray], bool]:
@@ -279,77 +343,67 @@ def _read_npy(path: str) -> dict[str, np.ndarray]:
     return _named_columns(array.reshape(array.shape[0], -1) if array.ndim else array, None, path)
 
 
-# PCL's PCD format: http://pointclouds.org/documentation/tutorials/pcd_file_format.html
-_PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4",
-              ("U", 8): "<u8", ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4", ("I", 8): "<i8"}
-
-
 def _read_pcd(path: str) -> dict[str, np.ndarray]:
+    (pypcd4,) = _require("pcd", f"reading {path}")
     with open(path, "rb") as fh:
-        blob = fh.read()
-    header: dict[str, list[str]] = {}
-    offset = 0
-    while "DATA" not in header:
-        end = blob.find(b"\n", offset)
-        if end < 0:
-            raise PointCloudReadError(f"cannot read {path}: PCD header has no DATA line")
-        line = blob[offset:end].decode("ascii", errors="replace").strip()
-        offset = end + 1
-        if line and not line.startswith("#"):
-            key, *values = line.split()
-            header[key.upper()] = values
-    fields = header.get("FIELDS")
-    if not fields:
-        raise PointCloudReadError(f"cannot read {path}: PCD header has no FIELDS line")
-    sizes = [int(s) for s in header.get("SIZE", [])]
-    types = [t.upper() for t in header.get("TYPE", [])]
-    counts = [int(c) for c in header.get("COUNT", ["1"] * len(fields))]
-    if not (len(sizes) == len(types) == len(counts) == len(fields)):
-        raise PointCloudReadError(f"cannot read {path}: PCD FIELDS, SIZE, TYPE and COUNT lengths differ")
-    n = int(header["POINTS"][0]) if "POINTS" in header else \
-        int(header["WIDTH"][0]) * int(header.get("HEIGHT", ["1"])[0])
-    try:
-        formats = [np.dtype(_PCD_TYPES[t, s]) for t, s in zip(types, sizes)]
-    except KeyError as err:
-        raise PointCloudReadError(f"cannot read {path}: unsupported PCD TYPE/SIZE {err.args[0]}") from None
-    names = [f if f != "_" else f"_pad{i}" for i, f in enumerate(fields)]
-    kind = header["DATA"][0].lower()
-    body = blob[offset:]
-    if kind == "ascii":
-        table = np.loadtxt(body.decode("ascii").splitlines(), ndmin=2, dtype=np.float64)[:n]
-        if table.shape[1] != sum(counts):
-            raise PointCloudReadError(f"cannot read {path}: {table.shape[1]} values per row, header says {sum(counts)}")
-        split = np.cumsum(counts)[:-1]
-        raw = {name: col.astype(fmt) for name, fmt, col in zip(names, formats, np.split(table, split, axis=1))}
-    elif kind == "binary":
-        row = np.dtype([(name, fmt, (c,)) for name, fmt, c in zip(names, formats, counts)])
-        if len(body) < n * row.itemsize:
-            raise PointCloudReadError(f"cannot read {path}: binary PCD data is truncated "
-                                      f"({len(body)} bytes for {n} points of {row.itemsize} bytes)")
-        data = np.frombuffer(body, row, count=n)
-        raw = {name: data[name] for name in names}
-    elif kind == "binary_compressed":
-        if len(body) < 8:
-            raise PointCloudReadError(f"cannot read {path}: binary_compressed PCD data is truncated")
-        compressed, uncompressed = np.frombuffer(body[:8], "<u4")
-        data = lzf_decompress(body[8:8 + int(compressed)], int(uncompressed))
-        raw, start = {}, 0
-        for name, fmt, c in zip(names, formats, counts):  # column-major: one block per field
-            stop = start + n * c * fmt.itemsize
-            raw[name] = np.frombuffer(data[start:stop], fmt).reshape(n, c)
-            start = stop
-    else:
-        raise PointCloudReadError(f"cannot read {path}: unknown PCD DATA {kind!r}; expected ascii, binary or"
-                                  " binary_compressed")
+        lines = []
+        for raw_line in fh:
+            line = raw_line.decode("ascii").strip()
+            if line and not line.startswith("#"):
+                lines.append(line)
+            if line.upper().startswith("DATA"):
+                break
+        try:
+            meta = pypcd4.MetaData.parse_header(lines)
+        except ValueError as err:  # pydantic's ValidationError
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']} (got {e.get('input')!r})"
+                                 for e in getattr(err, "errors", lambda: [])()) or str(err)
+            raise PointCloudReadError(f"cannot read {path}: invalid PCD header: {problems}") from None
+        n, fields = meta.points, list(zip(meta.fields, meta.type, meta.size, meta.count))
+        if meta.data == pypcd4.Encoding.ASCII:
+            raw = _pcd_ascii_fields(fh, fields, n, path)
+        else:
+            row = meta.build_dtype()
+            if meta.data == pypcd4.Encoding.BINARY and os.fstat(fh.fileno()).st_size - fh.tell() < n * row.itemsize:
+                raise PointCloudReadError(f"cannot read {path}: binary PCD data is truncated (less than {n}"
+                                          f" points of {row.itemsize} bytes)")
+            fh.seek(0)
+            try:
+                table = pypcd4.PointCloud.from_fileobj(fh).pc_data
+            except Exception as err:
+                raise PointCloudReadError(f"cannot read {path}: {meta.data.value} PCD data is truncated or"
+                                          f" corrupt ({type(err).__name__}: {err})") from err
+            raw = {name: np.stack([table[f"{name}__{i:04d}"] for i in range(count)], axis=1) if count > 1
+                   else table[name][:, None] for name, _, _, count in fields}
     return _pcd_columns(raw)
+
+
+def _pcd_ascii_fields(fh: BinaryIO, fields: list[tuple], n: int, path: str) -> dict[str, np.ndarray]:
+    """Parse the rows of an ascii PCD body into (N, COUNT) arrays of each field's type.
+
+    Values are parsed as float64 and then cast, so a packed ``rgb`` float written as PCL
+    writes it (the packed unsigned integer) keeps its bits."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # np.loadtxt warns on a body without rows
+        table = np.loadtxt(fh, dtype=np.float64, ndmin=2, encoding="ascii")
+    counts = [count for *_, count in fields]
+    if table.shape[0] < n or (n and table.shape[1] != sum(counts)):
+        raise PointCloudReadError(f"cannot read {path}: ascii PCD data is truncated or malformed (header: {n}"
+                                  f" points of {sum(counts)} values; found {table.shape[0]} rows of"
+                                  f" {table.shape[1]} values)")
+    raw = {}
+    for (name, kind, size, _), values in zip(fields, np.split(table[:n], np.cumsum(counts)[:-1], axis=1)):
+        packed_int = (name.lower() in ("rgb", "rgba") and values.size and np.all(values == np.floor(values))
+                      and values.max() >= 1)
+        raw[name] = values.astype(np.uint32 if packed_int else f"{kind.lower()}{size}")
+    return raw
 
 
 def _pcd_columns(raw: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Flatten PCD fields into named columns; unpack PCL's packed ``rgb``/``rgba``."""
     columns = {}
     for name, values in raw.items():
-        values = np.asarray(values)
-        if name.startswith("_pad"):
+        if not name.isidentifier():  # PCL's "_" padding fields
             continue
         if name.lower() in ("rgb", "rgba") and values.shape[1] == 1:
             packed = np.ascontiguousarray(values[:, 0]).view(np.uint32) if values.itemsize == 4 else \
@@ -364,58 +418,16 @@ def _pcd_columns(raw: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return columns
 
 
-def lzf_decompress(data: bytes, size: int) -> bytes:
-    """Decompress an LZF block (liblzf's format, used by PCD ``binary_compressed``).
-
-    Args:
-      data: the compressed bytes.
-      size: the decompressed size in bytes, as stored next to the block.
-
-    Returns:
-      The ``size`` decompressed bytes.
-
-    Raises:
-      ValueError: the block is corrupt or does not decompress to ``size`` bytes.
-
-    Examples:
-      >>> lzf_decompress(bytes([2]) + b"abc" + bytes([0x60, 2]), 8)
-      b'abcabcab'
-    """
-    out = bytearray(size)
-    ip = op = 0
-    end = len(data)
-    try:
-        while ip < end:
-            ctrl = data[ip]
-            ip += 1
-            if ctrl < 32:  # literal run of ctrl + 1 bytes
-                length = ctrl + 1
-                out[op:op + length] = data[ip:ip + length]
-                if ip + length > end or op + length > size:
-                    raise IndexError
-                ip += length
-                op += length
-            else:  # back reference
-                length = ctrl >> 5
-                if length == 7:
-                    length += data[ip]
-                    ip += 1
-                ref = op - ((ctrl & 0x1F) << 8) - data[ip] - 1
-                ip += 1
-                length += 2
-                if ref < 0 or op + length > size:
-                    raise IndexError
-                if ref + length <= op:
-                    out[op:op + length] = out[ref:ref + length]
-                else:  # overlapping copy repeats the pattern
-                    for i in range(length):
-                        out[op + i] = out[ref + i]
-                op += length
-    except IndexError:
-        raise ValueError(f"corrupt LZF block at byte {ip} of {end}") from None
-    if op != size:
-        raise ValueError(f"LZF block decompressed to {op} bytes; header says {size}")
-    return bytes(out)
+def _read_las(path: str) -> tuple[dict[str, np.ndarray], Any]:
+    laspy, _ = _require("las", f"reading {path}")
+    las = laspy.read(path)
+    names = [name for name in las.point_format.dimension_names if name not in ("X", "Y", "Z")]
+    columns = {axis: np.asarray(getattr(las, axis), np.float64) for axis in "xyz"}
+    if {"red", "green", "blue"} <= set(names):
+        columns["colors"] = np.stack([np.asarray(las[c]) for c in ("red", "green", "blue")], axis=1)
+        names = [name for name in names if name not in ("red", "green", "blue")]
+    columns.update((name, np.asarray(las[name])) for name in names)
+    return columns, las.header
 
 
 # ----------------------------------------------------------------------------- writing
@@ -424,80 +436,310 @@ _PLY_TYPES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": 
               "f4": "float", "f8": "double"}
 
 
-def _text_format(values: np.ndarray) -> str:
-    """printf format that writes a column without losing precision."""
-    return "%d" if values.dtype.kind in "iu" else "%.9g" if values.dtype.itemsize <= 4 else "%.17g"
+def check_writable(path) -> str:
+    """Check, before any computation, that a point cloud can be written to ``path``.
+
+    Args:
+      path: output file; its extension must be one of :data:`WRITE_EXTENSIONS`
+        (case-insensitive), its directory must exist and be writable, and an existing file
+        there must be writable.
+
+    Returns:
+      The absolute path that will be written, with symbolic links resolved.
+
+    Raises:
+      PointCloudWriteError: (a ValueError) the extension is not supported, the path is a
+        directory, the directory does not exist or is not writable, or the file is
+        read-only; the message names the path.
+      ImportError: the optional package the format needs (``hgjax[pcd]``, ``hgjax[las]``)
+        is not installed.
+
+    Examples:
+      >>> import os, tempfile
+      >>> folder = tempfile.mkdtemp()
+      >>> check_writable(os.path.join(folder, "out.las")) == os.path.realpath(os.path.join(folder, "out.las"))
+      True
+      >>> check_writable(os.path.join(folder, "out.obj"))
+      Traceback (most recent call last):
+      ...
+      hgjax.io.PointCloudWriteError: cannot write .../out.obj: unsupported extension '.obj' in argument path; expected one of .ply, .xyz, .txt, .npy, .pcd, .las, .laz
+    """
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in WRITE_EXTENSIONS:
+        raise PointCloudWriteError(f"cannot write {path}: unsupported extension {ext!r} in argument path;"
+                                   f" expected one of {', '.join(WRITE_EXTENSIONS)}")
+    if ext in _EXTRAS:
+        _require(_EXTRAS[ext], f"writing {path}")
+    target = os.path.realpath(path)
+    directory = os.path.dirname(target)
+    if os.path.isdir(target):
+        raise PointCloudWriteError(f"cannot write {path}: it is a directory")
+    if not os.path.isdir(directory):
+        raise PointCloudWriteError(f"cannot write {path}: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise PointCloudWriteError(f"cannot write {path}: directory {directory} is not writable")
+    if os.path.exists(target) and not os.access(target, os.W_OK):
+        raise PointCloudWriteError(f"cannot write {path}: the file is read-only")
+    return target
 
 
-def _ply_column(values: np.ndarray) -> np.ndarray:
-    """A column in a dtype PLY can store (64-bit integers and bools become int32/uint8 or double)."""
+def _atomic_write(target: str, write: Callable[[BinaryIO], None]) -> None:
+    """Call ``write`` on a new temporary file next to ``target``, then rename it onto ``target``.
+
+    On any exception (or interruption) the temporary file is removed and ``target`` is
+    left as it was."""
+    temp = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{secrets.token_hex(6)}.tmp")
+    fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(temp, target)
+    except BaseException:
+        if os.path.exists(temp):
+            os.unlink(temp)
+        raise
+
+
+def _native_column(values: np.ndarray) -> np.ndarray:
+    """A numeric column in native byte order (bools as uint8, float16 as float32)."""
     values = np.asarray(values)
     if values.dtype.kind == "b":
         return values.astype(np.uint8)
-    if values.dtype.kind in "iu" and values.dtype.itemsize == 8:
-        info = np.iinfo(np.int32)
-        fits = values.size == 0 or (values.min() >= info.min and values.max() <= info.max)
-        return values.astype(np.int32 if fits else np.float64)
     if values.dtype.kind not in "iuf":
         raise TypeError(f"attribute columns must be numeric; got dtype {values.dtype}")
     if values.dtype.kind == "f" and values.dtype.itemsize not in (4, 8):
         return values.astype(np.float32)
+    return values.astype(values.dtype.newbyteorder("="), copy=False)
+
+
+def _ply_column(values: np.ndarray) -> np.ndarray:
+    """A column in a dtype PLY can store: 64-bit integers become int32 when they fit, else double."""
+    values = _native_column(values)
+    if values.dtype.kind in "iu" and values.dtype.itemsize == 8:
+        info = np.iinfo(np.int32)
+        fits = values.size == 0 or (values.min() >= info.min and values.max() <= info.max)
+        return values.astype(np.int32 if fits else np.float64)
     return values
 
 
-def _flat_columns(points: np.ndarray, attributes: Mapping[str, np.ndarray] | None,
-                  scores) -> list[tuple[str, np.ndarray]]:
-    """(name, (N,) column) pairs in file order: x y z, colours, normals, extras, score."""
+def _check_unique(names: list[str]) -> None:
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise ValueError(f"attributes would be written to the same column names {repeated}; rename them")
+
+
+def _validated(points, attributes: Mapping[str, np.ndarray] | None, scores) -> tuple[np.ndarray, dict]:
+    """Points (N, 3) and attributes (each (N,) or (N, C), ``colors`` (N, 3|4), ``normals`` (N, 3))."""
     from hgjax import _validate
 
     pts = np.asarray(_validate.check_points(points))
     n = pts.shape[0]
-    columns = [(c, pts[:, i]) for i, c in enumerate("xyz")]
-    attributes = dict(attributes or {})
-    extra = dict(attributes)
-    for key, names in (("colors", _COLOR_NAMES[0]), ("normals", _NORMAL_NAMES[0])):
-        if key in extra:
-            value = np.asarray(extra.pop(key))
-            if value.ndim != 2 or value.shape[0] != n or value.shape[1] not in ((3, 4) if key == "colors" else (3,)):
-                raise ValueError(f"attributes[{key!r}] must have shape (N, 3){' or (N, 4)' * (key == 'colors')}"
-                                 f" with N = {n}; got {value.shape}")
-            value = _as_uint8(value) if key == "colors" else value
-            columns += [(names[i], value[:, i]) for i in range(value.shape[1])]
+    attrs = {name: np.asarray(value) for name, value in (attributes or {}).items()}
     if scores is not None:
-        extra["score"] = scores
-    for name, value in extra.items():
+        if "score" in attrs:
+            raise ValueError("scores and attributes['score'] are both given; pass only one")
+        attrs["score"] = np.asarray(scores)
+    for name, value in attrs.items():
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(name)):
             raise ValueError(f"attribute names must be identifiers; got {name!r}")
-        value = np.asarray(value)
+        widths = {"colors": (3, 4), "normals": (3,)}.get(name)
+        if widths is not None and (value.ndim != 2 or value.shape[0] != n or value.shape[1] not in widths):
+            raise ValueError(f"attributes[{name!r}] must have shape (N, 3){' or (N, 4)' * (name == 'colors')}"
+                             f" with N = {n}; got {value.shape}")
         if value.ndim == 0 or value.shape[0] != n or value.ndim > 2:
             raise ValueError(f"attribute {name!r} must have shape (N,) or (N, C) with N = {n}; got {value.shape}")
+        _native_column(value)
+    return pts, attrs
+
+
+def _flat_columns(points: np.ndarray, attributes: dict, *, column: Callable = _native_column,
+                  normal_names: tuple = _NORMAL_NAMES[0]) -> list[tuple[str, np.ndarray]]:
+    """(name, (N,) column) pairs in file order: x y z, colours, normals, the other attributes."""
+    columns = [(c, column(points[:, i])) for i, c in enumerate("xyz")]
+    for name, value in attributes.items():
+        if name == "colors":
+            value = _as_uint8(value)
         if value.ndim == 1:
-            columns.append((name, _ply_column(value)))
-        else:
-            columns += [(f"{name}_{i}", _ply_column(value[:, i])) for i in range(value.shape[1])]
+            columns.append((name, column(value)))
+            continue
+        names = {"colors": _COLOR_NAMES[0], "normals": normal_names}.get(name)
+        names = names[:value.shape[1]] if names else [f"{name}_{i}" for i in range(value.shape[1])]
+        columns += [(label, column(value[:, i])) for i, label in enumerate(names)]
+    _check_unique([name for name, _ in columns])
     return columns
 
 
+def _savetxt(fh: BinaryIO, columns: list[tuple[str, np.ndarray]], header: str = "") -> None:
+    """Write columns as text rows, each value in a format that reads back exactly."""
+    table = np.rec.fromarrays([c for _, c in columns], names=[name for name, _ in columns])
+    fmt = ["%d" if c.dtype.kind in "iu" else "%.9g" if c.dtype.itemsize <= 4 else "%.17g" for _, c in columns]
+    np.savetxt(fh, table, fmt=fmt, header=header, comments="# ")
+
+
+def _text_writer(points, attributes) -> Callable[[BinaryIO], None]:
+    columns = _flat_columns(points, attributes)
+    return lambda fh: _savetxt(fh, columns, " ".join(name for name, _ in columns))
+
+
+def _npy_writer(points, attributes) -> Callable[[BinaryIO], None]:
+    columns = _flat_columns(points, attributes)
+    table = np.rec.fromarrays([c for _, c in columns], names=[name for name, _ in columns]).view(np.ndarray)
+    return lambda fh: np.save(fh, table, allow_pickle=False)
+
+
+def _ply_writer(points, attributes, binary: bool) -> Callable[[BinaryIO], None]:
+    columns = _flat_columns(points, attributes, column=_ply_column)
+    header = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment written by hgjax",
+              f"element vertex {points.shape[0]}"]
+    header += [f"property {_PLY_TYPES[col.dtype.str[1:]]} {name}" for name, col in columns]
+    header = ("\n".join(header) + "\nend_header\n").encode("ascii")
+
+    def write(fh: BinaryIO) -> None:
+        fh.write(header)
+        if binary:
+            row = np.dtype([(name, col.dtype.newbyteorder("<")) for name, col in columns])
+            table = np.empty(points.shape[0], row)
+            for name, col in columns:
+                table[name] = col
+            fh.write(table.tobytes())
+        else:
+            _savetxt(fh, columns)
+
+    return write
+
+
+def _pcd_writer(points, attributes, binary: bool, compressed: bool) -> Callable[[BinaryIO], None]:
+    (pypcd4,) = _require("pcd", "writing PCD")
+    attributes = dict(attributes)
+    colors = attributes.pop("colors", None)
+    columns = _flat_columns(points, attributes, normal_names=_NORMAL_NAMES[1])
+    text_columns = list(columns)
+    if colors is not None:
+        c = _as_uint8(colors).astype(np.uint32)
+        packed = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
+        if c.shape[1] == 4:
+            columns.insert(3, ("rgba", packed | (c[:, 3] << 24)))
+        else:
+            columns.insert(3, ("rgb", packed.view(np.float32)))
+        text_columns.insert(3, (columns[3][0], packed))  # ascii: the packed integer, as PCL writes it
+        _check_unique([name for name, _ in columns])
+    cloud = pypcd4.PointCloud.from_points([c for _, c in columns], [name for name, _ in columns],
+                                          [c.dtype for _, c in columns])
+    if binary:
+        encoding = pypcd4.Encoding.BINARY_COMPRESSED if compressed else pypcd4.Encoding.BINARY
+        return lambda fh: cloud.save(fh, encoding=encoding)
+
+    def write(fh: BinaryIO) -> None:
+        fh.write(cloud.metadata.compose_header(data=pypcd4.Encoding.ASCII).encode("ascii"))
+        _savetxt(fh, text_columns)
+
+    return write
+
+
+def _las_scale(span: float) -> float:
+    """The coordinate scale for a new LAS file whose coordinates reach ``span`` above the offset."""
+    if span == 0:
+        return 0.001
+    exponent = min(-3, math.floor(math.log10(span)) - 6)
+    return float(f"1e{max(exponent, math.ceil(math.log10(span / (2**31 - 1))))}")
+
+
+def _las_writer(points, attributes, header, compress: bool) -> Callable[[BinaryIO], None]:
+    laspy, _ = _require("las", "writing LAS/LAZ")
+    values = {name: value for name, value in attributes.items() if name not in ("colors", "normals")}
+    pairs = list(values.items())
+    if "colors" in attributes:
+        colors = attributes["colors"]
+        pairs += zip(("red", "green", "blue"), _as_uint16(colors[:, :3]).T)
+        if colors.shape[1] == 4:
+            pairs.append(("alpha", _as_uint8(colors)[:, 3]))
+    if "normals" in attributes:
+        pairs += zip(_NORMAL_NAMES[0], attributes["normals"].T)
+    if header is None:
+        header = laspy.LasHeader(point_format=6 + ("colors" in attributes) + ("colors" in attributes and
+                                                                             "nir" in values), version="1.4")
+        header.offsets = np.floor(points.min(axis=0).astype(np.float64))
+        header.scales = np.full(3, _las_scale(float((points - header.offsets).max())))
+    elif not isinstance(header, laspy.LasHeader):
+        raise TypeError(f"header must be a laspy.LasHeader (PointData.header of a LAS/LAZ file) or None;"
+                        f" got {type(header).__name__}")
+    else:
+        header = copy.deepcopy(header)
+    dims = set(header.point_format.dimension_names)
+    flat = []
+    for name, value in pairs:
+        value = _native_column(value)
+        if name in dims or value.ndim == 1:
+            flat.append((name, value))
+        else:
+            flat += [(f"{name}_{i}", value[:, i]) for i in range(value.shape[1])]
+    _check_unique([name for name, _ in flat])
+    header.add_extra_dims([laspy.ExtraBytesParams(name, value.dtype) for name, value in flat if name not in dims])
+    las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(points.shape[0], header=header))
+    try:
+        las.x, las.y, las.z = points.T
+    except OverflowError:
+        raise ValueError(f"coordinates do not fit LAS int32 with scale {list(header.scales)} and offset"
+                         f" {list(header.offsets)}; write without that header") from None
+    for name, value in flat:
+        try:
+            las[name] = value
+        except OverflowError as err:
+            raise ValueError(f"attribute {name!r} does not fit LAS dimension {name!r}: {err}") from None
+        stored = np.asarray(las[name])
+        if not np.array_equal(stored, value, equal_nan=stored.dtype.kind == value.dtype.kind == "f"):
+            raise ValueError(f"attribute {name!r} ({value.dtype}) does not fit LAS dimension {name!r}"
+                             f" ({stored.dtype}) without loss; convert or rename it")
+    return lambda fh: las.write(fh, do_compress=compress)
+
+
 def write_points(path, points, *, attributes: Mapping[str, np.ndarray] | None = None, scores=None,
-                 binary: bool = True) -> None:
-    """Write points, their attributes and optional per-point scores to PLY or XYZ/TXT.
+                 header=None, binary: bool = True, compressed: bool = True) -> None:
+    """Write points, their attributes and optional per-point scores, atomically.
+
+    The file is first written to a temporary file in the same directory, then renamed onto
+    ``path``: an interrupted or failed write leaves ``path`` as it was, and ``path`` may be
+    the file the points were read from. Nothing passed in is modified.
 
     Args:
-      path: output file; ``.ply`` writes PLY (one ``vertex`` element), ``.xyz`` or
-        ``.txt`` writes space-separated columns under a ``# x y z ...`` header line.
-      points: (N, 3) float32 or float64; PLY stores them as ``float`` or ``double``.
-      attributes: per-point arrays with leading axis N: ``colors`` (N, 3|4) uint8 (written
-        as ``red green blue [alpha]``), ``normals`` (N, 3) (as ``nx ny nz``), and any other
-        (N,) or (N, C) numeric column (as ``name`` or ``name_0 ... name_{C-1}``).
-      scores: optional (N,) per-point score, written as the property ``score``.
-      binary: PLY encoding, ``binary_little_endian`` (default) or ``ascii`` when False.
+      path: output file; the extension picks the format (:data:`WRITE_EXTENSIONS`):
+        ``.ply`` (one ``vertex`` element), ``.xyz``/``.txt`` (space-separated columns under a
+        ``# x y z ...`` line), ``.npy`` (a structured array with fields ``x y z ...``),
+        ``.pcd`` (PCL; colours as a packed ``rgb`` float, or ``rgba`` uint32 for 4
+        channels; normals as ``normal_x`` ...), ``.las`` / ``.laz`` (see ``header``).
+      points: (N, 3) float32 or float64; PLY, NPY and PCD store them in that dtype.
+      attributes: per-point arrays with leading axis N: ``colors`` (N, 3|4) (as ``red green
+        blue [alpha]``, 8-bit except in LAS), ``normals`` (N, 3) (as ``nx ny nz``), and any
+        other (N,) or (N, C) numeric column (as ``name`` or ``name_0 ... name_{C-1}``).
+      scores: optional (N,) per-point score, written as the column ``score``.
+      header: LAS/LAZ only: the :attr:`PointData.header` of the file the points were read
+        from. Its point format, version, scale, offset, extra dimensions and VLRs are
+        kept, so a subset of a LAS file writes back bit-exact; attributes the format lacks
+        become extra dimensions. With None (default), a LAS 1.4 file of point format 6
+        (7 with ``colors``, 8 with ``colors`` and ``nir``) is written with offset the
+        floor of each axis' minimum and one scale for all axes: 1e-6 of the largest
+        coordinate above the offset, rounded down to a power of ten, at most 0.001 (1 mm
+        for metric data) and at least what keeps the stored integers within int32.
+        Attributes named like a dimension of the format (``intensity``,
+        ``classification``, ``gps_time``, ...) fill it and must fit it exactly; 8-bit
+        colours are scaled by 257 to 16 bits; an alpha channel and normals become extra
+        dimensions ``alpha``, ``nx ny nz``.
+      binary: PLY: ``binary_little_endian`` (default) or ``ascii`` when False. PCD: binary
+        data (default) or ``DATA ascii`` when False.
+      compressed: PCD with ``binary``: ``DATA binary_compressed`` (default) or ``binary``.
 
     Returns:
       None.
 
     Raises:
-      TypeError, ValueError: invalid points, an attribute of the wrong length or dtype, or
-        an unsupported extension.
+      PointCloudWriteError: see :func:`check_writable`.
+      ImportError: the optional package for PCD or LAS/LAZ is not installed.
+      TypeError, ValueError: invalid points, an attribute of the wrong shape or dtype, two
+        attributes written to the same column, or a value that does not fit its LAS
+        dimension.
       OSError: the file cannot be written.
 
     Examples:
@@ -507,37 +749,24 @@ def write_points(path, points, *, attributes: Mapping[str, np.ndarray] | None = 
       >>> read_points(path).attributes["score"].tolist()
       [0.5, 1.0, 2.0]
     """
-    path = os.fspath(path)
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in WRITE_EXTENSIONS:
-        raise ValueError(f"cannot write points to {path!r}: unknown extension {ext!r}; expected one of"
-                         f" {list(WRITE_EXTENSIONS)}")
-    columns = _flat_columns(points, attributes, scores)
-    n = columns[0][1].shape[0]
+    target = check_writable(path)
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    pts, attrs = _validated(points, attributes, scores)
     if ext in (".xyz", ".txt"):
-        table = np.column_stack([c.astype(np.float64) for _, c in columns])
-        fmt = [_text_format(c) for _, c in columns]
-        np.savetxt(path, table, fmt=fmt, header=" ".join(name for name, _ in columns), comments="# ")
-        return
-    row = np.dtype([(name, col.dtype.newbyteorder("<")) for name, col in columns])
-    header = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment written by hgjax",
-              f"element vertex {n}"]
-    header += [f"property {_PLY_TYPES[col.dtype.str[1:]]} {name}" for name, col in columns]
-    header.append("end_header")
-    with open(path, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        if binary:
-            table = np.empty(n, row)
-            for name, col in columns:
-                table[name] = col
-            fh.write(table.tobytes())
-        else:
-            fmt = " ".join(_text_format(col) for _, col in columns)
-            np.savetxt(fh, np.column_stack([col.astype(np.float64) for _, col in columns]), fmt=fmt)
+        write = _text_writer(pts, attrs)
+    elif ext == ".npy":
+        write = _npy_writer(pts, attrs)
+    elif ext == ".pcd":
+        write = _pcd_writer(pts, attrs, binary, compressed)
+    elif ext in (".las", ".laz"):
+        write = _las_writer(pts, attrs, header, ext == ".laz")
+    else:
+        write = _ply_writer(pts, attrs, binary)
+    _atomic_write(target, write)
 
 
 def write_indices(path, indices) -> None:
-    """Write resampling indices as an int64 ``.npy`` file.
+    """Write resampling indices as an int64 ``.npy`` file, atomically (as :func:`write_points`).
 
     Args:
       path: output file ending in ``.npy``.
@@ -549,6 +778,7 @@ def write_indices(path, indices) -> None:
     Raises:
       TypeError: ``indices`` is not an integer array.
       ValueError: ``path`` does not end in ``.npy`` or ``indices`` is not 1-D.
+      PointCloudWriteError: see :func:`check_writable`.
 
     Examples:
       >>> import os, tempfile, numpy as np
@@ -565,4 +795,5 @@ def write_indices(path, indices) -> None:
         raise TypeError(f"indices must be an integer array; got dtype {indices.dtype}")
     if indices.ndim != 1:
         raise ValueError(f"indices must have shape (M,); got {indices.shape}")
-    np.save(path, indices.astype(np.int64))
+    table = indices.astype(np.int64)
+    _atomic_write(check_writable(path), lambda fh: np.save(fh, table, allow_pickle=False))
