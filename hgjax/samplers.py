@@ -8,6 +8,7 @@ ceil(ratio N) unique int64 indices into the caller's points, highest priority fi
 from __future__ import annotations
 
 import functools
+import importlib.util
 
 import jax
 import jax.numpy as jnp
@@ -16,10 +17,13 @@ import numpy as np
 from hgjax import _stream, _validate
 from hgjax.select import weighted_sample
 
-__all__ = ["farthest_point_sample", "uniform_sample", "voxel_sample"]
+__all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"]
 
-VOXEL_LEVELS = 2**20  # the finest voxel grid tried has this many cells along the longest side
-VOXEL_BISECTIONS = 24  # log-h interval 15 / 2**24: h to about 1e-6 relative
+VOXEL_LEVELS = 2**20  # the finest voxel grid has at most this many cells along each axis
+VOXEL_PROBE_POINTS = 2**14  # points of the strided subsample that estimates the voxel size
+VOXEL_COUNT_PASSES = 2  # full-cloud counting passes of the count-targeted voxel search
+VOXEL_SLACK = 1 / 64  # a grid with M to M (1 + slack) voxels ends the search
+FPS_BACKENDS = ("auto", "fpsample", "jax")
 
 
 def check_key(key, method: str, alternative: str = "") -> jax.Array:
@@ -70,68 +74,136 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     return weighted_sample(check_key(key, "uniform"), np.ones(pts.shape[0]), m)
 
 
-def _voxels(p: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """(inverse (N,), counts (V,)) of the occupied voxels of edge ``size`` (origin at the min)."""
-    cell = np.floor((p - p.min(axis=0)) / size).astype(np.int64)  # < 2**21 for size >= finest
-    code = (cell[:, 0] << 42) | (cell[:, 1] << 21) | cell[:, 2]
-    _, inverse, counts = np.unique(code, return_inverse=True, return_counts=True)
-    return inverse.ravel(), counts
+def _voxel_cells(cols: np.ndarray, origin: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """(code (N,) int64, offset (N,)) of each point's voxel of edge ``size``.
+
+    ``cols`` is the (3, N) transposed cloud, cells count from ``origin``; ``offset`` is the
+    squared distance to the voxel's centre in voxel units.
+    """
+    t = (cols - origin[:, None]) / size
+    cell = t.astype(np.int64)  # t >= 0, so truncation is floor
+    dims = cell.max(axis=1) + 1  # at most VOXEL_LEVELS + 1 each, so the code fits in int64
+    code = (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
+    t -= cell + 0.5
+    return code, np.einsum("kn,kn->n", t, t)
 
 
-def voxel_sample(points, ratio: float) -> np.ndarray:
-    """One point per occupied voxel of a grid sized to keep ceil(ratio N) points.
+def _count_voxels(cols: np.ndarray, origin: np.ndarray, size: float) -> int:
+    """Number of occupied voxels of edge ``size`` (one sort of the codes)."""
+    code = np.sort(_voxel_cells(cols, origin, size)[0])
+    return int(np.count_nonzero(code[1:] != code[:-1])) + 1
 
-    The voxel edge h is found by bisection (on log h, at most 24 steps) between the
-    extent / 2^20 grid and a single voxel, for the largest h whose grid has at least
-    M = ceil(ratio N) occupied voxels (the count is not strictly monotone in h, so any
-    crossing is accepted; bisection stops early when the count is exactly M). Each voxel
-    is represented by its point closest to the centroid of the voxel's points (ties: lowest
-    index). The representatives are ordered by voxel population, largest first (ties:
-    lowest index), and the first M are returned, so a grid with more than M voxels drops its
-    least populated voxels. When even the finest grid has fewer than M voxels (many
-    duplicates), the remaining points follow in index order.
+
+def _voxel_representatives(cols: np.ndarray, origin: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """(reps (V,), counts (V,)): each occupied voxel's point nearest the voxel's centre, and its population.
+
+    One argsort of the voxel codes; ties in distance go to the lowest index.
+    """
+    n = cols.shape[1]
+    code, offset = _voxel_cells(cols, origin, size)
+    order = np.argsort(code)
+    code, offset = code[order], offset[order]
+    starts = np.flatnonzero(np.concatenate([[True], code[1:] != code[:-1]]))
+    counts = np.diff(np.append(starts, n))
+    nearest = offset == np.repeat(np.minimum.reduceat(offset, starts), counts)
+    return np.minimum.reduceat(np.where(nearest, order, n), starts), counts
+
+
+def _voxel_size_for(cols: np.ndarray, origin: np.ndarray, extent: float, m: int) -> float:
+    """A voxel edge whose grid has at least ``m`` occupied voxels, and not many more.
+
+    Occupied-voxel counts follow count ~ h^-D (D about 2 on surfaces). A strided subsample
+    of about VOXEL_PROBE_POINTS points is counted at extent / 2^k, k = 0, 1, ..., while it
+    still has at least 8 points per voxel (so its count is close to the full cloud's) and
+    fewer than ``m`` voxels; the last two counts give D and a first guess of h. At most
+    VOXEL_COUNT_PASSES counts of the full cloud then refine h by secant steps on log count
+    against log h, aiming at m (1 + VOXEL_SLACK / 2) and stopping once a count lies in
+    [m, m (1 + VOXEL_SLACK)]. The largest counted h with at least ``m`` voxels is returned;
+    if none reached ``m``, the next secant guess is.
+    """
+    finest, coarsest = extent / VOXEL_LEVELS, 2 * extent
+    sub = cols[:, :: max(1, cols.shape[1] // VOXEL_PROBE_POINTS)]
+    h, count = coarsest, 1
+    while True:
+        finer = _count_voxels(sub, origin, h / 2)
+        if 8 * finer > sub.shape[1] or finer >= m or h / 2 < finest:
+            break
+        h, count = h / 2, finer
+    slope = float(np.clip(np.log2(max(finer, 1) / count), 1.0, 3.0))
+    aim = m * (1 + VOXEL_SLACK / 2)
+    guess = float(np.clip(h * (count / aim) ** (1 / slope), finest, coarsest))
+    tried: list[tuple[float, int]] = []
+    for _ in range(VOXEL_COUNT_PASSES):
+        tried.append((guess, _count_voxels(cols, origin, guess)))
+        if m <= tried[-1][1] <= m * (1 + VOXEL_SLACK):
+            break
+        if len(tried) > 1 and tried[-1][1] != tried[-2][1]:
+            (h0, c0), (h1, c1) = tried[-2:]
+            slope = float(np.clip(np.log(c1 / c0) / np.log(h0 / h1), 0.5, 3.0))
+        guess = float(np.clip(guess * (tried[-1][1] / aim) ** (1 / slope), finest, coarsest))
+    enough = [h for h, c in tried if c >= m]
+    return max(enough) if enough else guess
+
+
+def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None = None) -> np.ndarray:
+    """One point per occupied voxel: Open3D's ``voxel_down_sample`` as indices.
+
+    The grid has its origin at the cloud's minimum corner. Each occupied voxel is
+    represented by its point nearest the centroid of the voxel's points (the point closest
+    to what ``voxel_down_sample`` outputs; ties: lowest index). Representatives are ranked
+    by voxel population, largest first (ties: lowest index).
+
+    With ``voxel_size`` the grid is given: one pass (an argsort of N voxel codes). With
+    ``ratio`` alone the edge is searched for (see below) so that the grid has at least
+    M = ceil(ratio N) voxels; the search counts voxels on a subsample and on the full cloud
+    at most twice (a sort each), so it costs under three passes. The count is then made
+    exact: the first M ranked representatives are returned, which drops the least populated
+    voxels when the grid has more than M; when it has fewer (a cloud with many duplicate
+    points, or a ``voxel_size`` too coarse), the remaining points follow in index order.
+    ``ratio`` and ``voxel_size`` together give exactly M points from the given grid.
 
     Args:
-      points: (N, 3) float32 or float64.
-      ratio: fraction to keep, in (0, 1].
+      points: (N, 3) float32 or float64; never modified.
+      ratio: fraction to keep, in (0, 1]; None (only with ``voxel_size``) keeps one point
+        per occupied voxel.
+      voxel_size: voxel edge, in the points' units, > 0 and at least the cloud's largest
+        extent / 2^20; None (default) searches for it from ``ratio``.
 
     Returns:
-      (M,) int64 unique indices, M = ceil(ratio N), highest priority first.
+      (M,) int64 unique indices, highest priority first: M = ceil(ratio N) when ``ratio``
+      is given, else the number of occupied voxels.
 
     Raises:
-      TypeError, ValueError: invalid points or ratio.
+      TypeError, ValueError: invalid points, ratio or voxel_size, or neither of the last two.
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> pts = np.array([[0., 0, 0], [0.1, 0, 0], [5, 0, 0], [5.1, 0, 0]])
-      >>> sorted(hgjax.voxel_sample(pts, 0.5).tolist())
-      [0, 2]
+      >>> pts = np.array([[0., 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 0, 0], [5.1, 0, 0]])
+      >>> hgjax.voxel_sample(pts, voxel_size=1.0).tolist()  # the fuller voxel's middle first
+      [1, 3]
+      >>> len(hgjax.voxel_sample(pts, 0.4))
+      2
     """
     pts = _validate.check_points(points)
     n = pts.shape[0]
-    m = _validate.n_keep(n, _validate.check_ratio(ratio))
-    p = np.asarray(pts, dtype=np.float64)
-    extent = float(np.ptp(p, axis=0).max()) or 1.0
-    lo, hi = np.log(extent / VOXEL_LEVELS), np.log(2 * extent)  # counts: many, then 1
-    inverse, counts = _voxels(p, np.exp(lo))
-    for _ in range(VOXEL_BISECTIONS):
-        if counts.size == m:
-            break
-        mid = (lo + hi) / 2
-        trial = _voxels(p, np.exp(mid))
-        if trial[1].size >= m:
-            lo, (inverse, counts) = mid, trial
-        else:
-            hi = mid
-    centroid = np.stack([np.bincount(inverse, p[:, a], counts.size) for a in range(3)], axis=1) / counts[:, None]
-    dist = np.sum((p - centroid[inverse]) ** 2, axis=1)
-    order = np.lexsort((np.arange(n), dist, inverse))  # by voxel, then distance, then index
-    first = np.ones(n, dtype=bool)
-    first[1:] = inverse[order[1:]] != inverse[order[:-1]]
-    reps = order[first]  # one per voxel, voxels in code order
-    reps = reps[np.lexsort((reps, -counts))]
-    rest = np.setdiff1d(np.arange(n), reps)
-    return np.concatenate([reps, rest])[:m].astype(np.int64)
+    if ratio is None and voxel_size is None:
+        raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
+    m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
+    cols = np.array(pts.T, dtype=np.float64, order="C")
+    origin = cols.min(axis=1)
+    extent = float((cols.max(axis=1) - origin).max()) or 1.0
+    if voxel_size is None:
+        size = _voxel_size_for(cols, origin, extent, m)
+    else:
+        size = _validate.check_positive(voxel_size, "voxel_size")
+        if extent / size > VOXEL_LEVELS:
+            raise ValueError(f"voxel_size must be at least the cloud's extent / 2**20 = {extent / VOXEL_LEVELS:.3g}"
+                             f" (at most 2**20 voxels along an axis); got {voxel_size!r}")
+    reps, counts = _voxel_representatives(cols, origin, size)
+    ranked = reps[np.lexsort((reps, -counts))]
+    if m is None or m <= ranked.size:
+        return ranked[:m].astype(np.int64)
+    return np.concatenate([ranked, np.setdiff1d(np.arange(n), reps)])[:m].astype(np.int64)
 
 
 @functools.partial(jax.jit, static_argnums=(1,))
@@ -151,23 +223,125 @@ def _fps(points, m: int, start):
     return chosen
 
 
-def farthest_point_sample(points, ratio: float, *, start: int = 0) -> np.ndarray:
-    """Farthest point sampling: each new point maximises its distance to those already kept.
+def _segment_sums_f32(v: np.ndarray, starts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """(S,) float32 sums of the consecutive segments of ``v``, each added left to right.
 
-    A jitted ``lax.fori_loop`` over one (N,) array of squared distances to the kept set:
-    O(N M) time, O(N) memory. Ties go to the lowest index; once only duplicates of kept
-    points remain (distance 0) they are taken in index order, so no point is picked twice.
+    A C loop's rounding: one ``np.cumsum`` per segment while segments are few and long,
+    else one vector add per position over all segments still that long.
+    """
+    if starts.size <= sizes.max():
+        return np.array([np.cumsum(v[a:a + s])[-1] for a, s in zip(starts, sizes)], dtype=np.float32)
+    total = np.zeros(starts.size, dtype=np.float32)
+    for k in range(int(sizes.max())):
+        live = np.flatnonzero(sizes > k)
+        total[live] += v[starts[live] + k]
+    return total
 
-    Args:
-      points: (N, 3) float32 or float64.
-      ratio: fraction to keep, in (0, 1]. M = ceil(ratio N) is static (a new M compiles).
-      start: index of the first kept point (default 0, deterministic).
 
-    Returns:
-      (M,) int64 unique indices in selection order.
+def _kd_order(q: np.ndarray) -> np.ndarray:
+    """(U,) order in which fpsample's QuickFPS kd-tree leaves (U, 3) float32 points ``q``.
+
+    fpsample 1.0 builds its tree by partitioning the points in place (each node splits its
+    widest axis at the float32 mean, smaller values first, down to single points) and then
+    reads the start point at ``start_idx`` of the partitioned array. Points handed over in
+    this order are already partitioned, so the build moves none of them and ``start_idx``
+    is a row of the array as given (which a build that does not move rows also honours).
+    """
+    n = q.shape[0]
+    order = np.arange(n)
+    starts = np.zeros(1, dtype=np.int64)
+    while True:
+        sizes = np.diff(np.append(starts, n))
+        if sizes.max() == 1:
+            return order
+        x = q[order]
+        span = np.maximum.reduceat(x, starts) - np.minimum.reduceat(x, starts)
+        seg = np.repeat(np.arange(starts.size), sizes)
+        v = x[np.arange(n), np.argmax(span, axis=1)[seg]]
+        right = v >= (_segment_sums_f32(v, starts, sizes) / sizes.astype(np.float32))[seg]
+        n_left = np.clip(sizes - np.add.reduceat(right.astype(np.int64), starts), 1, np.maximum(sizes - 1, 1))
+        order = order[np.argsort(2 * seg + right, kind="stable")]
+        starts = np.sort(np.concatenate([starts, (starts + n_left)[sizes > 1]]))
+
+
+def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
+    """Exact FPS by fpsample's bucket kd-tree (QuickFPS) on the distinct float32 points.
+
+    Duplicates are resolved first: each distinct position is represented by its lowest
+    index (``start`` for its own), and once all M' <= M distinct positions are taken the
+    other points follow in index order, as on the JAX path. Should the start row not come
+    back first (a future fpsample partitioning differently), fpsample's plain O(N M) FPS,
+    which takes ``start_idx`` as given, serves instead.
+    """
+    import fpsample
+
+    q = np.ascontiguousarray(p, dtype=np.float32)
+    _, first, group = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    group = group.ravel()
+    rep = first.copy()
+    rep[group[start]] = start
+    k = min(m, rep.size)
+    order = _kd_order(q[rep])
+    row = int(np.flatnonzero(order == group[start])[0])
+    picked = order[fpsample.bucket_fps_kdtree_sampling(q[rep][order], k, start_idx=row).astype(np.int64)]
+    if picked[0] != group[start]:
+        picked = fpsample.fps_sampling(q[rep], k, start_idx=int(group[start])).astype(np.int64)
+    chosen = rep[picked]
+    if m == k:
+        return chosen
+    return np.concatenate([chosen, np.setdiff1d(np.arange(q.shape[0]), rep)])[:m]
+
+
+def fps_backend(backend: str = "auto") -> str:
+    """The FPS implementation ``backend`` resolves to: ``"fpsample"`` or ``"jax"``.
+
+    ``"auto"`` is fpsample on JAX's CPU backend when the package is installed (the ``fps``
+    extra), else the jitted JAX loop (accelerators, or no fpsample).
 
     Raises:
-      TypeError, ValueError: invalid points, ratio or start.
+      ValueError: unknown backend.
+      ImportError: ``"fpsample"`` asked for but not installed.
+    """
+    backend = _validate.check_choice(backend, "backend", FPS_BACKENDS)
+    installed = importlib.util.find_spec("fpsample") is not None
+    if backend == "fpsample" and not installed:
+        raise ImportError("backend='fpsample' needs the fpsample package: pip install 'hgjax[fps]'")
+    if backend == "auto":
+        return "fpsample" if installed and jax.default_backend() == "cpu" else "jax"
+    return backend
+
+
+def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str = "auto") -> np.ndarray:
+    """Farthest point sampling: each new point maximises its distance to those already kept.
+
+    Two exact implementations of the same order (the index sequence agrees wherever no two
+    candidates are at equal distance):
+
+    * ``"fpsample"``: the bucket kd-tree FPS (QuickFPS, ``fpsample.bucket_fps_kdtree_sampling``;
+      exact, unlike fpsample's NPDU variants) on the distinct points, in float32 whatever
+      the input dtype. Far faster than O(N M) on the host; ties between distinct points are
+      broken by the tree, deterministically.
+    * ``"jax"``: a jitted ``lax.fori_loop`` over one (N,) array of squared distances to the
+      kept set, in the working dtype (float64 for float64 input with x64): O(N M) time,
+      O(N) memory, and M is static (a new M compiles). Ties go to the lowest index.
+
+    ``backend="auto"`` (default) picks fpsample on JAX's CPU backend when it is installed,
+    else JAX (see :func:`fps_backend`). On both, a set of coincident points is entered by
+    its lowest index, and once only duplicates of kept points remain (distance 0) they are
+    taken in index order, so no point is picked twice.
+
+    Args:
+      points: (N, 3) float32 or float64; never modified.
+      ratio: fraction to keep, in (0, 1].
+      start: index of the first kept point (default 0, deterministic).
+      backend: ``"auto"``, ``"fpsample"`` or ``"jax"``.
+
+    Returns:
+      (M,) int64 unique indices in selection order, M = ceil(ratio N).
+
+    Raises:
+      TypeError, ValueError: invalid points, ratio, start or backend.
+      ImportError: ``backend="fpsample"`` without fpsample installed.
 
     Examples:
       >>> import numpy as np, hgjax
@@ -181,5 +355,7 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0) -> np.ndarray
     start = _validate.check_int(start, "start", minimum=0)
     if start >= n:
         raise ValueError(f"start must be < N = {n}; got {start}")
+    if fps_backend(backend) == "fpsample":
+        return _fps_fpsample(np.asarray(pts), m, start)
     p = jnp.asarray(pts, dtype=_stream.working_dtype(pts.dtype))
     return np.asarray(_fps(p, m, jnp.int32(start))).astype(np.int64)
