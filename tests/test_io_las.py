@@ -1,0 +1,157 @@
+"""hgjax.io with LAS/LAZ: files built by laspy round-trip bit-exact through read, subset, write."""
+
+import pathlib
+
+import numpy as np
+import pytest
+
+from hgjax import io
+
+laspy = pytest.importorskip("laspy")
+pytest.importorskip("lazrs")
+
+SCAN = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data" / "scans" / "scan_lamppost.ply"
+
+# (version, point format, extra dimensions): 1.2 without extra bytes, 1.4 with scalar,
+# scaled and array extra dimensions.
+LAYOUTS = [
+    ("1.2", 3, []),
+    ("1.4", 6, [laspy.ExtraBytesParams("height", "f8")]),
+    ("1.4", 7, [laspy.ExtraBytesParams("refl", "u2", scales=np.array([0.01]), offsets=np.array([5.0]))]),
+    ("1.4", 8, [laspy.ExtraBytesParams("echo", "i4"), laspy.ExtraBytesParams("vec", "3f4")]),
+]
+
+
+def _make_las(path, version, point_format, extra, n=300, seed=0):
+    """A LAS/LAZ file written by laspy, with UTM-like coordinates and random values in every dimension."""
+    rng = np.random.default_rng(seed)
+    header = laspy.LasHeader(point_format=point_format, version=version)
+    header.add_extra_dims(extra)
+    header.scales = np.array([0.001, 0.001, 0.01])
+    header.offsets = np.array([500000.0, 4100000.0, -50.0])
+    las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(n, header=header))
+    las.X = rng.integers(-2**31, 2**31 - 1, n, dtype=np.int64).astype(np.int32)
+    las.Y = rng.integers(0, 10**9, n).astype(np.int32)
+    las.Z = rng.integers(-10**5, 10**5, n).astype(np.int32)
+    for dim in las.point_format.dimensions:
+        if dim.name in ("X", "Y", "Z"):
+            continue
+        shape = (n, dim.num_elements) if dim.num_elements > 1 else (n,)
+        raw = las.points.array[dim.name] if dim.name in las.points.array.dtype.names else None
+        if raw is not None and raw.dtype.kind == "f":
+            las[dim.name] = rng.normal(0, 1e5, shape).astype(raw.dtype)
+        elif dim.name in las.point_format.extra_dimension_names and dim.scales is not None:
+            las.points.array[dim.name] = rng.integers(0, 2**16, n, dtype=np.uint16)
+        else:
+            las[dim.name] = rng.integers(int(dim.min), int(dim.max) + 1, shape)
+    las.write(path)
+    return laspy.read(path)
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+@pytest.mark.parametrize("version, point_format, extra", LAYOUTS, ids=lambda v: str(v) if not isinstance(v, list)
+                         else ",".join(e.name for e in v) or "no-extra")
+def test_read_subset_write_is_bit_exact(tmp_path, ext, version, point_format, extra):
+    src_path = tmp_path / f"in{ext}"
+    original = _make_las(src_path, version, point_format, extra)
+    before = src_path.read_bytes()
+    data = io.read_points(src_path)
+    assert src_path.read_bytes() == before  # the input is never modified
+
+    # Coordinates are the real float64 values X * scale + offset, with no precision lost.
+    assert data.points.dtype == np.float64
+    assert data.points[:, 0].min() > 4e5 - 3e6 and 4.1e6 <= data.points[:, 1].min()
+    for i, axis in enumerate("XYZ"):
+        raw = original.points.array[axis].astype(np.float64)
+        np.testing.assert_array_equal(data.points[:, i], raw * original.header.scales[i] + original.header.offsets[i])
+    # Every dimension is an attribute, in its stored dtype; RGB as 16-bit colours.
+    names = [d for d in original.point_format.dimension_names if d not in ("X", "Y", "Z", "red", "green", "blue")]
+    assert set(data.attributes) == set(names) | ({"colors"} if "red" in original.point_format.dimension_names else set())
+    for name in names:
+        np.testing.assert_array_equal(data.attributes[name], np.asarray(original[name]))
+    if "colors" in data.attributes:
+        assert data.attributes["colors"].dtype == np.uint16
+        np.testing.assert_array_equal(data.attributes["colors"][:, 2], original.blue)
+
+    keep = np.random.default_rng(1).permutation(len(data))[:120]
+    kept = data.subset(keep)
+    out = tmp_path / f"out{ext}"
+    io.write_points(out, kept.points, attributes=kept.attributes, header=kept.header)
+    back = laspy.read(out)
+    assert back.header.version == original.header.version
+    assert back.header.point_format == original.header.point_format  # same id and extra dimensions
+    np.testing.assert_array_equal(back.header.scales, original.header.scales)
+    np.testing.assert_array_equal(back.header.offsets, original.header.offsets)
+    assert back.header.point_count == keep.size
+    assert back.points.array.dtype == original.points.array.dtype
+    assert back.points.array.tobytes() == original.points.array[keep].tobytes()  # every byte of every point
+    np.testing.assert_array_equal(back.header.mins, np.min(np.stack([back.x, back.y, back.z], 1), axis=0))
+    assert kept.header.point_count == original.header.point_count  # the header passed in is not modified
+
+
+def test_attributes_added_to_a_las_subset_become_extra_dimensions(tmp_path):
+    _make_las(tmp_path / "in.laz", "1.2", 3, [])
+    data = io.read_points(tmp_path / "in.laz", samples=50, seed=2)
+    score = np.linspace(0, 1, 50)
+    io.write_points(tmp_path / "out.laz", data.points, attributes=data.attributes, scores=score,
+                    header=data.header)
+    back = io.read_points(tmp_path / "out.laz")
+    np.testing.assert_array_equal(back.attributes["score"], score)
+    np.testing.assert_array_equal(back.attributes["gps_time"], data.attributes["gps_time"])
+    np.testing.assert_array_equal(back.points, data.points)
+    assert back.header.point_format.id == 3 and str(back.header.version) == "1.2"
+
+
+def test_values_that_do_not_fit_a_las_dimension_are_refused(tmp_path):
+    pts = np.random.default_rng(0).random((4, 3))
+    with pytest.raises(ValueError, match="'intensity'.*does not fit"):
+        io.write_points(tmp_path / "a.las", pts, attributes={"intensity": np.array([0.5, 1.0, 2.0, 3.0])})
+    with pytest.raises(ValueError, match="'return_number' does not fit"):
+        io.write_points(tmp_path / "a.las", pts, attributes={"return_number": np.array([1, 2, 3, 16])})
+    _make_las(tmp_path / "in.las", "1.2", 3, [])
+    data = io.read_points(tmp_path / "in.las")
+    with pytest.raises(ValueError, match="coordinates do not fit"):
+        io.write_points(tmp_path / "b.las", data.points + 1e7, header=data.header)
+    with pytest.raises(TypeError, match="laspy.LasHeader"):
+        io.write_points(tmp_path / "b.las", data.points, header={"scale": 0.01})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.las"]
+
+
+def test_ply_scan_to_las_picks_format_scale_and_offset(tmp_path):
+    src = io.read_points(SCAN)
+    src = io.PointData(src.points + [500000.0, 4100000.0, 0.0], {
+        **src.attributes, "intensity": np.arange(len(src), dtype=np.uint16),
+        "colors": np.random.default_rng(0).integers(0, 256, (len(src), 3), dtype=np.uint8)})
+    out = tmp_path / "scan.laz"
+    io.write_points(out, src.points, attributes=src.attributes)
+    header = laspy.read(out).header
+    assert header.point_format.id == 7 and str(header.version) == "1.4"
+    np.testing.assert_array_equal(header.offsets, np.floor(src.points.min(axis=0)))
+    span = (src.points - np.floor(src.points.min(axis=0))).max()
+    assert 1e-3 <= span < 1e4  # so the documented scale is 1e-6 of it, rounded down to a power of ten
+    assert header.scales.tolist() == [float(f"1e{int(np.floor(np.log10(span))) - 6}")] * 3
+    back = io.read_points(out)
+    np.testing.assert_allclose(back.points, src.points, rtol=0, atol=header.scales[0] / 2 * (1 + 1e-9))
+    np.testing.assert_array_equal(back.attributes["intensity"], src.attributes["intensity"])
+    np.testing.assert_array_equal(back.attributes["colors"], src.attributes["colors"].astype(np.uint16) * 257)
+    io.write_points(tmp_path / "scan.ply", back.points, attributes={"colors": back.attributes["colors"]})
+    np.testing.assert_array_equal(io.read_points(tmp_path / "scan.ply").attributes["colors"], src.attributes["colors"])
+
+
+def test_las_scale_rule():
+    assert io._las_scale(0.0) == 0.001
+    assert io._las_scale(1.5) == 1e-6
+    assert io._las_scale(950.0) == 1e-4
+    assert io._las_scale(20000.0) == 1e-3  # at most 1 mm
+    assert io._las_scale(5e7) == 0.1  # coarser only when int32 would overflow
+    assert 5e7 / io._las_scale(5e7) < 2**31 - 1
+
+
+def test_missing_las_packages_name_the_extra(tmp_path, monkeypatch):
+    _make_las(tmp_path / "in.las", "1.2", 3, [])
+    monkeypatch.setitem(__import__("sys").modules, "lazrs", None)
+    with pytest.raises(ImportError, match=r'pip install "hgjax\[las\]"'):
+        io.read_points(tmp_path / "in.las")
+    with pytest.raises(ImportError, match=r'pip install "hgjax\[las\]"'):
+        io.check_writable(tmp_path / "out.laz")
+    assert len(io.read_points(SCAN)) == 1771  # other formats do not need the extra
