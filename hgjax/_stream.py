@@ -1,73 +1,141 @@
-"""Streaming of per-point kernels over fixed-size chunks of a cloud.
+"""Mapping a per-neighbourhood kernel over every row of a :class:`Neighbourhoods`.
 
-A kernel is a jitted function ``kernel(points_ext, rows, idx, *args) -> (C, ...)`` where
-``points_ext`` is the (N + 1, 3) sorted cloud with a zero sentinel row appended, ``rows``
-(C,) int32 are the sorted-frame rows of the chunk and ``idx`` (C, K) int32 their
-neighbours, both padded with the sentinel N. Every chunk has the same shape, so one
-compilation serves all of them (the last chunk is padded); the neighbour query runs on the
-host chunk by chunk, so peak memory grows with the chunk size, not with N.
+A kernel is written for ONE neighbourhood, ``fn(offsets (K, 3), valid (K,), *row_args,
+*args)``, with ``offsets`` the neighbours minus the point (padding rows zero). The map
+vmaps it over blocks of exactly ``BLOCK`` rows (``lax.map`` over the blocks), so every row
+is computed by the same compiled block whatever the batch layout: results do not depend on
+the chunk size.
+
+Two execution paths give the same values:
+
+* traced (inside the caller's ``jit``, ``vmap`` or ``grad``): one pure JAX program over
+  the whole (N, K) neighbourhood array;
+* concrete (eager calls, :func:`hgjax.resample`): the host gathers fixed-size chunks
+  (C, K, 3) and streams them through ONE jitted kernel per (method, K), so a new cloud size
+  never recompiles and peak memory grows with C, not with N. With several devices in
+  ``jax.devices()`` each chunk's rows are split over them with ``shard_map``.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 import sys
-import warnings
-from typing import Callable, Sequence
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax.neighbourhoods import SpatialIndex
-
-DEFAULT_CHUNK_BYTES = 64 * 2**20  # working set aimed at per chunk
-BLOCK = 1024  # rows per vmapped block; chunk sizes are multiples of it
+BLOCK = 1024  # rows per vmapped block
+CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
 
 
-def auto_chunk_size(n: int, bytes_per_point: int) -> int:
-    """Rows per chunk so one chunk's working set is about DEFAULT_CHUNK_BYTES.
+def is_traced(*trees) -> bool:
+    """True when any leaf is a JAX tracer (the call runs inside jit, vmap or grad)."""
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
 
-    The result is a power of two between 1024 and 2**20, and never more than n rounded up to
-    a multiple of BLOCK.
+
+def chunk_rows(chunk_size: int | None = None) -> int:
+    """Rows per streamed chunk: a multiple of BLOCK per local device, fixed by default.
+
+    Args:
+      chunk_size: requested rows (rounded up), or None for ``CHUNK_BLOCKS`` blocks.
     """
-    rows = DEFAULT_CHUNK_BYTES // max(bytes_per_point, 1)
-    rows = 1 << max(10, min(20, int(math.log2(max(rows, 1)))))
-    return min(rows, round_chunk(n))
-
-
-def round_chunk(chunk_size: int) -> int:
-    """Round a chunk size up to a multiple of :func:`block_rows` (the unit kernels compute in)."""
-    unit = block_rows()
+    unit = BLOCK * len(jax.devices())
+    if chunk_size is None:
+        return CHUNK_BLOCKS * unit
     return -(-chunk_size // unit) * unit
 
 
-class PrecisionWarning(UserWarning):
-    """float64 input computed in float32 because JAX's x64 mode is off."""
+def _blocks(fn: Callable, offsets, valid, row_args, args):
+    """vmap ``fn`` over (C, ...) rows, C a multiple of BLOCK, block by block."""
+    c = offsets.shape[0]
+    split = lambda x: x.reshape((c // BLOCK, BLOCK) + x.shape[1:])  # noqa: E731
+    batched = jax.vmap(fn, in_axes=(0, 0) + (0,) * len(row_args) + (None,) * len(args))
+    out = jax.lax.map(lambda b: batched(b[0], b[1], *b[2], *args),
+                      (split(offsets), split(valid), tuple(split(a) for a in row_args)))
+    return jax.tree.map(lambda x: x.reshape((c,) + x.shape[2:]), out)
 
 
-def working_dtype(dtype) -> np.dtype:
-    """The dtype kernels run in: the caller's, or float32 for float64 input without x64.
+def offsets_of(points, idx):
+    """(N, K, 3) neighbours minus their point (zero for padding) and the (N, K) mask, in JAX."""
+    n = points.shape[0]
+    ext = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])
+    valid = idx < n
+    return jnp.where(valid[..., None], ext[idx] - points[:, None, :], 0), valid
 
-    JAX keeps 64-bit types opt-in (``jax.config.update("jax_enable_x64", True)``). Without
-    it, float64 input is computed in float32, results are returned as float64, and a
-    :class:`PrecisionWarning` says so (never a silent cast).
+
+def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: int | None = None,
+                       progress: bool = False):
+    """Apply ``fn`` to every neighbourhood of ``nb`` (traced: pure JAX; concrete: streamed).
+
+    Args:
+      fn: per-neighbourhood kernel ``fn(offsets (K, 3), valid (K,), *row_args, *args)``; it
+        must be hashable and the same object for the same kernel (module-level functions or
+        cached partials), since the streamed path compiles once per ``fn``.
+      nb: :class:`hgjax.Neighbourhoods` with points (N, 3) and idx (N, K).
+      row_args: per-row arrays (N, ...), mapped with the rows.
+      args: arrays broadcast to every row (traced: new values do not recompile).
+      chunk_size: rows per streamed chunk (concrete path only; never changes results).
+      progress: tqdm bar on stderr for long streamed runs.
+
+    Returns:
+      ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
     """
-    dtype = np.dtype(dtype)
-    if dtype == np.float64 and not jax.config.jax_enable_x64:
-        warnings.warn("float64 points are computed in float32 because jax_enable_x64 is off;"
-                      ' call jax.config.update("jax_enable_x64", True) for float64 precision',
-                      PrecisionWarning, stacklevel=3)
-        return np.dtype(np.float32)
-    return dtype
+    points, idx = nb.points, nb.idx
+    n = points.shape[0]
+    if is_traced(points, idx, row_args, args):
+        points, idx = jnp.asarray(points), jnp.asarray(idx)
+        offsets, valid = offsets_of(points, idx)
+        pad = -n % BLOCK
+        padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
+        out = _blocks(fn, padded(offsets), padded(valid), tuple(padded(jnp.asarray(a)) for a in row_args), args)
+        return jax.tree.map(lambda x: x[:n], out)
+    return _stream(fn, np.asarray(points), np.asarray(idx), tuple(np.asarray(a) for a in row_args),
+                   tuple(jnp.asarray(a) for a in args), chunk_rows(chunk_size), progress)
 
 
-def _pad_rows(a: np.ndarray, size: int, fill: int) -> np.ndarray:
-    if a.shape[0] == size:
-        return a
-    pad = np.full((size - a.shape[0],) + a.shape[1:], fill, dtype=a.dtype)
-    return np.concatenate([a, pad])
+def _stream(fn, points, idx, row_args, args, chunk, progress):
+    """Host path of :func:`map_neighbourhoods`: fixed (C, K, 3) chunks through one kernel."""
+    n = points.shape[0]
+    ext = np.concatenate([points, np.zeros((1, 3), points.dtype)])
+    kernel = _sharded(fn, len(row_args), len(args)) if len(jax.devices()) > 1 else _jitted(fn, len(row_args))
+    outputs = []
+    bar = _progress(n, progress and n > 4 * chunk)
+    for start in range(0, n, chunk):
+        rows = slice(start, min(start + chunk, n))
+        nbr = idx[rows]
+        valid = nbr < n
+        offsets = np.where(valid[..., None], ext[nbr] - points[rows, None, :], 0).astype(points.dtype)
+        pad = chunk - offsets.shape[0]
+        fill = lambda x: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
+        if outputs:
+            # At most one kernel in flight: two programs calling LAPACK eigh at the same time
+            # can deadlock in jaxlib's CPU thread pool.
+            jax.block_until_ready(outputs[-1])
+        outputs.append(kernel(fill(offsets), fill(valid), tuple(fill(a[rows]) for a in row_args), args))
+        if bar is not None:
+            bar.update(rows.stop - rows.start)
+    if bar is not None:
+        bar.close()
+    host = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:n], *outputs)
+    return jax.tree.map(jnp.asarray, host)
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted(fn: Callable, n_row_args: int) -> Callable:
+    del n_row_args  # part of the cache key only
+    return jax.jit(functools.partial(_blocks, fn))
+
+
+@functools.lru_cache(maxsize=None)
+def _sharded(fn: Callable, n_row_args: int, n_args: int) -> Callable:
+    """The block map with the rows of each chunk split over all local devices."""
+    mesh = jax.sharding.Mesh(np.array(jax.devices()), ("points",))
+    rows, rep = jax.sharding.PartitionSpec("points"), jax.sharding.PartitionSpec()
+    body = functools.partial(_blocks, fn)
+    return jax.jit(jax.shard_map(body, mesh=mesh, in_specs=(rows, rows, (rows,) * n_row_args, (rep,) * n_args),
+                                 out_specs=rows, check_vma=False))
 
 
 def _progress(total: int, enabled: bool):
@@ -78,58 +146,3 @@ def _progress(total: int, enabled: bool):
     except ImportError:  # tqdm is optional; progress is then silent
         return None
     return tqdm(total=total, unit="pt", unit_scale=True, file=sys.stderr, leave=False)
-
-
-def stream(kernel: Callable, index: SpatialIndex, query: Callable[[slice], np.ndarray], *,
-           chunk_size: int, args: Sequence = (), progress: bool = False):
-    """Run ``kernel`` over all points of ``index`` in chunks of ``chunk_size`` rows.
-
-    With several devices in ``jax.devices()`` each chunk's rows are split evenly over them
-    (``shard_map`` over a 1-D mesh named ``"points"``); every device runs the same block
-    kernel on its rows, so results are identical to a single-device run.
-
-    Args:
-      kernel: jitted per-chunk kernel (see module docstring).
-      index: the spatial index whose sorted frame the rows refer to.
-      query: host function mapping a row slice to its (R, K) int32 neighbour indices.
-      chunk_size: rows per chunk, a multiple of :func:`block_rows`; every chunk is padded to it.
-      args: extra (traced) kernel arguments, replicated on every device.
-      progress: show a tqdm bar on stderr when there are more than four chunks.
-
-    Returns:
-      The kernel outputs (a pytree of NumPy arrays with leading axis N) in the sorted frame.
-    """
-    n = index.n
-    dtype = working_dtype(index.points.dtype)
-    points_ext = jnp.asarray(np.concatenate([index.points, np.zeros((1, 3), index.points.dtype)]), dtype=dtype)
-    run = _sharded(kernel, len(args)) if len(jax.devices()) > 1 else kernel
-    outputs = []
-    bar = _progress(n, progress and n > 4 * chunk_size)
-    for rows in index.chunks(chunk_size):
-        ids = _pad_rows(np.arange(rows.start, rows.stop, dtype=np.int32), chunk_size, n)
-        idx = _pad_rows(query(rows), chunk_size, n)  # overlaps with the previous chunk's kernel
-        if outputs:
-            # At most one kernel in flight: two programs calling LAPACK eigh at the same time
-            # can deadlock in jaxlib's CPU thread pool (seen with jax 0.10.2).
-            jax.block_until_ready(outputs[-1])
-        outputs.append(run(points_ext, ids, idx, *args))
-        if bar is not None:
-            bar.update(rows.stop - rows.start)
-    if bar is not None:
-        bar.close()
-    host = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *outputs)
-    return jax.tree.map(lambda x: x[:n], host)
-
-
-def block_rows() -> int:
-    """Rows every chunk size must be a multiple of: BLOCK per local device."""
-    return BLOCK * len(jax.devices())
-
-
-@functools.lru_cache(maxsize=None)
-def _sharded(kernel: Callable, n_args: int) -> Callable:
-    """``kernel`` with the point axis of rows and idx split over all local devices."""
-    mesh = jax.sharding.Mesh(np.array(jax.devices()), ("points",))
-    rows, rep = jax.sharding.PartitionSpec("points"), jax.sharding.PartitionSpec()
-    return jax.jit(jax.shard_map(kernel, mesh=mesh, in_specs=(rep, rows, rows) + (rep,) * n_args,
-                                 out_specs=rows, check_vma=False))

@@ -32,7 +32,10 @@ def check_points(points: Any, name: str = "points") -> np.ndarray:
     """
     if points is None:
         raise TypeError(f"{name} must be an array of shape (N, 3); got None")
-    arr = np.asarray(points)
+    try:
+        arr = np.asarray(points)
+    except ValueError as err:  # ragged nested lists
+        raise ValueError(f"{name} must be an array of shape (N, 3); got a ragged sequence ({err})") from None
     if arr.dtype not in FLOAT_DTYPES:
         raise TypeError(
             f"{name} must have dtype float32 or float64; got {arr.dtype}"
@@ -55,9 +58,15 @@ def check_points(points: Any, name: str = "points") -> np.ndarray:
 
 
 def check_ratio(ratio: Any, name: str = "ratio") -> float:
-    """Return ``ratio`` as a float after checking 0 < ratio <= 1."""
+    """Return ``ratio`` as a float after checking 0 < ratio <= 1.
+
+    A float32 (or float16) scalar is read as the shortest decimal that it rounds to, the
+    ratio the caller wrote: ``np.float32(0.2)`` is 0.2, not 0.20000000298.
+    """
     if isinstance(ratio, (bool, np.bool_)) or not isinstance(ratio, (int, float, np.integer, np.floating)):
         raise TypeError(f"{name} must be a number in (0, 1]; got {type(ratio).__name__}")
+    if isinstance(ratio, np.floating) and np.finfo(ratio.dtype).bits < 64:
+        ratio = float(np.format_float_positional(ratio, unique=True))
     value = float(ratio)
     if not (0.0 < value <= 1.0) or math.isnan(value):
         raise ValueError(f"{name} must be in (0, 1]; got {ratio!r}")
@@ -65,7 +74,11 @@ def check_ratio(ratio: Any, name: str = "ratio") -> float:
 
 
 def n_keep(n_points: int, ratio: float) -> int:
-    """Number of kept points, ceil(ratio * N), computed without float round-up surprises."""
+    """Number of kept points, ceil(ratio * N), with ratio * N rounded to 1e-9 relative first.
+
+    So a ratio whose product with N is an integer up to float rounding (0.2 x 1000 =
+    200.00000000000003) keeps that integer, not one more.
+    """
     m = math.ceil(ratio * n_points - 1e-9 * n_points)
     return int(min(max(m, 1), n_points))
 
@@ -101,3 +114,54 @@ def check_choice(value: Any, name: str, choices: Iterable[str]) -> str:
     if value not in choices:
         raise ValueError(f"unknown {name} {value!r}; expected one of {choices}")
     return value
+
+
+def check_positive_array(value: Any, name: str, n: int) -> np.ndarray:
+    """Return a scalar or (n,) array of finite values > 0 as float64 (a scalar stays 0-d)."""
+    arr = np.asarray(value, dtype=np.float64) if not isinstance(value, (bool, np.bool_)) else None
+    if arr is None or arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != n):
+        raise ValueError(f"{name} must be a number > 0 or an array of shape ({n},); got {value!r:.80}")
+    if not (np.isfinite(arr).all() and (arr > 0).all()):
+        raise ValueError(f"{name} must be finite and > 0; got {value!r:.80}")
+    return arr
+
+
+def is_concrete(value: Any) -> bool:
+    """True unless ``value`` is a JAX tracer (checks on tracers happen where they are concrete)."""
+    import jax
+
+    return not isinstance(value, jax.core.Tracer)
+
+
+def check_traced_positive(value: Any, name: str):
+    """``value`` unchanged after checking it is finite and > 0 when it is concrete."""
+    if is_concrete(value):
+        arr = np.asarray(value)
+        if arr.ndim != 0 or not np.issubdtype(arr.dtype, np.number) or isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"{name} must be a positive number; got {value!r}")
+        if not (np.isfinite(arr) and arr > 0):
+            raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
+    return value
+
+
+def check_traced_ratio(ratio: Any, name: str = "ratio"):
+    """``ratio`` checked by :func:`check_ratio` when concrete; a tracer passes unchanged."""
+    if is_concrete(ratio):
+        if hasattr(ratio, "shape") and getattr(ratio, "shape", None) == ():
+            ratio = ratio.item() if not isinstance(ratio, np.floating) else ratio
+        return check_ratio(ratio, name)
+    return ratio
+
+
+def check_columns(nb: Any, needed: int, what: str) -> None:
+    """Raise when ``nb.idx`` has fewer than ``needed`` columns."""
+    if nb.idx.shape[-1] < needed:
+        raise ValueError(f"nb.idx has {nb.idx.shape[-1]} columns, too few for {what} (needs {needed});"
+                         " build the neighbourhoods for this method and these parameters")
+
+
+def check_scale(nb: Any, method: str) -> None:
+    """Raise when ``nb`` lacks the per-point voxel spacing a cube method needs."""
+    if nb.scale is None:
+        raise ValueError(f"method {method!r} needs nb.scale, the voxel spacing per point; build the"
+                         f" neighbourhoods with hgjax.neighbourhoods(points, {method!r})")

@@ -1,16 +1,33 @@
-"""The method registry and :func:`resample`, the thin composition score -> select."""
+"""The method registry and the public composition: neighbourhoods -> score -> keep.
+
+:func:`resample` is literally ``keep(score(neighbourhoods(points, method), method), ratio)``:
+
+* :func:`neighbourhoods` (host, SciPy, not jittable) builds exactly what a method needs;
+* :func:`score` (pure JAX: jit, vmap) and its differentiable twin :func:`soft_score`;
+* :func:`keep` (host) turns scores into indices; :func:`soft_weights` into keep weights.
+
+One :class:`Method` entry per method records its neighbourhood kind, its score and soft
+score, which end is kept, whether it needs a key, and which parameters each stage takes.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Callable
 
+import jax
 import numpy as np
 
-from hgjax import _validate, samplers, scores
-from hgjax.select import top_k, weighted_sample
+from hgjax import _validate, samplers, spatial
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, pca_ac, voxel
+from hgjax.select import soft_select, top_k, weighted_sample
 
-__all__ = ["METHODS", "Method", "resample"]
+__all__ = ["METHODS", "Method", "keep", "neighbourhoods", "resample", "score", "soft_resample", "soft_score",
+           "soft_weights"]
+
+GFR_MODES = ("random", "top")
+_STAGES = ("build", "score", "soft_score", "select")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,108 +36,285 @@ class Method:
 
     Attributes:
       name: registry key.
-      run: ``run(points, ratio, *, key, **params) -> indices (M,)`` on validated points.
+      kind: neighbourhood kind, ``"cube"``, ``"knn"`` or ``"graph"``; None for the samplers,
+        which work on the points directly.
+      largest: True when the largest scores are kept, False for the smallest (None for
+        samplers).
+      needs_key: whether the default selection draws random numbers (explicit ``key``).
       summary: one line for the README and ``--help``.
       citation: where the method comes from.
+      build: ``build(points, **params) -> Neighbourhoods`` (host).
+      score: ``score(nb, **params) -> (N,)`` pure JAX.
+      soft_score: differentiable twin of ``score``.
+      select: ``select(scores, m, *, key, **params) -> (m,) indices`` (host); for samplers
+        ``select(points, ratio, *, key, **params)``.
+      params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
+        keyword parameters it accepts.
 
     Examples:
       >>> import hgjax
-      >>> hgjax.METHODS["hkc"].citation
-      'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)'
+      >>> entry = hgjax.METHODS["hkc"]
+      >>> entry.kind, entry.largest, entry.citation
+      ('cube', False, 'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)')
     """
 
     name: str
-    run: Callable[..., np.ndarray]
+    kind: str | None
+    largest: bool | None
+    needs_key: bool
     summary: str
     citation: str
+    build: Callable | None
+    score: Callable | None
+    soft_score: Callable | None
+    select: Callable
+    params: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def accepted(self) -> frozenset:
+        """Every keyword parameter of any stage."""
+        return frozenset().union(*self.params.values())
 
 
-def _by_score(score: Callable, *, largest: bool, wants_ratio: bool = False) -> Callable:
-    def run(points, ratio, *, key=None, **params):
+def _keywords(fn: Callable | None, skip: int) -> frozenset:
+    if fn is None:
+        return frozenset()
+    params = list(inspect.signature(fn).parameters.values())[skip:]
+    return frozenset(p.name for p in params if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD))
+
+
+def _method(name, kind, largest, needs_key, summary, citation, build, score_fn, soft, select) -> Method:
+    skip = {"build": 1, "score": 1, "soft_score": 1, "select": 2}
+    fns = {"build": build, "score": score_fn, "soft_score": soft, "select": select}
+    params = {stage: _keywords(fns[stage], skip[stage]) - {"key"} for stage in _STAGES}
+    return Method(name, kind, largest, needs_key, summary, citation, build, score_fn, soft, select, params)
+
+
+def _top(largest: bool) -> Callable:
+    def select(scores, m, *, key=None):
         del key  # deterministic
-        if wants_ratio:
-            params["ratio"] = ratio
-        values = score(points, **params)
-        return top_k(values, _validate.n_keep(points.shape[0], ratio), largest=largest)
+        return top_k(scores, m, largest=largest)
 
-    return run
+    return select
 
 
-GFR_MODES = ("random", "top")
-
-
-def _gfr(points, ratio, *, key=None, mode="random", **params):
+def _gfr_select(scores, m, *, key=None, mode="random"):
     """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores."""
     mode = _validate.check_choice(mode, "mode", GFR_MODES)
-    if mode == "random":
-        samplers.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
-    values = scores.gfr(points, **params)
-    n, m = values.shape[0], _validate.n_keep(points.shape[0], ratio)
     if mode == "top":
-        return top_k(values, m, largest=True)
-    total = float(np.sum(values, dtype=np.float64))
-    pi = 0.8 * values.astype(np.float64) / total + 0.2 / n if total > 0 else np.full(n, 1.0 / n)
+        return top_k(scores, m, largest=True)
+    samplers.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
+    values = np.asarray(scores, dtype=np.float64)
+    n, total = values.shape[0], float(np.sum(values))
+    pi = 0.8 * values / total + 0.2 / n if total > 0 else np.full(n, 1.0 / n)
     return weighted_sample(key, pi, m)
 
 
-def _pca_ac(points, ratio, *, key=None, **params):
-    """Highest cluster numbers first, then the largest variation, then the lowest index."""
+def _gfr_build(points, *, variant="invariant", radius_factor=None, max_nn=gfr.MAX_NN):
+    pts = _validate.check_points(points)
+    idx = gfr.graph(pts, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
+    return spatial.Neighbourhoods(spatial.local_frame(pts)[0].astype(spatial.working_dtype(pts.dtype)), idx)
+
+
+def _gfr_score(nb, *, variant="invariant"):
+    return gfr.high_pass(nb.points, nb.idx, weights_dtype="float32" if variant == "reference" else None)
+
+
+def _pca_ac_select(scores, m, *, key=None, n_clusters=pca_ac.DEFAULT_N_CLUSTERS):
     del key  # deterministic
-    labels, variation = scores.pca_ac(points, **params)
-    order = np.lexsort((np.arange(labels.shape[0]), -variation, -labels))
-    return order[: _validate.n_keep(points.shape[0], ratio)].astype(np.int64)
-
-
-def _sampler(fn: Callable, *, takes_key: bool = False) -> Callable:
-    """Adapt a sampler ``fn(points, ratio, [key=], **params)`` to the ``Method.run`` signature."""
-
-    def run(points, ratio, *, key=None, **params):
-        return fn(points, ratio, key=key, **params) if takes_key else fn(points, ratio, **params)
-
-    return run
+    return pca_ac.keep(scores, m, n_clusters=n_clusters)
 
 
 PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
 DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
 
-METHODS: dict[str, Method] = {
-    "hkc": Method("hkc", _by_score(scores.hkc, largest=False),
-                  "hypergraph kernel convolution: keep the smallest high/low band ratio beta",
-                  f"{PAPER}, Alg. 1, Eq. (11)"),
-    "hkf": Method("hkf", _by_score(scores.hkf, largest=False),
-                  "hypergraph kernel filtering: keep the smallest high-band share sigma",
-                  f"{PAPER}, Alg. 2, Eq. (12)"),
-    "lhf": Method("lhf", _by_score(scores.lhf, largest=True, wants_ratio=True),
-                  "local hypergraph filtering: keep the largest two-length sharpness gamma",
-                  f"{PAPER}, Alg. 3, Eqs. (14)-(16)"),
-    "gfr": Method("gfr", _gfr,
-                  "graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key,"
-                  ' or mode="top")', "Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018"),
-    "ea": Method("ea", _by_score(scores.ea, largest=True),
-                 "eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
-                 DICTA),
-    "pca_ac": Method("pca_ac", _pca_ac,
-                     "PCA + agglomerative clustering baseline: Ward clusters of the surface variation,"
-                     " sharpest clusters first", DICTA),
-    "uniform": Method("uniform", _sampler(samplers.uniform_sample, takes_key=True),
-                      "uniformly random subset (needs key)", "random down-sampling"),
-    "voxel": Method("voxel", _sampler(samplers.voxel_sample),
-                    "one point per voxel of a grid sized by bisection to reach the count",
-                    "voxel-grid down-sampling"),
-    "fps": Method("fps", _sampler(samplers.farthest_point_sample),
-                  "farthest point sampling from point 0", "Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997"),
-}
+METHODS: dict[str, Method] = {m.name: m for m in (
+    _method("hkc", "cube", False, False,
+            "hypergraph kernel convolution: keep the smallest high/low band ratio beta",
+            f"{PAPER}, Alg. 1, Eq. (11)", voxel.neighbourhoods, hkc.score, hkc.soft_score, _top(False)),
+    _method("hkf", "cube", False, False,
+            "hypergraph kernel filtering: keep the smallest high-band share sigma",
+            f"{PAPER}, Alg. 2, Eq. (12)", voxel.neighbourhoods, hkf.score, hkf.soft_score, _top(False)),
+    _method("lhf", "knn", True, False,
+            "local hypergraph filtering: keep the largest two-length sharpness gamma",
+            f"{PAPER}, Alg. 3, Eqs. (14)-(16)", lhf.neighbourhoods, lhf.score, lhf.soft_score, _top(True)),
+    _method("gfr", "graph", True, True,
+            'graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
+            "Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", _gfr_build, _gfr_score,
+            _gfr_score, _gfr_select),
+    _method("ea", "knn", True, False,
+            "eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)", DICTA,
+            ea.neighbourhoods, ea.score, ea.soft_score, _top(True)),
+    _method("pca_ac", "knn", True, False,
+            "PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
+            DICTA, ea.neighbourhoods, ea.score, ea.soft_score, _pca_ac_select),
+    _method("uniform", None, None, True, "uniformly random subset (needs key)", "random down-sampling",
+            None, None, None, samplers.uniform_sample),
+    _method("voxel", None, None, False, "one point per voxel of a grid sized to reach the count",
+            "voxel-grid down-sampling", None, None, None, samplers.voxel_sample),
+    _method("fps", None, None, False, "farthest point sampling from point 0",
+            "Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997", None, None, None,
+            samplers.farthest_point_sample),
+)}
+
+
+def _entry(method: str) -> Method:
+    return METHODS[_validate.check_choice(method, "method", METHODS)]
+
+
+def _scoring(method: str) -> Method:
+    entry = _entry(method)
+    if entry.kind is None:
+        raise ValueError(f"method {method!r} is a sampler without scores; expected one of"
+                         f" {sorted(m for m, e in METHODS.items() if e.kind is not None)}")
+    return entry
+
+
+def _split(entry: Method, stage: str, params: dict) -> dict:
+    """The parameters of ``params`` that ``stage`` accepts; unknown names raise."""
+    unknown = set(params) - entry.accepted
+    if unknown:
+        raise TypeError(f"method {entry.name!r} got unexpected parameter(s) {sorted(unknown)};"
+                        f" it accepts {sorted(entry.accepted)}")
+    return {k: v for k, v in params.items() if k in entry.params[stage]}
+
+
+def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
+    """The neighbourhoods a method scores, built on the host with SciPy (not jittable).
+
+    Build once per cloud, then call :func:`score` or :func:`soft_score` as often as needed,
+    inside your own ``jit``, ``vmap`` or ``grad``. Parameters another stage takes (e.g.
+    ``ratio`` of LHF's score) are accepted and ignored here, so the same ``**params`` can be
+    passed to every stage.
+
+    Args:
+      points: (N, 3) float32 or float64; never modified.
+      method: a scoring method of :data:`METHODS` (``kind`` not None).
+      **params: the method's neighbourhood parameters (e.g. ``variant``, ``d_factor``,
+        ``lengths``, ``k``, ``dedupe``, ``capacity``: a fixed K so that a batch of clouds can
+        share one shape; a cloud that needs more raises, naming the capacity it needs).
+
+    Returns:
+      :class:`hgjax.Neighbourhoods`: points (N, 3) in a local frame and the working dtype,
+      idx (N, K) int32 padded with N, and the per-point scale the method needs.
+
+    Raises:
+      TypeError, ValueError: invalid points, method or parameters.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((500, 3)), "lhf")
+      >>> nb.idx.shape, nb.idx.dtype
+      ((500, 12), dtype('int32'))
+    """
+    entry = _scoring(method)
+    return entry.build(points, **_split(entry, "build", params))
+
+
+def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
+    """Per-point scores of a method on prebuilt neighbourhoods, pure JAX.
+
+    Runs inside a caller's ``jax.jit`` (``method`` and shape-setting parameters static;
+    float parameters such as ``ratio`` traced, so a sweep does not recompile) and under
+    ``jax.vmap`` over a batch of equal-shape neighbourhoods. Called eagerly, it streams
+    fixed-size chunks through one compiled kernel, so a new cloud size does not recompile.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` with the same method
+        and parameters.
+      method: a scoring method of :data:`METHODS`.
+      **params: the method's score parameters (e.g. ``ratio`` for LHF, ``variant``).
+
+    Returns:
+      (N,) scores in the dtype of ``nb.points``; ``METHODS[method].largest`` says which end
+      is kept.
+
+    Raises:
+      TypeError, ValueError: invalid method or parameters.
+
+    Examples:
+      >>> import jax, numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((500, 3)), "hkc")
+      >>> jax.jit(lambda nb: hgjax.score(nb, "hkc"))(nb).shape
+      (500,)
+    """
+    entry = _scoring(method)
+    return entry.score(nb, **_split(entry, "score", params))
+
+
+def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
+    """Differentiable twin of :func:`score`: smooth per-point scores, pure JAX.
+
+    ``jax.grad`` with respect to ``nb.points`` and the float parameters (``tau``,
+    ``ratio``) is finite, also on duplicate, collinear, coplanar and all-equal clouds.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      method: a scoring method of :data:`METHODS`.
+      **params: the method's soft-score parameters (``tau`` for HKC/HKF/LHF, ``ratio`` for
+        LHF, ``kernel_size``, ``lengths``).
+
+    Returns:
+      (N,) smooth scores; ``METHODS[method].largest`` says which end is kept.
+
+    Raises:
+      TypeError, ValueError: invalid method or parameters.
+
+    Examples:
+      >>> import jax, numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((200, 3)), "ea")
+      >>> g = jax.grad(lambda p: hgjax.soft_score(nb.__class__(p, nb.idx, nb.scale), "ea").sum())(nb.points)
+      >>> bool(np.isfinite(g).all())
+      True
+    """
+    entry = _scoring(method)
+    return entry.soft_score(nb, **_split(entry, "soft_score", params))
+
+
+def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray:
+    """Indices of the ceil(ratio N) points a method keeps, from its scores (host).
+
+    Args:
+      scores: (N,) scores from :func:`score` for this method.
+      ratio: fraction alpha in (0, 1].
+      method: a scoring method of :data:`METHODS`.
+      key: ``jax.random`` key for methods that sample (GFR's default mode).
+      **params: the method's selection parameters (``mode`` for GFR, ``n_clusters`` for
+        PCA-AC).
+
+    Returns:
+      (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first (ties by
+      index).
+
+    Raises:
+      TypeError, ValueError: invalid scores, ratio, method, parameters or key.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> hgjax.keep(np.array([0.3, 0.1, 0.2, 0.4]), 0.5, method="hkc").tolist()
+      [1, 2]
+    """
+    entry = _scoring(method)
+    values = np.asarray(scores)
+    m = _validate.n_keep(values.shape[0], _validate.check_ratio(ratio))
+    return entry.select(values, m, key=key, **_split(entry, "select", params))
 
 
 def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -> np.ndarray:
     """Indices of the ceil(ratio * N) points that a method keeps.
 
+    The composition ``keep(score(neighbourhoods(points, method)), ratio)`` for scoring
+    methods; samplers (``kind`` None) work on the points directly.
+
     Args:
       points: (N, 3) float32 or float64 (NumPy or JAX array); never modified.
-      ratio: fraction alpha of points to keep, in (0, 1].
+      ratio: fraction alpha of points to keep, in (0, 1]. ceil(ratio N) points are kept,
+        with ratio N first rounded to 1e-9 relative (and a float32 ratio read as the
+        decimal it prints as), so ``np.float32(0.2)`` of 1000 points keeps 200.
       method: a key of :data:`hgjax.METHODS` (default ``"hkc"``).
       key: ``jax.random`` key for methods that draw random numbers (ignored by the others).
-      **params: keyword parameters of the method's score (e.g. ``variant``, ``lengths``).
+      **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
+        ``chunk_size``, ``progress``).
 
     Returns:
       (M,) int64 unique indices into ``points``, M = ceil(ratio N), from the highest to the
@@ -138,5 +332,83 @@ def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -
     """
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
-    spec = METHODS[_validate.check_choice(method, "method", METHODS)]
-    return spec.run(pts, ratio, key=key, **params)
+    entry = _entry(method)
+    if entry.kind is None:
+        return entry.select(pts, ratio, **({"key": key} if entry.needs_key else {}), **params)
+    nb = neighbourhoods(pts, method, **params)
+    scores = score(nb, method, **{k: v for k, v in params.items() if k != "ratio"},
+                   **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
+    return keep(scores, ratio, method=method, key=key, **params)
+
+
+def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=0.05, **params) -> jax.Array:
+    """Per-point keep weights, pure JAX: ``soft_select(soft_score(nb, method), ratio)``.
+
+    Jit with ``method`` and shape parameters static; ``nb.points``, ``ratio``,
+    ``temperature`` and ``tau`` are traced (gradients flow to all of them). vmap over a
+    batch of equal-shape neighbourhoods.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` (same method).
+      ratio: fraction alpha in (0, 1].
+      method: a scoring method of :data:`METHODS`.
+      temperature: softness of the selection, in score units (> 0).
+      **params: soft-score parameters (see :func:`soft_score`).
+
+    Returns:
+      (N,) weights in [0, 1] summing to ratio * N.
+
+    Raises:
+      TypeError, ValueError: as :func:`soft_score` and :func:`hgjax.soft_select`.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "hkc")
+      >>> round(float(hgjax.soft_weights(nb, 0.2, method="hkc").sum()), 6)
+      20.0
+    """
+    entry = _scoring(method)
+    if "ratio" in entry.params["soft_score"]:
+        params["ratio"] = ratio
+    s = soft_score(nb, method, **params)
+    return soft_select(s, ratio, temperature=temperature, largest=entry.largest)
+
+
+def soft_resample(points, ratio: float, *, method: str = "hkc", temperature=0.05, **params) -> jax.Array:
+    """Differentiable soft resampling of a concrete cloud: per-point keep weights.
+
+    ``soft_weights(neighbourhoods(points, method), ratio)``. The neighbourhoods are built on
+    the host, so ``points`` must be concrete; inside your own ``jit`` or ``grad``, build
+    them once with :func:`neighbourhoods` and call :func:`soft_weights`.
+
+    Args:
+      points: (N, 3) float32 or float64 (validated: finite, enough points).
+      ratio: fraction alpha in (0, 1].
+      method: a scoring method of :data:`METHODS`.
+      temperature: soft top-k temperature, in score units (> 0).
+      **params: neighbourhood and soft-score parameters.
+
+    Returns:
+      (N,) weights in [0, 1] in the working dtype, summing to ratio * N.
+
+    Raises:
+      TypeError: ``points`` is a tracer, or a parameter has the wrong type.
+      ValueError: invalid points, ratio, temperature, tau or method.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> w = hgjax.soft_resample(np.random.default_rng(0).random((100, 3)), 0.2, method="ea")
+      >>> w.shape
+      (100,)
+    """
+    if not _validate.is_concrete(points):
+        raise TypeError("soft_resample builds neighbourhoods on the host and needs concrete points;"
+                        " inside jit or grad, build nb = hgjax.neighbourhoods(points, method) outside"
+                        " and call hgjax.soft_weights(nb, ratio, method=method) inside")
+    pts = _validate.check_points(points)
+    ratio = _validate.check_ratio(ratio)
+    _validate.check_traced_positive(temperature, "temperature")
+    entry = _scoring(method)
+    nb = neighbourhoods(pts, method, **params)
+    return soft_weights(nb, ratio, method=method, temperature=temperature,
+                        **{k: v for k, v in params.items() if k in entry.params["soft_score"]})

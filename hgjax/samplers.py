@@ -14,14 +14,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _validate
+from hgjax import _validate, spatial
 from hgjax.select import weighted_sample
 
 __all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"]
 
 VOXEL_LEVELS = 2**20  # the finest voxel grid has at most this many cells along each axis
-VOXEL_PROBE_POINTS = 2**14  # points of the strided subsample that estimates the voxel size
-VOXEL_COUNT_PASSES = 2  # full-cloud counting passes of the count-targeted voxel search
+VOXEL_PROBE_POINTS = 2**13  # points of the strided subsample that estimates the voxel size
+VOXEL_COUNT_PASSES = 3  # full-cloud counting passes of the count-targeted voxel search
 VOXEL_SLACK = 1 / 64  # a grid with M to M (1 + slack) voxels ends the search
 FPS_BACKENDS = ("auto", "fpsample", "jax")
 
@@ -74,38 +74,36 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     return weighted_sample(check_key(key, "uniform"), np.ones(pts.shape[0]), m)
 
 
-def _voxel_cells(cols: np.ndarray, origin: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """(code (N,) int64, offset (N,)) of each point's voxel of edge ``size``.
-
-    ``cols`` is the (3, N) transposed cloud, cells count from ``origin``; ``offset`` is the
-    squared distance to the voxel's centre in voxel units.
-    """
-    t = (cols - origin[:, None]) / size
-    cell = t.astype(np.int64)  # t >= 0, so truncation is floor
+def _voxel_codes(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:
+    """(N,) int64 code of each point's voxel of edge ``size``; ``cols`` is the (3, N) cloud."""
+    cell = ((cols - origin[:, None]) / size).astype(np.int64)  # >= 0, so truncation is floor
     dims = cell.max(axis=1) + 1  # at most VOXEL_LEVELS + 1 each, so the code fits in int64
-    code = (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
-    t -= cell + 0.5
-    return code, np.einsum("kn,kn->n", t, t)
+    return (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
 
 
 def _count_voxels(cols: np.ndarray, origin: np.ndarray, size: float) -> int:
     """Number of occupied voxels of edge ``size`` (one sort of the codes)."""
-    code = np.sort(_voxel_cells(cols, origin, size)[0])
+    code = np.sort(_voxel_codes(cols, origin, size))
     return int(np.count_nonzero(code[1:] != code[:-1])) + 1
 
 
 def _voxel_representatives(cols: np.ndarray, origin: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """(reps (V,), counts (V,)): each occupied voxel's point nearest the voxel's centre, and its population.
+    """(reps (V,), counts (V,)): each occupied voxel's point nearest its centroid, and its population.
 
     One argsort of the voxel codes; ties in distance go to the lowest index.
     """
     n = cols.shape[1]
-    code, offset = _voxel_cells(cols, origin, size)
+    code = _voxel_codes(cols, origin, size)
     order = np.argsort(code)
-    code, offset = code[order], offset[order]
+    code = code[order]
     starts = np.flatnonzero(np.concatenate([[True], code[1:] != code[:-1]]))
     counts = np.diff(np.append(starts, n))
-    nearest = offset == np.repeat(np.minimum.reduceat(offset, starts), counts)
+    dist = np.zeros(n)
+    for c in cols:  # row by row: contiguous gathers and reductions
+        x = c[order]
+        x -= np.repeat(np.add.reduceat(x, starts) / counts, counts)
+        dist += x * x
+    nearest = dist == np.repeat(np.minimum.reduceat(dist, starts), counts)
     return np.minimum.reduceat(np.where(nearest, order, n), starts), counts
 
 
@@ -156,7 +154,7 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     With ``voxel_size`` the grid is given: one pass (an argsort of N voxel codes). With
     ``ratio`` alone the edge is searched for (see below) so that the grid has at least
     M = ceil(ratio N) voxels; the search counts voxels on a subsample and on the full cloud
-    at most twice (a sort each), so it costs under three passes. The count is then made
+    at most three times (a sort each, about half a pass), so it costs under three passes. The count is then made
     exact: the first M ranked representatives are returned, which drops the least populated
     voxels when the grid has more than M; when it has fewer (a cloud with many duplicate
     points, or a ``voxel_size`` too coarse), the remaining points follow in index order.
@@ -179,7 +177,7 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     Examples:
       >>> import numpy as np, hgjax
       >>> pts = np.array([[0., 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 0, 0], [5.1, 0, 0]])
-      >>> hgjax.voxel_sample(pts, voxel_size=1.0).tolist()  # the fuller voxel's middle first
+      >>> hgjax.voxel_sample(pts, voxel_size=1.0).tolist()  # the fuller voxel first
       [1, 3]
       >>> len(hgjax.voxel_sample(pts, 0.4))
       2
@@ -357,5 +355,5 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
         raise ValueError(f"start must be < N = {n}; got {start}")
     if fps_backend(backend) == "fpsample":
         return _fps_fpsample(np.asarray(pts), m, start)
-    p = jnp.asarray(pts, dtype=_stream.working_dtype(pts.dtype))
+    p = jnp.asarray(pts, dtype=spatial.working_dtype(pts.dtype))
     return np.asarray(_fps(p, m, jnp.int32(start))).astype(np.int64)

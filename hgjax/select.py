@@ -1,19 +1,24 @@
 """Selection of the kept points from per-point scores.
 
 Deterministic top-k with stable ties, and weighted sampling without replacement driven by an
-explicit ``jax.random`` key. Both run on the host (``np.argpartition`` is an order of
-magnitude faster than ``jax.lax.top_k`` for large k on CPU) and return int64 indices ordered
-from the highest to the lowest keep priority.
+explicit ``jax.random`` key, both on the host (``np.argpartition`` is an order of magnitude
+faster than ``jax.lax.top_k`` for large k on CPU), returning int64 indices ordered from the
+highest to the lowest keep priority; and the differentiable soft top-k :func:`soft_select`,
+pure JAX, returning per-point keep weights.
 """
 
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate
+from hgjax.scores import _common
 
-__all__ = ["top_k", "weighted_sample"]
+__all__ = ["soft_select", "top_k", "weighted_sample"]
+
+BISECTION_STEPS = 64
 
 
 def _check_scores(scores, name="scores") -> np.ndarray:
@@ -98,3 +103,72 @@ def weighted_sample(key: jax.Array, weights, m: int) -> np.ndarray:
         perturbed = np.where(w > 0, np.log(w.astype(np.float64)) + g, -np.inf)
     # Zero-weight points come last, in index order (stable).
     return top_k(perturbed, m, largest=True)
+
+
+@jax.custom_jvp
+def _threshold(scores, temperature, target):
+    """theta with sum(sigmoid((scores - theta) / temperature)) = target, by bisection."""
+    span = 40 * temperature
+
+    def step(_, bounds):
+        lo, hi = bounds
+        mid = (lo + hi) / 2
+        above = jnp.sum(jax.nn.sigmoid((scores - mid) / temperature)) > target
+        return jnp.where(above, mid, lo), jnp.where(above, hi, mid)
+
+    lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, step, (jnp.min(scores) - span, jnp.max(scores) + span))
+    return (lo + hi) / 2
+
+
+@_threshold.defjvp
+def _threshold_jvp(primals, tangents):
+    scores, temperature, target = primals
+    ds, dt, dm = tangents
+    theta = _threshold(scores, temperature, target)
+    z = (scores - theta) / temperature
+    w = jax.nn.sigmoid(z)
+    g = w * (1 - w)  # derivative of the sigmoid
+    # Implicit function theorem on F = sum sigmoid(z) - target = 0.
+    num = jnp.sum(g * ds) - jnp.sum(g * z) * dt - temperature * dm
+    return theta, _common.safe_div(num, jnp.sum(g), 0.0)
+
+
+def soft_select(scores, ratio, *, temperature=0.05, largest: bool = True):
+    """Soft top-k: keep weights in [0, 1] that sum to ratio * N.
+
+    w_i = sigmoid((s_i - theta) / temperature) (or of theta - s_i with ``largest=False``),
+    theta found by 64 bisection steps so that sum(w) = ratio * N, and differentiated by the
+    implicit function theorem: d theta = sum_i g_i ds_i / sum_i g_i with g the sigmoid
+    slopes. As temperature -> 0 the weights tend to the hard top-k mask (ties share).
+
+    Args:
+      scores: (N,) float scores without NaN (traced).
+      ratio: fraction alpha in (0, 1] (traced: a new value does not recompile).
+      temperature: > 0, in the units of the scores (traced).
+      largest: keep the largest scores (True) or the smallest (static).
+
+    Returns:
+      (N,) weights in [0, 1] in the dtype of ``scores``; their sum is ratio * N up to the
+      bisection's precision (and < N when ratio = 1, each weight then being about 1).
+
+    Raises:
+      ValueError: if ``scores`` is not one-dimensional, or a concrete ``ratio`` or
+        ``temperature`` is out of range (NaN, 0 or below).
+
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> w = hgjax.soft_select(jnp.array([0.1, 0.9, 0.5, 0.7]), 0.5, temperature=1e-3)
+      >>> [round(float(x), 3) for x in w]
+      [0.0, 1.0, 0.0, 1.0]
+    """
+    scores = jnp.asarray(scores)
+    if scores.ndim != 1:
+        raise ValueError(f"scores must have shape (N,); got {scores.shape}")
+    ratio = _validate.check_traced_ratio(ratio)
+    temperature = _validate.check_traced_positive(temperature, "temperature")
+    if not largest:
+        scores = -scores
+    temperature = jnp.asarray(temperature, scores.dtype)
+    target = jnp.asarray(ratio, scores.dtype) * scores.shape[0]
+    theta = _threshold(scores, temperature, target)
+    return jax.nn.sigmoid((scores - theta) / temperature)

@@ -1,29 +1,13 @@
 """Per-point resampling scores, one module per method of the paper and its baselines.
 
-Each module has a kernel for ONE neighbourhood (``*_neighbourhood``) and a host entry point
-that builds neighbourhoods with SciPy and streams the vmapped, jitted kernel over the cloud.
+Each module holds, side by side, the hard kernel for ONE neighbourhood, its smooth twin,
+the host builder of the neighbourhoods it needs, and ``score`` / ``soft_score`` over a whole
+:class:`hgjax.Neighbourhoods`: :mod:`~hgjax.scores.hkc` (Eq. 11), :mod:`~hgjax.scores.hkf`
+(Eq. 12), :mod:`~hgjax.scores.lhf` (Eqs. 14-16), :mod:`~hgjax.scores.gfr`,
+:mod:`~hgjax.scores.ea`, :mod:`~hgjax.scores.pca_ac`; :mod:`~hgjax.scores.voxel` is the cubic
+kernel shared by HKC and HKF.
 """
 
-from hgjax.scores.ea import ea, ea_neighbourhood
-from hgjax.scores.gfr import gfr, gfr_neighbourhood
-from hgjax.scores.hkc import hkc, hkc_neighbourhood
-from hgjax.scores.hkf import hkf, hkf_neighbourhood
-from hgjax.scores.pca_ac import pca_ac, ward_1d
-from hgjax.scores.lhf import combine as lhf_combine, lhf, lhf_neighbourhood, lhf_single
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, pca_ac, voxel
 
-__all__ = [
-    "ea",
-    "ea_neighbourhood",
-    "gfr",
-    "gfr_neighbourhood",
-    "hkc",
-    "hkc_neighbourhood",
-    "hkf",
-    "hkf_neighbourhood",
-    "lhf",
-    "lhf_combine",
-    "lhf_neighbourhood",
-    "lhf_single",
-    "pca_ac",
-    "ward_1d",
-]
+__all__ = ["ea", "gfr", "hkc", "hkf", "lhf", "pca_ac", "voxel"]

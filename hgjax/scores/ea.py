@@ -19,21 +19,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _validate
-from hgjax.neighbourhoods import SpatialIndex
+from hgjax import _stream, _validate, spatial
 from hgjax.scores import _common
 
-__all__ = ["DEFAULT_K", "ea", "ea_neighbourhood", "surface_variation"]
+__all__ = ["DEFAULT_K", "neighbourhoods", "score", "soft_score", "variation"]
 
 DEFAULT_K = 16
 
 
-def ea_neighbourhood(centre, nbrs, valid):
+def variation(offsets, valid):
     """Surface variation l0 / (l0 + l1 + l2) of one neighbourhood.
 
     Args:
-      centre: (3,) the point (its offsets keep the covariance well conditioned).
-      nbrs: (K, 3) the neighbourhood, padding rows masked by ``valid`` (K,).
+      offsets: (K, 3) the neighbourhood minus the point (which keeps the covariance well
+        conditioned), padding rows masked by ``valid`` (K,).
 
     Returns:
       Scalar c in [0, 1/3]; 0 when all valid points coincide.
@@ -41,54 +40,78 @@ def ea_neighbourhood(centre, nbrs, valid):
     Examples:
       >>> import jax.numpy as jnp, hgjax
       >>> flat = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
-      >>> float(hgjax.scores.ea_neighbourhood(jnp.zeros(3), flat, jnp.ones(4, bool)))
+      >>> float(hgjax.scores.ea.variation(flat, jnp.ones(4, bool)))
       0.0
     """
-    x = jnp.where(valid[:, None], nbrs - centre[None, :], 0)
-    count = jnp.sum(valid).astype(x.dtype)
+    x = jnp.where(valid[:, None], offsets, 0)
+    count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
     mean = jnp.sum(x, axis=0) / count
     y = jnp.where(valid[:, None], x - mean[None, :], 0)
     cov = y.T @ y
     l0 = jnp.maximum(jnp.linalg.eigvalsh(cov)[0], 0)
-    return _common.safe_div(l0, jnp.trace(cov), 0.0)
+    trace = jnp.trace(cov)
+    return jnp.where(trace > 0, l0 / jnp.where(trace > 0, trace, 1), 0.0)
 
 
-_chunk_kernel = jax.jit(_common.map_neighbourhoods(ea_neighbourhood))
-
-
-def surface_variation(index: SpatialIndex, k: int, chunk_size, progress: bool) -> np.ndarray:
-    """(N,) surface variation of the k-nearest neighbourhoods of ``index``, sorted frame."""
-    chunk = _common.chunk_size_or_auto(chunk_size, index.n, 8 * k * 12)
-    return _stream.stream(_chunk_kernel, index, lambda rows: index.knn(k, rows), chunk_size=chunk,
-                          progress=progress)
-
-
-def ea(points, *, k: int = DEFAULT_K, chunk_size: int | None = None, progress: bool = False) -> np.ndarray:
-    """EA surface variation per point (Bazazian et al. 2015); higher is sharper.
+def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True,
+                   capacity: int | None = None) -> spatial.Neighbourhoods:
+    """k-nearest neighbourhoods of EA and PCA-AC (host, not jittable).
 
     Args:
       points: (N, 3) float32 or float64, N >= k.
-      k: neighbourhood size counting the point itself (default 16). Static: a new value
-        compiles a new kernel.
-      chunk_size: points per streamed chunk (default: automatic). Does not change results.
-      progress: show a progress bar on stderr for long runs.
+      k: neighbourhood size counting the point itself (default 16).
+      dedupe: count exact duplicates once (default True; False for the paper's
+        neighbourhoods, where k copies of a point make its covariance 0).
+      capacity: columns of ``idx`` (>= k); default k.
 
     Returns:
-      (N,) c = l0 / (l0 + l1 + l2) in [0, 1/3], in the dtype of ``points``; 0 where the
-      neighbourhood is a single repeated point.
+      :class:`hgjax.Neighbourhoods` (no scale).
 
     Raises:
-      TypeError, ValueError: invalid points, k < 2 or N < k.
+      TypeError, ValueError: invalid arguments, or N < k.
+    """
+    k = _validate.check_int(k, "k", minimum=2)
+    return spatial.knn(points, k, dedupe=dedupe, capacity=capacity)
+
+
+def score(nb, *, chunk_size: int | None = None, progress: bool = False):
+    """EA surface variation of every neighbourhood (Bazazian et al. 2015); higher is sharper.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      chunk_size: rows per streamed chunk on eager calls; never changes results.
+      progress: progress bar on stderr for long eager runs.
+
+    Returns:
+      (N,) c = l0 / (l0 + l1 + l2) in [0, 1/3], in the dtype of ``nb.points``; 0 where
+      the neighbourhood is a single repeated point.
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> pts = np.random.default_rng(0).random((200, 3))
-      >>> c = hgjax.scores.ea(pts)
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((200, 3)), "ea")
+      >>> c = hgjax.scores.ea.score(nb)
       >>> c.shape, bool(((c >= 0) & (c <= 1 / 3)).all())
       ((200,), True)
     """
-    pts = _validate.check_points(points)
-    k = _validate.check_int(k, "k", minimum=2)
-    _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
-    index = SpatialIndex(pts)
-    return _common.finish(index, surface_variation(index, k, chunk_size, progress), pts.dtype)
+    return _stream.map_neighbourhoods(variation, nb, chunk_size=chunk_size, progress=progress)
+
+
+def soft_score(nb):
+    """EA surface variation as one pure JAX program (its own smooth twin).
+
+    An eigenvalue (not an eigenvector) has a finite derivative even where it is degenerate,
+    and the division is guarded, so gradients are finite on every cloud.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+
+    Returns:
+      (N,) surface variation; higher is sharper.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "ea")
+      >>> hgjax.scores.ea.soft_score(nb).shape
+      (100,)
+    """
+    return _common.soft_map(variation, nb)

@@ -7,35 +7,36 @@ s_oi = V diag(1 - lam) V^T s_i (Eq. (10)), and the local smoothness is
     beta_i = ||s_oi||_2 / ||s_i - s_oi||_2                                   (Eq. (11)).
 
 Lower beta means sharper; resampling keeps the smallest. Because 1 - lam is constant on
-each eigenspace, beta does not depend on the eigensolver's basis: for a given d both variants
-compute the same value, through the exact low-band projector (R / lambda_max). The variants
-differ only in the default d factor: 1.3 for ``"reference"`` (REFERENCE.md) and 2.5 for
-``"invariant"`` (bench/results/edge_defaults.md). beta is +inf where the low band is exactly zero (signals
-symmetric about the centre, e.g. interior points of an axis-aligned flat face).
+each eigenspace, beta does not depend on the eigensolver's basis: it is computed through the
+exact low-band projector (R / lambda_max). The variants differ only in their neighbourhoods
+(:func:`hgjax.scores.voxel.neighbourhoods`: d = 1.3 x the global resolution for
+``"reference"``, 2.5 x the local resolution for ``"invariant"``). beta is +inf where the low
+band is exactly zero (signals symmetric about the centre, e.g. interior points of an
+axis-aligned flat face).
+
+The smooth twin :func:`soft_beta` counts with soft voxel memberships and returns the bounded
+beta / (1 + beta) = ||high|| / (||high|| + ||low||), which is finite everywhere.
 """
 
 from __future__ import annotations
 
 import functools
 
-import jax
 import jax.numpy as jnp
-import numpy as np
 
-from hgjax import _validate
-from hgjax.neighbourhoods import SpatialIndex
+from hgjax import _stream, _validate
 from hgjax.scores import _common, voxel
 
-__all__ = ["hkc", "hkc_neighbourhood"]
+__all__ = ["beta", "score", "soft_beta", "soft_score"]
 
 
-def hkc_neighbourhood(centre, nbrs, valid, d, *, kernel_size: int = 3):
+def beta(offsets, valid, d, *, kernel_size: int = 3):
     """beta (Eq. (11)) of one cube neighbourhood.
 
     Args:
-      centre: (3,) the point.
-      nbrs: (K, 3) its cube neighbourhood, padding rows masked by ``valid`` (K,).
-      d: voxel spacing.
+      offsets: (K, 3) the cube neighbourhood minus the point, padding rows masked by
+        ``valid`` (K,).
+      d: voxel spacing (scalar).
       kernel_size: k of the k x k x k kernel (static).
 
     Returns:
@@ -43,57 +44,89 @@ def hkc_neighbourhood(centre, nbrs, valid, d, *, kernel_size: int = 3):
 
     Examples:
       >>> import jax.numpy as jnp, hgjax
-      >>> nbrs = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-      >>> round(float(hgjax.scores.hkc_neighbourhood(jnp.zeros(3), nbrs, jnp.ones(3, bool), 1.0)), 4)
+      >>> offsets = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+      >>> round(float(hgjax.scores.hkc.beta(offsets, jnp.ones(3, bool), 1.0)), 4)
       8.9443
     """
-    s = voxel.local_signal(centre, nbrs, valid, d, kernel_size)
-    low, high = voxel.low_high(s, kernel_size)
+    low, high = voxel.low_high(voxel.local_signal(offsets, valid, d, kernel_size), kernel_size)
     return _common.safe_div(jnp.linalg.norm(high), jnp.linalg.norm(low), jnp.inf)
 
 
-@functools.lru_cache(maxsize=None)
-def _chunk_kernel(kernel_size: int):
-    fn = functools.partial(hkc_neighbourhood, kernel_size=kernel_size)
-    return jax.jit(_common.map_neighbourhoods(fn))
+def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3):
+    """Smooth bounded HKC score of one cube neighbourhood: beta / (1 + beta) of soft counts.
 
-
-def hkc(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
-        resolution: float | None = None, chunk_size: int | None = None,
-        progress: bool = False) -> np.ndarray:
-    """HKC local smoothness beta per point (paper Eq. (11)); lower is sharper.
+    ||high|| / (||high|| + ||low||) (Eqs. (10)-(11)) of
+    :func:`hgjax.scores.voxel.soft_local_signal`, with guarded square roots (0 when the
+    signal is 0). As tau -> 0 it tends to beta / (1 + beta) of the hard counts.
 
     Args:
-      points: (N, 3) float32 or float64, N >= 2.
-      variant: ``"invariant"`` or ``"reference"``; they differ only in the default d_factor.
-      d_factor: voxel spacing d = d_factor * resolution. Default: 1.3 (REFERENCE.md) for
-        ``variant="reference"``, 2.5 (``voxel.DEFAULT_D_FACTOR``, tuned on the edge benchmark)
-        for ``"invariant"``.
-      kernel_size: odd k of the k x k x k kernel (default 3, N_k = 27). Static: a new value
-        compiles a new kernel.
-      resolution: override the intrinsic resolution (default: computed).
-      chunk_size: points per streamed chunk (default: automatic). Does not change results.
-      progress: show a progress bar on stderr for long runs.
+      offsets, valid, d: as :func:`beta`.
+      tau: softness of the voxel membership, relative to d (scalar > 0, traced).
+      kernel_size: k (static).
 
     Returns:
-      (N,) beta in the dtype of ``points``; +inf where the low band vanishes.
+      Scalar in [0, 1]; lower is sharper.
 
-    Raises:
-      TypeError, ValueError: invalid points or parameters, N < 2, unknown variant.
+    Examples:
+      >>> import jax.numpy as jnp, hgjax
+      >>> offsets = jnp.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+      >>> round(float(hgjax.scores.hkc.soft_beta(offsets, jnp.ones(3, bool), 1.0, 1e-3)), 6)
+      1.0
+    """
+    s = voxel.soft_local_signal(offsets, valid, d, tau, kernel_size)
+    low, high = voxel.low_high(s, kernel_size)
+    return _common.band_ratio(jnp.sum(high * high), jnp.sum(low * low))
+
+
+@functools.lru_cache(maxsize=None)
+def _kernel(kernel_size: int):
+    return functools.partial(beta, kernel_size=kernel_size)
+
+
+def score(nb, *, kernel_size: int = 3, chunk_size: int | None = None, progress: bool = False):
+    """HKC beta (Eq. (11)) of every neighbourhood; lower is sharper.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`
+        (its ``scale`` is the voxel spacing d per point).
+      kernel_size: odd k, the one the neighbourhoods were built for (static).
+      chunk_size: rows per streamed chunk on eager calls; never changes results.
+      progress: progress bar on stderr for long eager runs.
+
+    Returns:
+      (N,) beta in the dtype of ``nb.points``; +inf where the low band vanishes.
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> pts = np.random.default_rng(0).random((200, 3))
-      >>> beta = hgjax.scores.hkc(pts)
-      >>> beta.shape, beta.dtype
-      ((200,), dtype('float64'))
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((200, 3)), "hkc")
+      >>> hgjax.scores.hkc.score(nb).shape
+      (200,)
     """
-    pts = _validate.check_points(points)
-    variant = _common.check_variant(variant)
-    d_factor = voxel.d_factor_or_default(d_factor, variant)
     kernel_size = voxel.check_kernel_size(kernel_size)
-    _validate.check_min_points(pts.shape[0], 2, "HKC")
-    index = SpatialIndex(pts)
-    d = d_factor * _common.resolution_or_default(index, resolution)
-    return _common.finish(index, voxel.stream_cubes(index, _chunk_kernel(kernel_size), d, kernel_size,
-                                                    chunk_size, progress), pts.dtype)
+    _validate.check_scale(nb, "hkc")
+    return _stream.map_neighbourhoods(_kernel(kernel_size), nb, row_args=(nb.scale,), chunk_size=chunk_size,
+                                      progress=progress)
+
+
+def soft_score(nb, *, tau=0.1, kernel_size: int = 3):
+    """Smooth HKC score of every neighbourhood (:func:`soft_beta`), pure JAX and differentiable.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`.
+      tau: softness of the voxel membership, relative to d (traced).
+      kernel_size: odd k (static).
+
+    Returns:
+      (N,) scores in [0, 1]; lower is sharper.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "hkc")
+      >>> s = hgjax.scores.hkc.soft_score(nb)
+      >>> bool(((s >= 0) & (s <= 1)).all())
+      True
+    """
+    kernel_size = voxel.check_kernel_size(kernel_size)
+    _validate.check_scale(nb, "hkc")
+    tau = _validate.check_traced_positive(tau, "tau")
+    return _common.soft_map(functools.partial(soft_beta, kernel_size=kernel_size), nb, (nb.scale,), (tau,))

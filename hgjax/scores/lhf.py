@@ -48,7 +48,7 @@ Degenerate neighbourhoods: duplicates and collinear or coplanar points give fini
 [0, 1]; a signal with no structure at all (every row of s constant, e.g. all points equal)
 gives gamma = 0. The invariant gamma jumps where an eigenspace changes dimension (rank(R)
 drops, mu1 meets mu2), as the band threshold t already does at mu1 / mu2 = 1/2; the smooth
-LHF of :mod:`hgjax.soft` shares :func:`gram_bands` and blends across the last two.
+twin :func:`soft_gamma` shares :func:`gram_bands` and blends across the last two.
 """
 
 from __future__ import annotations
@@ -61,12 +61,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _validate
-from hgjax.neighbourhoods import SpatialIndex
+from hgjax import _stream, _validate, spatial, spectrum
 from hgjax.scores import _common
-from hgjax import spectrum
 
-__all__ = ["DEFAULT_LENGTHS", "combine", "lhf", "lhf_neighbourhood", "lhf_single"]
+__all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
 
 DEFAULT_LENGTHS = (6, 12)  # the best (mean F1 + mean MCC) / 2 in bench/results/edge_defaults.md
 SOLVERS = ("eigh", "gram")
@@ -196,7 +194,7 @@ def gram_bands(s) -> GramBands:
     everything is computed in its dtype.
 
     Shared by the hard kernel (``variant="invariant"``) and the smooth LHF of
-    :mod:`hgjax.soft`, which differ only in the weights passed to :func:`band_l1_ratio`.
+    :func:`soft_gamma`, which differ only in the weights passed to :func:`band_l1_ratio`.
 
     Args:
       s: (n, 3) local signal (Eq. (13)).
@@ -288,7 +286,7 @@ def band_l1_ratio(bands: GramBands, high, pair):
     (1 - high) small): ``high`` is the high-band weight of the mu1 direction, ``pair`` the
     weight of counting span(u1, u2) as one 2-D eigenspace. The hard kernel passes the 0/1
     steps (mu1 / mu2 < 1/2: t = argmax(diff(lam)) + 1 puts mu1 in the high band) and
-    ``bands.equal``; :mod:`hgjax.soft` passes smooth switches of ``bands.ratio``.
+    ``bands.equal``; :func:`soft_gamma` passes smooth switches of ``bands.ratio``.
 
     Args:
       bands: :class:`GramBands` from :func:`gram_bands`.
@@ -311,14 +309,13 @@ def _invariant_gram(s):
     return band_l1_ratio(bands, (bands.ratio < 0.5).astype(dtype), bands.equal.astype(dtype))
 
 
-def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant",
-                      solver: str = "gram"):
+def gamma(offsets, valid, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram"):
     """gamma (Eq. (14)) of one k-nearest neighbourhood for each length.
 
     Args:
-      centre: (3,) the point.
-      nbrs: (K, 3) the point itself then its neighbours by distance, K >= max(lengths).
-      valid: (K,) bool (unused for full kNN rows; padding rows give gamma = 0).
+      offsets: (K, 3) the point itself (a zero row) then its neighbours by distance, minus
+        the point; K >= max(lengths).
+      valid: (K,) bool (padding rows count as zero offsets).
       lengths: tuple of lengths n (static), each counting the point itself.
       variant: ``"invariant"`` or ``"reference"`` (static).
       solver: ``"gram"`` or ``"eigh"`` for the invariant variant (static).
@@ -328,12 +325,11 @@ def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: 
 
     Examples:
       >>> import jax.numpy as jnp, hgjax
-      >>> nbrs = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]])
-      >>> g = hgjax.scores.lhf_neighbourhood(jnp.zeros(3), nbrs, jnp.ones(4, bool), lengths=(3, 4))
-      >>> g.shape
+      >>> offsets = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]])
+      >>> hgjax.scores.lhf.gamma(offsets, jnp.ones(4, bool), lengths=(3, 4)).shape
       (2,)
     """
-    signal = jnp.where(valid[:, None], nbrs - centre[None, :], 0)
+    signal = jnp.where(valid[:, None], offsets, 0)
     if variant == "reference":
         fn = _reference
     else:
@@ -341,69 +337,58 @@ def lhf_neighbourhood(centre, nbrs, valid, *, lengths=DEFAULT_LENGTHS, variant: 
     out = []
     for n in lengths:
         # Serialise the lengths: two batched LAPACK eigh calls running concurrently inside one
-        # XLA CPU program can deadlock in jaxlib's thread pool (seen with jax 0.10.2).
+        # XLA CPU program can deadlock in jaxlib's thread pool.
         signal = jax.lax.optimization_barrier((signal, out))[0] if out else signal
         out.append(fn(signal[:n]))
     return jnp.stack(out)
 
 
-@functools.lru_cache(maxsize=None)
-def _chunk_kernel(lengths, variant, solver):
-    fn = functools.partial(lhf_neighbourhood, lengths=lengths, variant=variant, solver=solver)
-    return jax.jit(_common.map_neighbourhoods(fn))
+def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
+    """Smooth LHF sharpness gamma (Eq. (14)) of one k-nearest neighbourhood for each length.
 
+    The invariant (Haar-expected L1) gamma, with the eigenspace sums of :func:`gram_bands`
+    (shared with the hard kernel) combined by :func:`band_l1_ratio` with smooth switches of
+    r = mu1 / mu2 instead of the hard steps:
 
-def _check_length(n, name):
-    return _validate.check_int(n, name, minimum=3)
+    * band: the mu1 direction is high band with weight sigmoid((1/2 - r) / tau);
+    * pair: u1, u2 count as one 2-D eigenspace (Haar factor 4 / pi) with weight
+      q = exp(-((1 - r) / tau)^2). The 1-D terms |u_k^T s| turn with the eigenvectors, whose
+      derivative grows like 1 / (mu2 - mu1); since 1 - q = O((1 - r)^2), gamma and its
+      gradient stay continuous at mu1 = mu2, where the hard gamma jumps.
 
-
-def _single_lengths(points, lengths, variant, solver, chunk_size, progress):
-    """(N, len(lengths)) single-length gammas in the caller's order."""
-    pts = _validate.check_points(points)
-    variant = _common.check_variant(variant)
-    _validate.check_choice(solver, "solver", SOLVERS)
-    k = max(lengths)
-    _validate.check_min_points(pts.shape[0], k, f"LHF with length {k}")
-    index = SpatialIndex(pts)
-    per_point = 8 * k * k * 3 if (variant == "reference" or solver == "eigh") else 8 * k * 16
-    chunk = _common.chunk_size_or_auto(chunk_size, index.n, per_point)
-    out = _stream.stream(_chunk_kernel(tuple(lengths), variant, solver), index,
-                         lambda rows: index.knn(k, rows), chunk_size=chunk, progress=progress)
-    return _common.finish(index, out, pts.dtype)
-
-
-def lhf_single(points, length: int, *, variant: str = "invariant", solver: str = "gram",
-               chunk_size: int | None = None, progress: bool = False) -> np.ndarray:
-    """Single-length LHF sharpness gamma (paper Eq. (14)); higher is sharper.
+    gamma still jumps where rank(R) drops (collinear signals, or a plane containing the
+    direction (1, 1, 1)); gradients stay finite there.
 
     Args:
-      points: (N, 3) float32 or float64.
-      length: n >= 3, the number of points in the local signal counting the point itself
-        (static: a new value compiles a new kernel).
-      variant: ``"invariant"`` (default) or ``"reference"``; see the module docstring.
-      solver: ``"gram"`` (default, 3 x 3) or ``"eigh"`` (n x n) for the invariant variant.
-      chunk_size: points per streamed chunk (default: automatic). Does not change results.
-      progress: show a progress bar on stderr for long runs.
+      offsets, valid: as :func:`gamma`.
+      tau: softness of the switches on r (scalar > 0, traced); tau -> 0 gives the hard
+        invariant gamma except for r within a few tau of 1/2 or 1.
+      lengths: tuple of lengths n (static).
 
     Returns:
-      (N,) gamma in [0, 1], in the dtype of ``points``.
-
-    Raises:
-      TypeError, ValueError: invalid input, N < length, unknown variant or solver.
+      (len(lengths),) gamma in [0, 1]; higher is sharper. Gradients are finite on
+      duplicate, collinear, coplanar and symmetric neighbourhoods.
 
     Examples:
-      >>> import numpy as np, hgjax
-      >>> pts = np.random.default_rng(0).random((100, 3))
-      >>> g = hgjax.scores.lhf_single(pts, 6)
-      >>> g.shape, bool(((g >= 0) & (g <= 1)).all())
-      ((100,), True)
+      >>> import jax.numpy as jnp, hgjax
+      >>> offsets = jnp.zeros((8, 3))  # all points equal: no structure
+      >>> hgjax.scores.lhf.soft_gamma(offsets, jnp.ones(8, bool), 0.05, lengths=(4, 8)).tolist()
+      [0.0, 0.0]
     """
-    length = _check_length(length, "length")
-    return _single_lengths(points, (length,), variant, solver, chunk_size, progress)[:, 0]
+    signal = jnp.where(valid[:, None], offsets, 0)
+    out = []
+    for n in lengths:
+        bands = gram_bands(signal[:n])
+        high = jax.nn.sigmoid((0.5 - bands.ratio) / tau)
+        pair = jnp.exp(-jnp.square((1 - bands.ratio) / tau))
+        out.append(band_l1_ratio(bands, high, pair))
+    return jnp.stack(out)
 
 
-def combine(gamma_a, gamma_b, ratio: float):
+def combine(gamma_a, gamma_b, ratio):
     """Combine two single-length gammas (paper Eqs. (15)-(16)).
+
+    Pure JAX when any input is traced (``ratio`` may then be traced too), NumPy otherwise.
 
     Args:
       gamma_a, gamma_b: (N,) single-length sharpness values.
@@ -411,54 +396,134 @@ def combine(gamma_a, gamma_b, ratio: float):
 
     Returns:
       (N,) eps gamma_a + (1 - eps) gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), where
-      Gamma is the ceil(alpha N)-th largest value of each (0.5 when both Gammas are 0).
+      Gamma is the ceil(alpha N)-th largest value of each (eps = 0.5 when both are 0).
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> hgjax.scores.lhf_combine(np.array([0.2, 0.4]), np.array([0.1, 0.3]), 0.5).round(3).tolist()
+      >>> hgjax.scores.lhf.combine(np.array([0.2, 0.4]), np.array([0.1, 0.3]), 0.5).round(3).tolist()
       [0.143, 0.343]
     """
-    ratio = _validate.check_ratio(ratio)
-    ga, gb = np.asarray(gamma_a), np.asarray(gamma_b)
-    m = _validate.n_keep(ga.shape[0], ratio)
-    big_a = np.partition(ga, ga.shape[0] - m)[ga.shape[0] - m]
-    big_b = np.partition(gb, gb.shape[0] - m)[gb.shape[0] - m]
-    total = big_a + big_b
-    eps = big_b / total if total > 0 else ga.dtype.type(0.5)
-    return (eps * ga + (1 - eps) * gb).astype(ga.dtype)
+    xp = jnp if _stream.is_traced(gamma_a, gamma_b, ratio) else np
+    g = xp.stack([xp.asarray(gamma_a), xp.asarray(gamma_b)], axis=1)  # (N, 2)
+    n = g.shape[0]
+    m = xp.clip(xp.ceil(ratio * n - 1e-9 * n), 1, n).astype(xp.int32)
+    big = xp.sort(g, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
+    total = big[0] + big[1]
+    eps = xp.where(total > 0, big[1] / xp.where(total > 0, total, 1), 0.5).astype(g.dtype)
+    return eps * g[:, 0] + (1 - eps) * g[:, 1]
 
 
-def lhf(points, *, ratio: float, lengths=DEFAULT_LENGTHS, variant: str = "invariant",
-        solver: str = "gram", chunk_size: int | None = None, progress: bool = False) -> np.ndarray:
-    """Combined LHF sharpness gamma per point (paper Eqs. (14)-(16)); higher is sharper.
+def _check_lengths(lengths) -> tuple[int, ...]:
+    if not isinstance(lengths, (tuple, list)) or len(lengths) != 2:
+        raise ValueError(f"lengths must be a pair (N_a, N_b); got {lengths!r}")
+    return tuple(_validate.check_int(n, f"lengths[{i}]", minimum=3) for i, n in enumerate(lengths))
+
+
+def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None,
+                   capacity: int | None = None) -> spatial.Neighbourhoods:
+    """k-nearest neighbourhoods of LHF, k = max(lengths) (host, not jittable).
 
     Args:
       points: (N, 3) float32 or float64, N >= max(lengths).
-      ratio: resampling ratio alpha in (0, 1]; sets the weight eps (Eq. (16)).
-      lengths: (N_a, N_b), each >= 3 and counting the point itself. Default (6, 12): the best
-        of (3, 6) ... (12, 24) on the edge benchmark and the labelled real clouds
-        (bench/results/edge_defaults.md). Static: new values compile a new kernel.
-      variant: ``"invariant"`` (default) or ``"reference"``; see the module docstring.
-      solver: ``"gram"`` (default) or ``"eigh"`` for the invariant variant.
-      chunk_size: points per streamed chunk (default: automatic). Does not change results.
-      progress: show a progress bar on stderr for long runs.
+      lengths: (N_a, N_b), each >= 3, counting the point itself.
+      variant: ``"invariant"`` or ``"reference"``; sets the default of ``dedupe``.
+      dedupe: count exact duplicates once (default True for "invariant", False for
+        "reference", the paper's neighbourhoods).
+      capacity: columns of ``idx`` (>= max(lengths)); default max(lengths).
 
     Returns:
-      (N,) gamma in [0, 1], in the dtype of ``points``.
+      :class:`hgjax.Neighbourhoods` (no scale).
 
     Raises:
-      TypeError, ValueError: invalid input, ratio outside (0, 1], N < max(lengths), bad
-        lengths, unknown variant or solver.
+      TypeError, ValueError: invalid arguments, or too few points.
+    """
+    lengths = _check_lengths(lengths)
+    variant = _common.check_variant(variant)
+    dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
+    return spatial.knn(points, max(lengths), dedupe=dedupe, capacity=capacity)
+
+
+@functools.lru_cache(maxsize=None)
+def _kernel(lengths, variant, solver):
+    return functools.partial(gamma, lengths=lengths, variant=variant, solver=solver)
+
+
+def score(nb, *, ratio, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram",
+          chunk_size: int | None = None, progress: bool = False):
+    """Combined LHF sharpness gamma (Eqs. (14)-(16)) of every neighbourhood; higher is sharper.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` (k-nearest rows, the
+        point first, at least max(lengths) columns).
+      ratio: resampling ratio alpha in (0, 1]; sets the weight eps (Eq. (16)). Traced under
+        jit (a new value does not recompile).
+      lengths: (N_a, N_b) (static). Default (6, 12): the best of (3, 6) ... (12, 24) on the
+        edge benchmark and the labelled real clouds (bench/results/edge_defaults.md).
+      variant: ``"invariant"`` (default) or ``"reference"`` (static).
+      solver: ``"gram"`` (default) or ``"eigh"`` for the invariant variant (static).
+      chunk_size: rows per streamed chunk on eager calls; never changes results.
+      progress: progress bar on stderr for long eager runs.
+
+    Returns:
+      (N,) gamma in [0, 1], in the dtype of ``nb.points``.
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> pts = np.random.default_rng(0).random((100, 3))
-      >>> hgjax.scores.lhf(pts, ratio=0.2).shape
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "lhf")
+      >>> hgjax.scores.lhf.score(nb, ratio=0.2).shape
       (100,)
     """
-    ratio = _validate.check_ratio(ratio)
-    if not isinstance(lengths, (tuple, list)) or len(lengths) != 2:
-        raise ValueError(f"lengths must be a pair (N_a, N_b); got {lengths!r}")
-    lengths = (_check_length(lengths[0], "lengths[0]"), _check_length(lengths[1], "lengths[1]"))
-    g = _single_lengths(points, lengths, variant, solver, chunk_size, progress)
+    g = single(nb, lengths=lengths, variant=variant, solver=solver, chunk_size=chunk_size, progress=progress)
+    return jnp.asarray(combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio)))
+
+
+def single(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram",
+           chunk_size: int | None = None, progress: bool = False):
+    """Single-length LHF sharpness gamma (Eq. (14)) of every neighbourhood for each length.
+
+    Args:
+      nb, variant, solver, chunk_size, progress: as :func:`score`.
+      lengths: tuple of lengths (static), each >= 3 and at most the columns of ``nb.idx``.
+
+    Returns:
+      (N, len(lengths)) gamma in [0, 1], in the dtype of ``nb.points``.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "lhf")
+      >>> hgjax.scores.lhf.single(nb, lengths=(6,)).shape
+      (100, 1)
+    """
+    lengths = tuple(_validate.check_int(n, "lengths", minimum=3) for n in lengths)
+    variant = _common.check_variant(variant)
+    solver = _validate.check_choice(solver, "solver", SOLVERS)
+    _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
+    out = _stream.map_neighbourhoods(_kernel(lengths, variant, solver), nb, chunk_size=chunk_size,
+                                     progress=progress)
+    return out if _stream.is_traced(nb) else np.asarray(out)
+
+
+def soft_score(nb, *, ratio, tau=0.1, lengths=DEFAULT_LENGTHS):
+    """Smooth combined LHF gamma (:func:`soft_gamma`, Eqs. (15)-(16)), pure JAX and differentiable.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      ratio: resampling ratio alpha in (0, 1] (traced).
+      tau: softness of the band switches (traced, > 0).
+      lengths: (N_a, N_b) (static).
+
+    Returns:
+      (N,) gamma in [0, 1]; higher is sharper.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "lhf")
+      >>> hgjax.scores.lhf.soft_score(nb, ratio=0.2).shape
+      (100,)
+    """
+    lengths = _check_lengths(lengths)
+    _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
+    tau = _validate.check_traced_positive(tau, "tau")
+    g = _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
+    ratio = jnp.asarray(_validate.check_traced_ratio(ratio), g.dtype)
     return combine(g[:, 0], g[:, 1], ratio)

@@ -31,11 +31,8 @@ import heapq
 import numpy as np
 
 from hgjax import _validate
-from hgjax.neighbourhoods import SpatialIndex
-from hgjax.scores import _common
-from hgjax.scores.ea import DEFAULT_K, surface_variation
 
-__all__ = ["DEFAULT_N_CLUSTERS", "pca_ac", "ward_1d"]
+__all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
 
 DEFAULT_N_CLUSTERS = 2  # sharp versus smooth, the two classes of edge detection
 _ROUND_MIN_SHARE = 64  # finish with the heap once a round merges fewer than 1/64 of clusters
@@ -109,7 +106,7 @@ def ward_1d(values, n_clusters: int) -> np.ndarray:
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax.scores import ward_1d
+      >>> from hgjax.scores.pca_ac import ward_1d
       >>> ward_1d(np.array([0.0, 5.0, 0.1, 5.2, 9.0]), 3).tolist()
       [0, 1, 0, 1, 2]
     """
@@ -128,37 +125,28 @@ def ward_1d(values, n_clusters: int) -> np.ndarray:
     return labels
 
 
-def pca_ac(points, *, k: int = DEFAULT_K, n_clusters: int = DEFAULT_N_CLUSTERS,
-           chunk_size: int | None = None, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """PCA-AC cluster numbers and surface variation per point (Bazazian et al. 2015).
+def keep(variation, m: int, *, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarray:
+    """PCA-AC selection: the m points of the sharpest Ward clusters of the surface variation.
 
     Args:
-      points: (N, 3) float32 or float64, N >= k.
-      k: neighbourhood size counting the point itself (default 16, as EA). Static.
-      n_clusters: number of Ward clusters of the variation (default 2: sharp and smooth;
-        capped at N).
-      chunk_size: points per streamed chunk (default: automatic). Does not change results.
-      progress: show a progress bar on stderr for long runs.
+      variation: (N,) surface variation (:func:`hgjax.scores.ea.score`).
+      m: number of points to keep, 1 <= m <= N.
+      n_clusters: number of Ward clusters (default 2: sharp and smooth; capped at N).
 
     Returns:
-      (labels, variation): (N,) int64 cluster numbers, higher for sharper clusters, and
-      (N,) surface variation in [0, 1/3] in the dtype of ``points``. Resampling keeps the
-      highest cluster numbers first, then the largest variation, then the lowest index.
+      (m,) int64 indices: the highest cluster numbers first, then the largest variation,
+      then the lowest index.
 
     Raises:
-      TypeError, ValueError: invalid points, k, n_clusters, or N < k.
+      TypeError, ValueError: bad variation, m or n_clusters.
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> pts = np.random.default_rng(0).random((200, 3))
-      >>> labels, c = hgjax.scores.pca_ac(pts, n_clusters=3)
-      >>> sorted(set(labels.tolist()))
-      [0, 1, 2]
+      >>> hgjax.scores.pca_ac.keep(np.array([0.0, 0.3, 0.01, 0.29]), 1).tolist()
+      [1]
     """
-    pts = _validate.check_points(points)
-    k = _validate.check_int(k, "k", minimum=2)
-    n_clusters = _validate.check_int(n_clusters, "n_clusters", minimum=1)
-    _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
-    index = SpatialIndex(pts)
-    variation = _common.finish(index, surface_variation(index, k, chunk_size, progress), pts.dtype)
-    return ward_1d(variation, n_clusters), variation
+    v = np.asarray(variation)
+    m = _validate.check_int(m, "m", minimum=1)
+    labels = ward_1d(v, _validate.check_int(n_clusters, "n_clusters", minimum=1))
+    order = np.lexsort((np.arange(v.shape[0]), -v, -labels))
+    return order[:m].astype(np.int64)

@@ -21,9 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _validate
-from hgjax.neighbourhoods import SpatialIndex
-from hgjax.scores import _common
+from hgjax import _validate, spatial
 
 
 REFERENCE_D_FACTOR = 1.3  # d = 1.3 x resolution (REFERENCE.md)
@@ -31,6 +29,8 @@ REFERENCE_D_FACTOR = 1.3  # d = 1.3 x resolution (REFERENCE.md)
 # short of 3.0 and 4.0, which gain little F1 but lose real-cloud MCC and run 1.5-2x slower
 # (bench/results/edge_defaults.md).
 DEFAULT_D_FACTOR = 2.5
+LOCAL_K = 8  # neighbours over which the default variant's local resolution is a median
+MAX_COUNT = 256  # the default variant's cube shrinks to hold fewer points than this
 
 
 def d_factor_or_default(d_factor, variant: str) -> float:
@@ -71,42 +71,43 @@ def low_band(kernel_size: int) -> tuple[np.ndarray, float]:
 
 
 @functools.lru_cache(maxsize=None)
-def reference_spectrum(kernel_size: int, d: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """The spectrum exactly as REFERENCE.md computes it: NumPy ``eigh`` of R for this d.
+def reference_spectrum(kernel_size: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The spectrum as REFERENCE.md computes it: NumPy ``eigh`` of R for the kernel.
+
+    R is built from the integer voxel offsets (d = 1): for another d, R scales by d^2, which
+    leaves the normalised eigenvalues and the band threshold unchanged.
 
     Returns:
       (lam, V, t): lam (N_k,) = eig / max eig (ascending), V (N_k, N_k) the basis NumPy's
       LAPACK returns (arbitrary inside the degenerate eigenspaces), and the band threshold
       t = argmax(diff(lam)) + 1.
     """
-    c = integer_offsets(kernel_size) * d
+    c = integer_offsets(kernel_size)
     cn = c - c.mean(axis=1, keepdims=True)
     lam, v = np.linalg.eigh(cn @ cn.T)
     lam = lam / lam.max()
     return lam, v, int(np.argmax(np.diff(lam)) + 1)
 
 
-def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Array,
-                 kernel_size: int) -> jax.Array:
+def local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, kernel_size: int) -> jax.Array:
     """Voxel counts s_i (N_k,) of one neighbourhood (the paper's local signal, Fig. 2).
 
     Args:
-      centre: (3,) the point p_i.
-      nbrs: (K, 3) points of its cube neighbourhood (padding rows masked by ``valid``).
+      offsets: (K, 3) the cube neighbourhood minus the point p_i (padding rows masked).
       valid: (K,) bool.
       d: voxel spacing (scalar).
       kernel_size: k (static).
 
     Returns:
-      (k^3,) counts in the dtype of ``nbrs``.
+      (k^3,) counts in the dtype of ``offsets``.
     """
-    o = nbrs - centre[None, :]  # (K, 3)
+    o = offsets
     h = (kernel_size - 1) // 2
     # Per-axis slab j of each neighbour (|o - (j - h) d| < d / 2; the slabs are disjoint), then
     # its voxel code (N_k outside the kernel or padding), then the counts by a scatter-add of
     # ones (exact small integers, in any order). On XLA CPU this is 1.5x faster than the
     # contraction over K of the slab memberships, and much faster than comparing the codes
-    # with every voxel (XLA recomputes the codes for each comparison).
+    # with every voxel.
     slab = jnp.zeros(o.shape, jnp.int32)
     found = jnp.zeros(o.shape, bool)
     for j in range(kernel_size):
@@ -116,6 +117,32 @@ def local_signal(centre: jax.Array, nbrs: jax.Array, valid: jax.Array, d: jax.Ar
     n_k = kernel_size**3
     code = jnp.where(inside, (slab[:, 0] * kernel_size + slab[:, 1]) * kernel_size + slab[:, 2], n_k)  # (K,)
     return jnp.zeros(n_k + 1, o.dtype).at[code].add(1)[:n_k]
+
+
+def soft_local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, tau: jax.Array,
+                      kernel_size: int) -> jax.Array:
+    """Soft voxel counts (N_k,) of one neighbourhood, the smooth twin of :func:`local_signal`.
+
+    Along each axis a neighbour at offset o belongs to bin j (centre j d) with weight
+    sigmoid((o - (j - 1/2) d) / (tau d)) - sigmoid((o - (j + 1/2) d) / (tau d)); its voxel
+    membership is the product over x, y, z. As tau -> 0 the weights tend to the hard strict
+    membership |o - j d| < d / 2, so the counts tend to :func:`local_signal`'s.
+
+    Args:
+      offsets: (K, 3) the neighbourhood minus the point (padding rows masked by ``valid``).
+      valid: (K,) bool.
+      d: voxel spacing (scalar, traced).
+      tau: softness relative to d (scalar > 0, traced).
+      kernel_size: odd k (static).
+
+    Returns:
+      (k^3,) soft counts, x slowest and z fastest.
+    """
+    h = (kernel_size - 1) // 2
+    faces = (jnp.arange(-h, h + 2, dtype=offsets.dtype) - 0.5) * d  # (k + 1,) bin faces
+    cdf = jax.nn.sigmoid((offsets[:, :, None] - faces[None, None, :]) / (tau * d))  # (K, 3, k + 1)
+    member = jnp.where(valid[:, None, None], cdf[:, :, :-1] - cdf[:, :, 1:], 0)  # (K, 3, k)
+    return jnp.einsum("ki,kj,kl->ijl", member[:, 0], member[:, 1], member[:, 2]).reshape(-1)
 
 
 def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
@@ -133,18 +160,61 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
     return low, s - low
 
 
-def stream_cubes(index: SpatialIndex, kernel, d: float, kernel_size: int, chunk_size, progress: bool,
-                 extra_args=()):
-    """Stream a cube-neighbourhood chunk kernel (HKC, HKF) over the cloud, sorted frame.
+def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
+                   resolution: float | None = None, dedupe: bool | None = None,
+                   capacity: int | None = None) -> spatial.Neighbourhoods:
+    """Cube neighbourhoods of HKC/HKF and the voxel spacing d of each point (host, not jittable).
 
-    The ROI of each point is the axis-aligned cube of half-width k d / 2, queried chunk by
-    chunk with a capacity that grows until nothing is truncated.
+    The ROI of point i is the axis-aligned cube of half-width k d_i / 2 (Fig. 2), with
+
+    * ``variant="reference"``: d_i = 1.3 x the intrinsic resolution (REFERENCE.md: mean
+      distance to the nearest other point), duplicates kept;
+    * ``variant="invariant"`` (default): d_i = 2.5 x the point's local resolution, the median
+      nearest-distinct-neighbour distance over its 8 nearest distinct points, with exact
+      duplicates counted once. On a cloud of uniform density this is the intrinsic
+      resolution (up to sampling noise); where the density changes, the kernel follows the
+      local spacing. Where a cube would still hold 256 points or more (a sparse point next
+      to a much denser region), it shrinks to the Chebyshev distance of the point's 256th
+      nearest point: every cube holds all its points (no truncation) and at most 255, so
+      mixed densities never raise a capacity error. Exact duplicates and far outliers
+      change nothing.
+
+    Args:
+      points: (N, 3) float32 or float64, N >= 2.
+      variant: ``"invariant"`` or ``"reference"``.
+      d_factor: d = d_factor x resolution (default 2.5 invariant, 1.3 reference).
+      kernel_size: odd k of the k x k x k kernel.
+      resolution: a fixed resolution for every point instead of the computed one.
+      dedupe: count exact duplicates once (default: True for "invariant", False for
+        "reference").
+      capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic.
+
+    Returns:
+      :class:`hgjax.Neighbourhoods` with ``scale`` = (N,) voxel spacing d_i.
+
+    Raises:
+      TypeError, ValueError: invalid arguments, N < 2, or a fixed capacity too small.
     """
-    chunk = _common.chunk_size_or_auto(chunk_size, index.n, 32 * kernel_size**3 * 8)
-    half = kernel_size / 2 * d
+    pts = _validate.check_points(points)
+    variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
+    d_factor = d_factor_or_default(d_factor, variant)
+    kernel_size = check_kernel_size(kernel_size)
+    _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
+    dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
+    cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
+    index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=dedupe)
+    if resolution is not None:
+        res = np.full(index.n, _validate.check_positive(resolution, "resolution"))
+    elif variant == "reference":
+        res = np.full(index.n, spatial.resolution(index, robust=False) or 1.0)
+    else:
+        res = spatial.local_resolution(index, LOCAL_K)
+    half = kernel_size / 2 * d_factor * res
+    max_count = MAX_COUNT if variant == "invariant" else None
 
     def query(rows):
-        return index.cube(half, rows)
+        idx, half[rows] = index.cube(half[rows], rows, max_count=max_count)
+        return idx
 
-    args = (_common.scalar(d, index.points.dtype),) + tuple(extra_args)
-    return _stream.stream(kernel, index, query, chunk_size=chunk, args=args, progress=progress)
+    idx = spatial.pad_queries(index, query, cap, "cube")
+    return spatial.assemble(pts, index, idx, 2 / kernel_size * half)
