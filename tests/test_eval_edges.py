@@ -131,4 +131,8 @@ def test_quick_bench(tmp_path):
     edge_table.main(["--quick", "--out", str(tmp_path)])
     text = (tmp_path / "edge_table.md").read_text()
     assert "Command: `python bench/edge_table.py --quick" in text and "hkc-inv" in text
+    table1 = text[text.index("## Paper Table 1"):text.index("## Random regime")]
+    for label in ("hkc-ref", "gfr-ref", "pca_ac", "hkc (default)", "lhf (default)", "grid: reproduced?"):
+        assert f"| {label} |" in table1 or label in table1
+    assert table1.count("| 0.1 |") == 12  # six methods, reference and default rows
     assert (tmp_path / "edge_noise.png").stat().st_size > 0 and (tmp_path / "edge_ratio.png").exists()

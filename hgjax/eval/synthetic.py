@@ -4,11 +4,17 @@ The paper's edge benchmark (Sec. IV-A) samples "the external surface of models c
 from combinations of cubes of various sizes" and labels the points on sharp edges. Here:
 
 * A shape is a union of axis-aligned boxes with integer corners (so coplanar faces are
-  exactly coplanar). Points are drawn uniformly on the OUTER surface of the union: each box
-  face is sampled in proportion to its area and a sample is rejected when the union continues
-  on the outer side of the face (it lies inside another box or on a face shared with another
-  box), or when an earlier box already owns the same patch of a coplanar face (overlapping
-  boxes would otherwise sample it twice).
+  exactly coplanar). Its OUTER surface is sampled in one of two regimes (``regime=``):
+
+  - ``"random"`` (:func:`sample_box_union`): i.i.d. uniform points. Each box face is sampled
+    in proportion to its area and a sample is rejected when the union continues on the
+    outer side of the face (it lies inside another box or on a face shared with another
+    box), or when an earlier box already owns the same patch of a coplanar face (overlapping
+    boxes would otherwise sample it twice).
+  - ``"grid"`` (:func:`grid_box_union`): the positions of a cubic lattice of spacing h on
+    the surface, each once, as CAD exports and structured scans are. The paper's Table 1 is
+    reproduced in this regime (REFERENCE.md, "Evaluation protocol"), with the edge band one
+    spacing wide (``GRID_DELTA``).
 * The sharp edges are exact. On the grid of all distinct box coordinates, a grid segment is
   a sharp edge when the four grid cells around it are occupied in a pattern that is not flat:
   one cell (convex edge), three cells (concave edge) or two diagonal cells. Two adjacent
@@ -30,15 +36,19 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hgjax import _validate
-from hgjax.neighbourhoods import intrinsic_resolution
+from hgjax.spatial import intrinsic_resolution
 
 __all__ = [
     "DEFAULT_DELTA",
     "DEFAULT_N_POINTS",
+    "GRID_DELTA",
     "NOISE_LEVELS",
+    "REGIMES",
     "EdgeCloud",
     "box_surface",
     "box_union_cloud",
+    "grid_box_union",
+    "grid_subdivisions",
     "load_labelled",
     "random_boxes",
     "sample_box_union",
@@ -48,6 +58,8 @@ __all__ = [
 
 DEFAULT_N_POINTS = 8000
 DEFAULT_DELTA = 0.9
+GRID_DELTA = 1.0
+REGIMES = ("random", "grid")
 NOISE_LEVELS = (0.0, 0.1, 0.2, 0.5, 1.0)
 EDGE_SPACING = 0.25  # spacing of ``edge_points`` along the edges, in units of resolution
 
@@ -153,6 +165,34 @@ def _sample_surface(boxes: np.ndarray, n: int, rng: np.random.Generator) -> np.n
     return np.concatenate(out)[:n]
 
 
+def _occupancy(boxes: np.ndarray):
+    """The grid of distinct box coordinates and its padded cell occupancy.
+
+    Returns:
+      grid: three sorted arrays of the distinct coordinates per axis (X + 1, Y + 1, Z + 1).
+      occ: (X + 2, Y + 2, Z + 2) bool, True for cells inside the union, with a layer of
+        empty cells all around (grid node i sits between cells i and i + 1).
+    """
+    grid = [np.unique(boxes[:, :, a]) for a in range(3)]
+    centres = [(g[1:] + g[:-1]) / 2 for g in grid]
+    cx, cy, cz = np.meshgrid(*centres, indexing="ij")
+    c = np.stack([cx, cy, cz], axis=-1)[..., None, :]  # (X, Y, Z, 1, 3)
+    occ = ((c > boxes[:, 0]) & (c < boxes[:, 1])).all(axis=-1).any(axis=-1)
+    return grid, np.pad(occ, 1)
+
+
+def _surface_area(boxes: np.ndarray) -> float:
+    """Area of the boundary of the union of ``boxes``: the cell faces between a full and an empty cell."""
+    grid, occ = _occupancy(boxes)
+    area = 0.0
+    for a in range(3):
+        t1, t2 = [t for t in range(3) if t != a]
+        o = np.moveaxis(occ, (a, t1, t2), (0, 1, 2))[:, 1:-1, 1:-1]
+        changed = o[1:] != o[:-1]  # (cells along a + 1, T1, T2)
+        area += float((changed * np.outer(np.diff(grid[t1]), np.diff(grid[t2]))).sum())
+    return area
+
+
 def sharp_edges(boxes) -> np.ndarray:
     """The sharp edges of a union of axis-aligned boxes, exactly.
 
@@ -176,13 +216,7 @@ def sharp_edges(boxes) -> np.ndarray:
       >>> float(np.linalg.norm(np.diff(sharp_edges(two), axis=1), axis=-1).sum())
       16.0
     """
-    boxes = _check_boxes(boxes)
-    grid = [np.unique(boxes[:, :, a]) for a in range(3)]
-    centres = [(g[1:] + g[:-1]) / 2 for g in grid]
-    cx, cy, cz = np.meshgrid(*centres, indexing="ij")
-    c = np.stack([cx, cy, cz], axis=-1)[..., None, :]  # (X, Y, Z, 1, 3)
-    occ = ((c > boxes[:, 0]) & (c < boxes[:, 1])).all(axis=-1).any(axis=-1)
-    occ = np.pad(occ, 1)  # empty cells all around: grid node i sits between cells i and i + 1
+    grid, occ = _occupancy(_check_boxes(boxes))
     segments = []
     for a in range(3):
         t1, t2 = [t for t in range(3) if t != a]
@@ -258,8 +292,13 @@ def sample_box_union(boxes, *, n_points: int = DEFAULT_N_POINTS, seed: int, delt
     clean = _sample_surface(boxes, n_points, np.random.default_rng([seed, _SAMPLES]))
     resolution = intrinsic_resolution(clean)
     segments = sharp_edges(boxes)
-    band = delta * resolution
-    edge_mask = _distance_to_segments(clean, segments) <= band
+    edge_mask = _distance_to_segments(clean, segments) <= delta * resolution
+    return _finish(clean, edge_mask, segments, resolution, delta, seed=seed, rotate=rotate, noise=noise, name=name)
+
+
+def _finish(clean: np.ndarray, edge_mask: np.ndarray, segments: np.ndarray, resolution: float, delta: float, *,
+            seed: int, rotate: bool, noise: float, name: str) -> EdgeCloud:
+    """Add the noise and the rotation (streams of ``seed``) to a labelled clean cloud."""
     edge_points = _points_on_segments(segments, EDGE_SPACING * resolution)
     points = clean
     if noise > 0:
@@ -267,7 +306,85 @@ def sample_box_union(boxes, *, n_points: int = DEFAULT_N_POINTS, seed: int, delt
     if rotate:
         rot = Rotation.random(random_state=np.random.default_rng([seed, _ROTATION]))
         points, edge_points = rot.apply(points), rot.apply(edge_points)
-    return EdgeCloud(points, edge_mask, edge_points, resolution, band, name)
+    return EdgeCloud(points, edge_mask, edge_points, resolution, delta * resolution, name)
+
+
+def _lattice_surface(cells: np.ndarray) -> np.ndarray:
+    """(M, 3) int64 lattice points on the boundary of a union of boxes with integer corners.
+
+    Every closed box face contributes its lattice points; a point is kept when at least one
+    of the eight unit cells around it is outside the union (so hidden and shared faces drop
+    out), and points where faces meet are kept once. Rows come sorted lexicographically.
+    """
+    faces = []
+    for lo, hi in cells:
+        ranges = [np.arange(lo[t], hi[t] + 1) for t in range(3)]
+        for a in range(3):
+            for plane in (lo[a], hi[a]):
+                axes = [np.array([plane]) if t == a else ranges[t] for t in range(3)]
+                faces.append(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
+    q = np.unique(np.concatenate(faces), axis=0)
+    corners = np.stack(np.meshgrid(*[(-1, 1)] * 3, indexing="ij"), axis=-1).reshape(8, 3)
+    centres = 2 * q[:, None, :] + corners  # (M, 8, 3) cell centres, doubled to stay integer
+    lo2, hi2 = 2 * cells[:, 0], 2 * cells[:, 1]  # (B, 3)
+    inside = ((centres[:, :, None] > lo2) & (centres[:, :, None] < hi2)).all(axis=-1).any(axis=-1)  # (M, 8)
+    return q[~inside.all(axis=1)]
+
+
+def grid_box_union(boxes, *, subdivisions: int, seed: int, delta: float = GRID_DELTA, rotate: bool = False,
+                   noise: float = 0.0, name: str = "boxes") -> EdgeCloud:
+    """Sample the outer surface of a union of boxes on a regular grid and label its edge points.
+
+    The points are the positions of the cubic lattice of spacing h = 1 / ``subdivisions``
+    that lie on the boundary of the union: faces hidden inside the union or shared between
+    boxes carry no points, and a point where faces meet (edges, corners) appears once. Any
+    two points are at least h apart and every point has a neighbour at h, so the intrinsic
+    resolution is h. The rows are in a random order (from ``seed``), as a scanner would not
+    sort them.
+
+    Args:
+      boxes: (B, 2, 3) lower and upper corners, multiples of h (e.g. integers).
+      subdivisions: lattice steps per unit length (>= 1).
+      seed: integer seed for the row order, the rotation and the noise (independent
+        streams, as in :func:`sample_box_union`).
+      delta: half-width of the edge band in spacings: a point is an edge point when its
+        distance to the nearest sharp edge (convex or concave) is at most ``delta * h``.
+        The default 1.0 labels the lattice row on each edge and the row next to it on
+        either face.
+      rotate: apply a random rotation (from ``seed``) to the points and edge points.
+      noise: p >= 0; Gaussian noise of standard deviation p * h is added to each coordinate
+        (labels are those of the clean points).
+      name: stored in the result.
+
+    Returns:
+      An :class:`EdgeCloud` with float64 ``points`` (N, 3) and ``resolution`` = h.
+
+    Raises:
+      TypeError, ValueError: invalid boxes, a corner off the lattice, or an invalid
+        subdivisions, seed, delta or noise.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.eval import grid_box_union
+      >>> cloud = grid_box_union(np.array([[[0., 0, 0], [1, 1, 1]]]), subdivisions=4, seed=0)
+      >>> cloud.points.shape, int(cloud.edge_mask.sum()), cloud.resolution  # 6 * 4**2 + 2 points
+      ((98, 3), 92, 0.25)
+    """
+    boxes = _check_boxes(boxes)
+    subdivisions = _validate.check_int(subdivisions, "subdivisions", minimum=1)
+    seed = _validate.check_int(seed, "seed", minimum=0)
+    delta = _validate.check_positive(delta, "delta")
+    noise = _check_noise(noise)
+    scaled = boxes * subdivisions
+    cells = np.rint(scaled).astype(np.int64)
+    if not np.allclose(scaled, cells, rtol=0.0, atol=1e-9):
+        raise ValueError(f"box corners must be multiples of the spacing 1 / {subdivisions}")
+    lattice = _lattice_surface(cells)
+    lattice = lattice[np.random.default_rng([seed, _SAMPLES]).permutation(lattice.shape[0])]
+    edge_mask = _distance_to_segments(lattice.astype(np.float64), sharp_edges(cells)) <= delta
+    spacing = 1.0 / subdivisions
+    return _finish(lattice / subdivisions, edge_mask, sharp_edges(boxes), spacing, delta, seed=seed, rotate=rotate,
+                   noise=noise, name=name)
 
 
 def _check_noise(noise) -> float:
@@ -320,20 +437,48 @@ def random_boxes(seed: int) -> np.ndarray:
     return np.stack(boxes)
 
 
-def box_union_cloud(*, seed: int, n_points: int = DEFAULT_N_POINTS, delta: float = DEFAULT_DELTA,
-                    rotate: bool = False, noise: float = 0.0) -> EdgeCloud:
+def grid_subdivisions(boxes, n_points: int) -> int:
+    """Lattice steps per unit that put about ``n_points`` grid points on the union's surface.
+
+    Args:
+      boxes: (B, 2, 3) lower and upper corners.
+      n_points: the wanted number of points (>= 1).
+
+    Returns:
+      max(1, round(sqrt(n_points / A))) with A the area of the union's outer surface.
+
+    Raises:
+      TypeError, ValueError: invalid boxes or n_points.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.eval import grid_subdivisions
+      >>> grid_subdivisions(np.array([[[0., 0, 0], [1, 1, 1]]]), 6000)  # 6 faces of 32 x 32
+      32
+    """
+    n_points = _validate.check_int(n_points, "n_points", minimum=1)
+    return max(1, round(float(np.sqrt(n_points / _surface_area(_check_boxes(boxes))))))
+
+
+def box_union_cloud(*, seed: int, n_points: int = DEFAULT_N_POINTS, delta: float | None = None,
+                    rotate: bool = False, noise: float = 0.0, regime: str = "random") -> EdgeCloud:
     """An edge-labelled cloud on the union of boxes :func:`random_boxes` makes from ``seed``.
 
     Args:
       seed: integer >= 0; sets the shape, the samples, the rotation and the noise.
-      n_points: number of points N.
-      delta: edge band half-width in units of resolution (default gives about the paper's
-        7.65 % edge points on average over :func:`synthetic_set` at the default N).
+      n_points: number of points N (``"random"``), or the approximate number (``"grid"``:
+        the lattice of :func:`grid_subdivisions`).
+      delta: edge band half-width in units of resolution. Default: ``DEFAULT_DELTA`` (0.9)
+        for ``"random"``, which gives about the paper's 7.65 % edge points on average over
+        :func:`synthetic_set` at the default N; ``GRID_DELTA`` (1.0, one spacing) for
+        ``"grid"``.
       rotate: apply a random rotation (from ``seed``).
       noise: Gaussian noise std in units of resolution (paper's "10 %" read as 0.1).
+      regime: ``"random"``, i.i.d. uniform samples (:func:`sample_box_union`), or
+        ``"grid"``, lattice positions (:func:`grid_box_union`).
 
     Returns:
-      An :class:`EdgeCloud` (see :func:`sample_box_union`).
+      An :class:`EdgeCloud` (see :func:`sample_box_union`, :func:`grid_box_union`).
 
     Raises:
       TypeError, ValueError: invalid arguments.
@@ -343,18 +488,27 @@ def box_union_cloud(*, seed: int, n_points: int = DEFAULT_N_POINTS, delta: float
       >>> cloud = hgjax.eval.box_union_cloud(seed=1, n_points=2000)
       >>> cloud.points.shape, cloud.points.dtype, cloud.edge_mask.dtype
       ((2000, 3), dtype('float64'), dtype('bool'))
+      >>> grid = hgjax.eval.box_union_cloud(seed=0, n_points=2000, regime="grid")
+      >>> grid.name, grid.resolution
+      ('grid-boxes0', 0.25)
     """
-    return sample_box_union(random_boxes(seed), n_points=n_points, seed=seed, delta=delta,
-                            rotate=rotate, noise=noise, name=f"boxes{seed}")
+    regime = _validate.check_choice(regime, "regime", REGIMES)
+    boxes = random_boxes(seed)
+    if regime == "random":
+        return sample_box_union(boxes, n_points=n_points, seed=seed, delta=DEFAULT_DELTA if delta is None else delta,
+                                rotate=rotate, noise=noise, name=f"boxes{seed}")
+    return grid_box_union(boxes, subdivisions=grid_subdivisions(boxes, n_points), seed=seed,
+                          delta=GRID_DELTA if delta is None else delta, rotate=rotate, noise=noise,
+                          name=f"grid-boxes{seed}")
 
 
-def synthetic_set(*, n_shapes: int = 12, n_points: int = DEFAULT_N_POINTS, delta: float = DEFAULT_DELTA,
-                  rotate: bool = False, noise: float = 0.0) -> list[EdgeCloud]:
+def synthetic_set(*, n_shapes: int = 12, n_points: int = DEFAULT_N_POINTS, delta: float | None = None,
+                  rotate: bool = False, noise: float = 0.0, regime: str = "random") -> list[EdgeCloud]:
     """The benchmark's fixed shapes: :func:`box_union_cloud` for seeds 0 .. n_shapes - 1.
 
     Args:
       n_shapes: number of shapes (>= 1).
-      n_points, delta, rotate, noise: as in :func:`box_union_cloud`.
+      n_points, delta, rotate, noise, regime: as in :func:`box_union_cloud`.
 
     Returns:
       A list of ``n_shapes`` :class:`EdgeCloud`.
@@ -368,7 +522,7 @@ def synthetic_set(*, n_shapes: int = 12, n_points: int = DEFAULT_N_POINTS, delta
       ['boxes0', 'boxes1']
     """
     n_shapes = _validate.check_int(n_shapes, "n_shapes", minimum=1)
-    return [box_union_cloud(seed=s, n_points=n_points, delta=delta, rotate=rotate, noise=noise)
+    return [box_union_cloud(seed=s, n_points=n_points, delta=delta, rotate=rotate, noise=noise, regime=regime)
             for s in range(n_shapes)]
 
 
