@@ -356,7 +356,8 @@ def _read_pcd(path: str) -> dict[str, np.ndarray]:
         try:
             meta = pypcd4.MetaData.parse_header(lines)
         except ValueError as err:  # pydantic's ValidationError
-            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']} (got {e.get('input')!r})"
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
+                                 + ("" if e["type"] == "missing" else f" (got {e.get('input')!r})")
                                  for e in getattr(err, "errors", lambda: [])()) or str(err)
             raise PointCloudReadError(f"cannot read {path}: invalid PCD header: {problems}") from None
         n, fields = meta.points, list(zip(meta.fields, meta.type, meta.size, meta.count))
@@ -619,12 +620,10 @@ def _pcd_writer(points, attributes, binary: bool, compressed: bool) -> Callable[
     text_columns = list(columns)
     if colors is not None:
         c = _as_uint8(colors).astype(np.uint32)
-        packed = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
-        if c.shape[1] == 4:
-            columns.insert(3, ("rgba", packed | (c[:, 3] << 24)))
-        else:
-            columns.insert(3, ("rgb", packed.view(np.float32)))
-        text_columns.insert(3, (columns[3][0], packed))  # ascii: the packed integer, as PCL writes it
+        packed = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2] | (c[:, 3] << 24 if c.shape[1] == 4 else 0)
+        name = "rgba" if c.shape[1] == 4 else "rgb"
+        columns.insert(3, (name, packed if name == "rgba" else packed.view(np.float32)))
+        text_columns.insert(3, (name, packed))  # ascii: the packed integer, as PCL writes it
         _check_unique([name for name, _ in columns])
     cloud = pypcd4.PointCloud.from_points([c for _, c in columns], [name for name, _ in columns],
                                           [c.dtype for _, c in columns])
