@@ -139,3 +139,63 @@ def lhf_single_invariant(points, n):
         lam, v = np.linalg.eigh(sn @ sn.T)
         out[i] = lhf_invariant_signal(s, lam, v)
     return out
+
+
+def gfr_pairs(points, max_nn=100, radius_factor=None):
+    """Stored GFR pairs (t, j), t < j, by brute force over all pairs; REFERENCE.md "GFR baseline".
+
+    radius_factor None: the reference rules 1-3 on float32 squared distances. Otherwise the
+    invariant graph: Euclidean radius radius_factor x (median distance to the nearest distinct
+    point), each point keeps its max_nn nearest, a pair is stored when either end keeps it.
+    Returns the sorted list of pairs and the (N, N) squared distances they were judged on.
+    """
+    p = np.asarray(points, dtype=np.float32 if radius_factor is None else np.float64)
+    n = len(p)
+    q = np.empty((n, n), dtype=p.dtype)
+    for i in range(n):
+        d = p[i] - p
+        q[i] = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+    if radius_factor is None:
+        nearest = []
+        for i in range(n):
+            hits = np.argsort(q[i], kind="stable")[:3]  # 3-nearest query, equal q by index
+            if len(hits) > 1 and hits[0] == i and q[i, hits[1]] > 1e-10:
+                nearest.append(math.sqrt(float(q[i, hits[1]])))
+        if not nearest:
+            return [], q
+        min_nn, max_nn_dist = min(nearest), max(nearest)
+        if min_nn == max_nn_dist:
+            max_nn_dist = 5 * min_nn
+        r = min(10 * min_nn, 2 * max_nn_dist)
+        pairs = []
+        for t in range(n):
+            partners = sorted((q[t, j], j) for j in range(t + 1, n) if 0 < q[t, j] < r)
+            pairs += [(t, j) for _, j in partners[:max_nn]]
+        return sorted(pairs), q
+    dist = np.sqrt(q)
+    distinct = [dist[i][dist[i] > 0].min() for i in range(n) if (dist[i] > 0).any()]
+    big_r = radius_factor * float(np.median(distinct)) if distinct else 0.0
+    pairs = set()
+    for i in range(n):
+        partners = sorted((q[i, j], j) for j in range(n) if j != i and 0 < q[i, j] < big_r**2)
+        pairs |= {(min(i, j), max(i, j)) for _, j in partners[:max_nn]}
+    return sorted(pairs), q
+
+
+def gfr_naive(points, max_nn=100, radius_factor=None):
+    """GFR scores ||(L P)_i||_2 with a dense N x N Laplacian on :func:`gfr_pairs`' graph.
+
+    w = exp(-q^2 / (2 v)), v the population variance of q over the stored pairs (v in float64,
+    q and w in float32 for the reference); W = W0 + W0^T, L = D - W; P in float64.
+    """
+    pairs, q = gfr_pairs(points, max_nn, radius_factor)
+    p = np.asarray(points, dtype=np.float64)
+    n = len(p)
+    w = np.zeros((n, n))
+    if pairs:
+        qs = np.array([q[t, j] for t, j in pairs])
+        two_v = qs.dtype.type(2 * qs.astype(np.float64).var())
+        for (t, j), qq in zip(pairs, qs):
+            w[t, j] = w[j, t] = np.exp(-(qq * qq) / two_v) if two_v > 0 else 0.0
+    lap = np.diag(w.sum(axis=1)) - w
+    return np.linalg.norm(lap @ p, axis=1)

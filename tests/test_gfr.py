@@ -1,0 +1,262 @@
+"""GFR baseline: graph + high_pass against the naive transcription, invariance, JAX transforms."""
+
+from __future__ import annotations
+
+import importlib
+import math
+from collections import Counter
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from conftest import TOL
+from naive import gfr_naive, gfr_pairs
+
+gfr_module = importlib.import_module("hgjax.scores.gfr")  # hgjax.scores.gfr is the function
+graph, high_pass = gfr_module.graph, gfr_module.high_pass
+
+
+def pairs_of(idx):
+    """Sorted (row, partner) pairs of a padded (N, K) graph."""
+    t, c = np.nonzero(idx < idx.shape[0])
+    return sorted(zip(t.tolist(), idx[t, c].tolist()))
+
+
+def lattice(m, spacing, seed):
+    """m^3 points of a cubic lattice, rows shuffled (so index ties are not lattice order)."""
+    g = np.stack(np.meshgrid(*[np.arange(m)] * 3, indexing="ij"), axis=-1).reshape(-1, 3) * spacing
+    return g[np.random.default_rng(seed).permutation(len(g))]
+
+
+def box_surface(n, seed):
+    """n points uniformly at random on the surface of a 1 x 0.8 x 0.6 box (sharp edges)."""
+    rng = np.random.default_rng(seed)
+    size = np.array([1.0, 0.8, 0.6])
+    area = np.array([size[1] * size[2], size[0] * size[2], size[0] * size[1]])
+    axis = rng.choice(3, size=n, p=area / area.sum())
+    p = rng.random((n, 3)) * size
+    p[np.arange(n), axis] = rng.integers(0, 2, n) * size[axis]
+    return p
+
+
+def clouds():
+    rng = np.random.default_rng(3)
+    base = rng.random((150, 3))
+    jittered = lattice(6, 0.1, 1) + 1e-3 * rng.standard_normal((216, 3))
+    return {
+        "random": rng.random((300, 3)),
+        "random_x7": 7 * rng.random((300, 3)),
+        "box_surface": box_surface(400, 0),
+        "jittered_grid": jittered,
+        "duplicates": np.concatenate([base, base[:40], base[:5]]),
+        "capped_grid": lattice(8, 0.0625, 2),  # minNN == maxNN, the ball holds every point
+    }
+
+
+def kept(scores, ratio=0.2):
+    """The ceil(ratio N) largest scores (ties by index), as GFR's mode="top" keeps them."""
+    s = np.asarray(scores)
+    return np.argsort(-s, kind="stable")[: math.ceil(ratio * len(s))]
+
+
+def overlap(a, b):
+    return np.intersect1d(a, b).size / len(b)
+
+
+def scores(points, variant="invariant", **kw):
+    idx = graph(points, variant=variant, **kw)
+    weights = np.float32 if variant == "reference" else None
+    return np.asarray(high_pass(jnp.asarray(points), jnp.asarray(idx), weights_dtype=weights))
+
+
+# ------------------------------------------------------------------ reference vs naive
+@pytest.mark.parametrize("name", sorted(clouds()))
+def test_reference_graph_is_the_authors_rule(name):
+    p = clouds()[name]
+    want, _ = gfr_pairs(p)
+    idx = graph(p, variant="reference")
+    assert idx.dtype == np.int32 and idx.shape[1] == max(Counter(t for t, _ in want).values(), default=1)
+    assert pairs_of(idx) == want
+
+
+@pytest.mark.parametrize("name", sorted(clouds()))
+def test_reference_matches_naive(name, dtype):
+    p = clouds()[name].astype(dtype)
+    want = gfr_naive(p)
+    got = scores(p, "reference")
+    assert got.dtype == dtype and (want > 0).mean() > 0.5
+    rtol = 1e-6 if dtype == np.float64 else TOL[dtype]
+    np.testing.assert_allclose(got, want, rtol=rtol, atol=rtol * want.max())
+
+
+def test_capped_grid_rows_hit_the_cap():
+    p = clouds()["capped_grid"]
+    idx = graph(p, variant="reference")
+    assert idx.shape[1] == 100 and ((idx < len(p)).sum(axis=1) == 100).sum() > 300
+    assert pairs_of(graph(p, variant="reference", max_nn=7)) == gfr_pairs(p, max_nn=7)[0]
+
+
+@pytest.mark.parametrize("cloud", [np.random.default_rng(0).random((500, 3)), box_surface(500, 0)],
+                         ids=["cube", "box_surface"])
+def test_reference_scores_few_exact_zeros(cloud):
+    assert (scores(cloud, "reference") == 0).mean() < 0.02
+
+
+# ------------------------------------------------------------------ invariant default
+@pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid"])
+@pytest.mark.parametrize("max_nn", [100, 4])
+def test_invariant_matches_naive(name, max_nn):
+    p = clouds()[name]
+    assert pairs_of(graph(p, max_nn=max_nn)) == gfr_pairs(p, max_nn, gfr_module.RADIUS_FACTOR)[0]
+    want = gfr_naive(p, max_nn, gfr_module.RADIUS_FACTOR)
+    assert (want > 0).mean() > 0.9
+    np.testing.assert_allclose(scores(p, max_nn=max_nn), want, rtol=1e-10, atol=1e-10 * want.max())
+
+
+def test_resolution_ignores_duplicates_and_outliers():
+    p = box_surface(1000, 1)
+    tree = gfr_module.cKDTree
+    res = gfr_module._resolution(tree(p))
+    assert gfr_module._resolution(tree(np.concatenate([p, p, p]))) == res
+    assert abs(gfr_module._resolution(tree(np.concatenate([p, [[1e6, 0, 0]]]))) / res - 1) < 0.01
+    assert gfr_module._resolution(tree(np.ones((5, 3)))) == 0.0
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_invariant_kept_set_does_not_change_with_scale(dtype, scale):
+    p = box_surface(2000, 2).astype(dtype)
+    base = kept(scores(p))
+    np.testing.assert_array_equal(kept(scores((p * scale).astype(dtype))), base)
+
+
+def test_invariant_kept_set_does_not_change_with_translation():
+    p = box_surface(2000, 3)
+    np.testing.assert_array_equal(kept(scores(p + np.array([5e5, 4e6, 0.0]))), kept(scores(p)))
+
+
+def test_invariant_keeps_the_same_locations_with_every_point_duplicated():
+    p = box_surface(2000, 4)
+    locations = np.unique(kept(scores(np.concatenate([p, p]))) % len(p))
+    assert overlap(locations, kept(scores(p))) >= 0.95
+
+
+def test_invariant_keeps_the_same_points_with_a_far_outlier():
+    p = box_surface(2000, 5)
+    with_outlier = kept(scores(np.concatenate([p, p[:1] + 1e6])))
+    assert overlap(with_outlier[with_outlier < len(p)], kept(scores(p))) >= 0.95
+
+
+def test_invariant_scores_follow_a_permutation():
+    p = box_surface(600, 6)
+    perm = np.random.default_rng(0).permutation(len(p))
+    np.testing.assert_allclose(scores(p[perm]), scores(p)[perm], rtol=1e-12, atol=1e-14)
+
+
+def test_reference_depends_on_units():
+    p = box_surface(600, 7)
+    assert overlap(kept(scores(100 * p, "reference")), kept(scores(p, "reference"))) < 0.9
+
+
+# ------------------------------------------------------------------ JAX transforms
+def degenerate():
+    rng = np.random.default_rng(8)
+    base = rng.random((40, 3))
+    t = np.linspace(0, 1, 30)
+    return {
+        "duplicates": np.concatenate([base, base[:20]]),
+        "collinear": np.stack([t, 2 * t, -t], axis=1),
+        "coplanar": np.c_[lattice(6, 0.1, 0)[:, :2], np.zeros(216)],
+        "all_equal": np.ones((20, 3)),
+    }
+
+
+@pytest.mark.parametrize("variant", ["invariant", "reference"])
+@pytest.mark.parametrize("name", sorted(degenerate()))
+def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
+    p = degenerate()[name].astype(dtype)
+    idx = jnp.asarray(graph(p, variant=variant))
+    weights = np.float32 if variant == "reference" else None
+    s = high_pass(jnp.asarray(p), idx, weights_dtype=weights)
+    g = jax.grad(lambda x: jnp.sum(high_pass(x, idx, weights_dtype=weights)))(jnp.asarray(p))
+    assert s.dtype == dtype and np.isfinite(s).all() and (s >= 0).all() and np.isfinite(g).all()
+    if name == "all_equal":
+        assert not s.any() and not g.any()
+
+
+def test_gradient_finite_when_a_graph_collapses():
+    p = box_surface(100, 9)
+    idx = jnp.asarray(graph(p))
+    for x in (np.ones_like(p), 1e-30 * p, np.float32(1e-6) * p.astype(np.float32)):
+        g = jax.grad(lambda y: jnp.sum(high_pass(y, idx)))(jnp.asarray(x))
+        assert np.isfinite(g).all()
+
+
+def test_gradient_matches_finite_differences():
+    p = box_surface(60, 10)
+    idx = jnp.asarray(graph(p))
+    check_grads(lambda x: high_pass(x, idx), (jnp.asarray(p),), order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
+
+
+def test_jit_and_vmap_match_single_calls():
+    batch = [box_surface(300, s) for s in range(3)]
+    idx = [graph(p) for p in batch]
+    k = max(i.shape[1] for i in idx)
+    idx = np.stack([np.pad(i, ((0, 0), (0, k - i.shape[1])), constant_values=300) for i in idx])  # (B, N, K)
+    single = np.stack([scores(p) for p in batch])
+    np.testing.assert_allclose(jax.jit(jax.vmap(high_pass))(jnp.asarray(np.stack(batch)), jnp.asarray(idx)), single,
+                               rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(jax.jit(high_pass)(jnp.asarray(batch[0]), jnp.asarray(idx[0])), single[0],
+                               rtol=1e-12, atol=1e-14)
+
+
+def test_float32_matches_float64():
+    p = box_surface(500, 11)
+    idx = jnp.asarray(graph(p))
+    want = high_pass(jnp.asarray(p), idx)
+    got = high_pass(jnp.asarray(p, dtype=jnp.float32), idx)
+    assert got.dtype == jnp.float32
+    np.testing.assert_allclose(got, want, rtol=TOL[np.dtype(np.float32)], atol=TOL[np.dtype(np.float32)] * want.max())
+
+
+def test_float64_points_without_x64_are_computed_in_float32():
+    p = box_surface(300, 12)
+    jax.config.update("jax_enable_x64", False)
+    try:
+        s = gfr_module.gfr(p)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    assert s.dtype == np.float64
+    np.testing.assert_allclose(s, gfr_module.gfr(p), rtol=1e-3, atol=1e-3 * s.max())
+
+
+# ------------------------------------------------------------------ host wrapper, arguments
+def test_gfr_is_graph_plus_high_pass_and_keeps_inputs():
+    p = box_surface(400, 13)
+    p.flags.writeable = False
+    for variant, rtol in (("invariant", 1e-12), ("reference", 1e-6)):  # jit may round float32 weights otherwise
+        want = scores(p, variant)
+        np.testing.assert_allclose(gfr_module.gfr(p, variant=variant), want, rtol=rtol, atol=rtol * want.max())
+    np.testing.assert_array_equal(graph(p), graph(p))
+
+
+def test_argument_errors():
+    p = box_surface(50, 14)
+    idx = graph(p)
+    cases = [
+        (lambda: graph(p, variant="invarient"), ValueError, "variant"),
+        (lambda: graph(p, radius_factor=-1.0), ValueError, "radius_factor"),
+        (lambda: graph(p, radius_factor="2"), TypeError, "radius_factor"),
+        (lambda: graph(p, variant="reference", radius_factor=2.0), ValueError, "radius_factor"),
+        (lambda: graph(p, max_nn=0), ValueError, "max_nn"),
+        (lambda: high_pass(p, idx[:-1]), ValueError, "idx"),
+        (lambda: high_pass(p[:, :2], idx), ValueError, "points"),
+        (lambda: high_pass(p, idx.astype(np.float64)), TypeError, "idx"),
+        (lambda: high_pass(p, idx, weights_dtype=np.int32), TypeError, "weights_dtype"),
+        (lambda: gfr_module.gfr(p.astype(np.int64)), TypeError, "points"),
+    ]
+    for call, error, name in cases:
+        with pytest.raises(error, match=name):
+            call()
