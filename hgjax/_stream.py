@@ -119,7 +119,7 @@ def _stream(fn, points, idx, row_args, args, chunk, progress):
     if bar is not None:
         bar.close()
     host = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:n], *outputs)
-    return jax.tree.map(jnp.asarray, host)
+    return jax.tree.map(jax.device_put, host)
 
 
 @functools.lru_cache(maxsize=None)

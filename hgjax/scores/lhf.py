@@ -474,7 +474,8 @@ def score(nb, *, ratio, lengths=DEFAULT_LENGTHS, variant: str = "invariant", sol
       (100,)
     """
     g = single(nb, lengths=lengths, variant=variant, solver=solver, chunk_size=chunk_size, progress=progress)
-    return jnp.asarray(combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio)))
+    out = combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio))
+    return out if _stream.is_traced(out) else jax.device_put(out)
 
 
 def single(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram",
