@@ -2,7 +2,10 @@
 
 import sys
 
-from hgjax.cli import main
-
 if __name__ == "__main__":
+    try:
+        from hgjax.cli import main
+    except KeyboardInterrupt:
+        print("hgjax: interrupted", file=sys.stderr)
+        sys.exit(130)
     sys.exit(main())

@@ -1,4 +1,4 @@
-"""Pictures of a resampling: the original cloud and the kept points side by side.
+"""Pictures of a resampling: the original cloud and the kept points, one panel each, in a grid.
 
 Needs matplotlib, which is not a runtime dependency: install the ``plot`` extra
 (``pip install "hgjax[plot]"``). matplotlib is imported only when a function here is
@@ -7,6 +7,7 @@ called, and figures are built without pyplot (no global state, any backend).
 
 from __future__ import annotations
 
+import math
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -34,31 +35,35 @@ def _marker_size(n: int) -> float:
     return float(np.clip(4000.0 / max(n, 1), 0.3, 8.0))
 
 
-def show_resampling(points, kept, *, scores=None, view: Sequence[float] = (25.0, -60.0),
+def show_resampling(points, kept, *, scores=None, colors=None, view: Sequence[float] = (25.0, -60.0),
                     fig=None, title: str | None = None, path=None, cmap: str = "viridis",
-                    panel_size: float = 4.0):
-    """Draw the original cloud and the kept points side by side, with equal axes.
+                    panel_size: float = 4.0, columns: int | None = None):
+    """Draw the original cloud and the kept points in a grid of panels, with equal axes.
 
     Args:
       points: (N, 3) the original cloud.
       kept: (M,) indices of the kept points (e.g. from :func:`hgjax.resample`), or a mapping
         from panel titles to such index arrays to draw one panel per method.
       scores: optional (N,) per-point scores; when given, points are coloured by the
-        score's rank (dark = low) in every panel instead of a flat colour.
+        score's rank (dark = low) in every panel.
+      colors: optional (N, 3) or (N, 4) per-point colours of the scan (uint8 0-255, uint16
+        0-65535 as in LAS, or floats in [0, 1]), used when ``scores`` is None. Without
+        either, the original is grey and the kept points red.
       view: (elevation, azimuth) of the camera in degrees (default (25, -60)).
       fig: a ``matplotlib.figure.Figure`` to draw into (default: a new one).
       title: figure title (default none).
       path: when given, the figure is also saved there (format from the extension).
       cmap: matplotlib colour map used with ``scores`` (default ``"viridis"``).
       panel_size: width and height of each panel in inches (default 4).
+      columns: panels per row (default ceil(sqrt(panels)), a near-square grid).
 
     Returns:
       The ``matplotlib.figure.Figure``, with one 3D axes per panel: the original first.
 
     Raises:
       ImportError: matplotlib is not installed (install the ``plot`` extra).
-      TypeError, ValueError: invalid points, indices out of range, or scores of the
-        wrong shape.
+      TypeError, ValueError: invalid points, indices out of range, scores or colours of
+        the wrong shape, or columns < 1.
 
     Examples:
       >>> import numpy as np
@@ -80,18 +85,28 @@ def show_resampling(points, kept, *, scores=None, view: Sequence[float] = (25.0,
         if scores.shape != (n,):
             raise ValueError(f"scores must have shape (N,) = ({n},); got {scores.shape}")
         colours = _rank_colours(scores)
-    if fig is None:
-        fig = Figure(figsize=(panel_size * (len(panels) + 1), panel_size + 0.5 * bool(title)))
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-12)
+    elif colors is not None:
+        colours = _rgba(colors, n)
     entries = [(f"original ({n} points)", np.arange(n))]
     entries += [(f"{name} ({idx.size} points)", idx) for name, idx in panels.items()]
+    if columns is None:
+        columns = math.ceil(math.sqrt(len(entries)))
+    elif isinstance(columns, bool) or not isinstance(columns, int) or columns < 1:
+        raise ValueError(f"columns must be an integer >= 1; got {columns!r}")
+    columns = min(columns, len(entries))
+    rows = math.ceil(len(entries) / columns)
+    if fig is None:
+        fig = Figure(figsize=(panel_size * columns, panel_size * rows + 0.5 * bool(title)))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-12)
     for i, (label, idx) in enumerate(entries):
-        ax = fig.add_subplot(1, len(entries), i + 1, projection="3d")
+        ax = fig.add_subplot(rows, columns, i + 1, projection="3d")
         sub = pts[idx]
         style = dict(s=_marker_size(idx.size), linewidths=0, depthshade=False)
-        if colours is not None:
+        if scores is not None:
             ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], c=colours[idx], cmap=cmap, vmin=0.0, vmax=1.0, **style)
+        elif colours is not None:
+            ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], color=colours[idx], **style)
         else:
             ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], color="0.55" if i == 0 else "C3", **style)
         for axis, c in zip("xyz", centre):
@@ -104,10 +119,20 @@ def show_resampling(points, kept, *, scores=None, view: Sequence[float] = (25.0,
     if title:
         fig.suptitle(title, y=1.0 - 0.08 / fig.get_figheight(), va="top")
         top -= 0.45 / fig.get_figheight()
-    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=top, wspace=0.0)
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=top, wspace=0.0, hspace=0.35 / panel_size)
     if path is not None:
         fig.savefig(path, dpi=150)
     return fig
+
+
+def _rgba(colors, n: int) -> np.ndarray:
+    """Colours (N, 3|4) as floats in [0, 1]: uint8 / 255, other integers / their maximum."""
+    c = np.asarray(colors)
+    if c.ndim != 2 or c.shape[0] != n or c.shape[1] not in (3, 4):
+        raise ValueError(f"colors must have shape (N, 3) or (N, 4) with N = {n}; got {c.shape}")
+    if c.dtype.kind in "iu":
+        return c / (255.0 if c.dtype.itemsize == 1 or (c.size and c.max() <= 255) else 65535.0)
+    return np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
 
 
 def _check_indices(indices, n: int, name: str) -> np.ndarray:
