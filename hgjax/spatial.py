@@ -358,10 +358,10 @@ class SpatialIndex:
             yield slice(start, min(start + chunk_size, self.n))
 
 
-QUERY_ROWS = 1 << 16  # rows per host query batch: bounds the query's temporary memory
+QUERY_ROWS = 1 << 14  # rows per host query batch: bounds the query's temporary memory
 
 
-def _bucket(width: int) -> int:
+def bucket(width: int) -> int:
     """Columns for a neighbourhood of ``width`` points: the next power of two, at least 8.
 
     Few distinct widths means few compiled kernels across clouds.
@@ -380,7 +380,7 @@ def pad_queries(index: SpatialIndex, query, capacity, what: str) -> np.ndarray:
     if capacity is not None and width > capacity:
         raise ValueError(f"capacity={capacity} is too small: a {what} holds {width} points;"
                          f" pass capacity >= {width} (or capacity=None to size it automatically)")
-    cols = _bucket(width) if capacity is None else capacity
+    cols = bucket(width) if capacity is None else capacity
     return np.concatenate([np.pad(p, ((0, 0), (0, cols - p.shape[1])), constant_values=index.n) for p in parts])
 
 

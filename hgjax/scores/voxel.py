@@ -212,8 +212,13 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     half = kernel_size / 2 * d_factor * res
     max_count = MAX_COUNT if variant == "invariant" else None
 
+    capacity = [32]
+
     def query(rows):
-        idx, half[rows] = index.cube(half[rows], rows, max_count=max_count)
+        idx, half[rows] = index.cube(half[rows], rows, capacity=capacity[0], max_count=max_count)
+        # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
+        # percentile count instead of doubling up from 32 again.
+        capacity[0] = spatial.bucket(int(np.percentile((idx < index.n).sum(axis=1), 95)) + 1)
         return idx
 
     idx = spatial.pad_queries(index, query, cap, "cube")
