@@ -21,7 +21,7 @@ from hgjax.resample import (
     soft_score,
     soft_weights,
 )
-from hgjax.samplers import farthest_point_sample, uniform_sample, voxel_sample
+from hgjax.samplers import farthest_point_sample, fps_backend, uniform_sample, voxel_sample
 from hgjax.select import soft_select, top_k, weighted_sample
 from hgjax.spatial import (
     Neighbourhoods,
