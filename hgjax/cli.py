@@ -5,9 +5,10 @@ end of the score is kept, whether it draws random numbers and which ``-p NAME=VA
 parameters it takes. A scoring method is run as ``neighbourhoods -> score -> keep``, so
 the score is computed once and written next to the kept points.
 
-Points are passed to the library in float64 as read: the library moves them to a local
-frame in float64 before any cast, so georeferenced scans (UTM coordinates of 1e6 m) keep
-their millimetres. ``--dtype float32`` (default) then computes in float32, and the library's
+Points are read in float64 and moved to their local frame (:func:`hgjax.local_frame`) in
+float64 before the library sees them, so georeferenced scans (UTM coordinates of 1e6 m)
+keep their millimetres with every method; outputs keep the original coordinates.
+``--dtype float32`` (default) then computes in float32, and the library's
 :class:`hgjax.PrecisionWarning` about that is silenced because it is the requested
 behaviour; ``--dtype float64`` turns on JAX's x64 mode for the run.
 
@@ -387,10 +388,15 @@ def _score(entry, points, ratio, params, progress: bool) -> np.ndarray:
 
 
 def _compute(entry, points, ratio, params, key, progress: bool, voxel_size=None):
-    """(kept indices, scores of every point or None for samplers, seconds)."""
+    """(kept indices, scores of every point or None for samplers, seconds).
+
+    The points are moved to their local frame in float64 first, so that no method, the
+    samplers included, ever casts georeferenced coordinates to float32.
+    """
     import hgjax
 
     start = time.perf_counter()
+    points = hgjax.local_frame(points)[0]
     if entry.kind is None:
         extra = {"key": key} if entry.needs_key else {}
         if voxel_size is not None:

@@ -1,25 +1,37 @@
-"""The ``hgjax`` command line, driven as a subprocess (``python -m hgjax``)."""
+"""The ``hgjax`` command line, in this process (``hgjax.cli.main``) and as a subprocess."""
 
+import dataclasses
+import os
 import pathlib
+import signal
 import subprocess
 import sys
+import time
+import warnings
 
 import numpy as np
 import pytest
 
 import hgjax
-from hgjax import io
+from hgjax import _validate, cli, io
 from hgjax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 MESH = DATA / "meshes" / "fandisk.obj"
 SCAN = DATA / "scans" / "scan_table_mug.ply"
+LAMPPOST = DATA / "scans" / "scan_lamppost.ply"
 
 
-def run(*args):
+@pytest.fixture(autouse=True)
+def _cache_dir(monkeypatch, tmp_path_factory):
+    """Compiled kernels go to a temporary cache, never the user's."""
+    monkeypatch.setenv("HGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "jax-cache"))
+
+
+def run(*args, env=None):
     proc = subprocess.run([sys.executable, "-m", "hgjax", *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300)
+                          text=True, timeout=300, env=env)
     assert "Traceback" not in proc.stderr, proc.stderr
     return proc
 
@@ -30,6 +42,19 @@ def run_here(capsys, *args):
     out, err = capsys.readouterr()
     assert "Traceback" not in err, err
     return code, out, err
+
+
+@pytest.fixture
+def score_calls(monkeypatch):
+    """Every call of hgjax.score made by the CLI: (method, params)."""
+    calls, score = [], hgjax.score
+
+    def spy(nb, method, **params):
+        calls.append((method, params))
+        return score(nb, method, **params)
+
+    monkeypatch.setattr(hgjax, "score", spy)
+    return calls
 
 
 def test_resample_mesh_to_ply_with_score(tmp_path):
@@ -44,14 +69,16 @@ def test_resample_mesh_to_ply_with_score(tmp_path):
 
 
 def test_resample_scan_carries_colour_and_writes_indices(tmp_path, capsys):
-    out = tmp_path / "kept.ply"
-    proc = run("resample", SCAN, "-o", out, "--samples", 4000, "--method", "fps", "--ratio", 0.05)
-    assert proc.returncode == 0, proc.stderr
+    out = tmp_path / "kept.pcd"
+    code, _, err = run_here(capsys, "resample", SCAN, "-o", out, "--samples", 4000, "--method", "fps",
+                            "--ratio", 0.05)
+    assert code == 0, err
     src = io.read_points(SCAN, samples=4000)
     kept = io.read_points(out)
     assert len(kept) == 200
-    rows = {tuple(p): c for p, c in zip(src.points, src.attributes["colors"].tolist())}
-    assert all(rows[tuple(p)] == c for p, c in zip(kept.points, kept.attributes["colors"].tolist()))
+    rows = {tuple(p): c for p, c in zip(src.points.astype(np.float32), src.attributes["colors"].tolist())}
+    assert all(rows[tuple(p)] == c for p, c in zip(kept.points.astype(np.float32),
+                                                   kept.attributes["colors"].tolist()))
     code, _, err = run_here(capsys, "resample", SCAN, "-o", tmp_path / "i.npy", "--samples", 4000, "--method",
                             "uniform", "--ratio", 0.05, "--key", 3)
     assert code == 0, err
@@ -59,27 +86,120 @@ def test_resample_scan_carries_colour_and_writes_indices(tmp_path, capsys):
     assert idx.shape == (200,) and len(np.unique(idx)) == 200
 
 
-def test_score(tmp_path, capsys):
-    scan = DATA / "scans" / "scan_lamppost.ply"
-    expected = hgjax.scores.hkf(io.read_points(scan).points)
-    proc = run("score", scan, "-o", tmp_path / "s.ply", "--method", "hkf", "--dtype", "float64")
-    assert proc.returncode == 0, proc.stderr
-    np.testing.assert_allclose(io.read_points(tmp_path / "s.ply").attributes["score"], expected, rtol=1e-12)
-    for ext in ("npy", "csv"):
-        code, _, err = run_here(capsys, "score", scan, "-o", tmp_path / f"s.{ext}", "--method", "hkf",
-                                "--dtype", "float64", "--quiet")
+def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, score_calls):
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "gfr",
+                            "-p", "mode=top", "--ratio", 0.1, "--dtype", "float64")  # the suite runs with x64
+    assert code == 0, err
+    assert [m for m, _ in score_calls] == ["gfr"]
+    points = io.read_points(LAMPPOST).points
+    scores = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "gfr"), "gfr"))
+    idx = hgjax.keep(scores, 0.1, method="gfr", mode="top")
+    kept = io.read_points(tmp_path / "k.ply")
+    np.testing.assert_array_equal(kept.points, points[idx])
+    np.testing.assert_allclose(kept.attributes["score"], scores[idx], rtol=1e-6)
+
+
+def test_lhf_score_gets_the_ratio(capsys, tmp_path, score_calls):
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.xyz", "--method", "lhf",
+                            "--ratio", 0.3)
+    assert code == 0, err
+    assert score_calls == [("lhf", {"ratio": 0.3})]
+    assert "score" in io.read_points(tmp_path / "k.xyz").attributes
+
+
+def test_progress_only_when_stderr_is_a_terminal(capsys, tmp_path, monkeypatch, score_calls):
+    args = ["resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "ea"]
+    assert run_here(capsys, *args)[0] == 0
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert run_here(capsys, *args)[0] == 0
+    assert run_here(capsys, *args, "--quiet")[0] == 0
+    assert [params.get("progress") for _, params in score_calls] == [None, True, None]
+
+
+def test_parameters_come_from_the_registry(capsys, tmp_path, monkeypatch):
+    out = tmp_path / "k.ply"
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--method", "lhf", "-p", "lengths=(6,12)")
+    assert code == 0, err
+    entry = hgjax.METHODS["lhf"]
+    narrowed = {stage: names - {"lengths"} for stage, names in entry.params.items()}
+    monkeypatch.setitem(hgjax.METHODS, "lhf", dataclasses.replace(entry, params=narrowed))
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--method", "lhf", "-p", "lengths=(6,12)")
+    assert code == 2 and "method 'lhf' does not take lengths" in err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--method", "hkc", "-p", "foo=1"], "method 'hkc' does not take foo (from -p/--variant); it takes:"),
+    (["--method", "hkc", "-p", "tau=0.1"], "does not take tau"),
+    (["--method", "fps", "--variant", "reference"], "method 'fps' does not take variant"),
+    (["--method", "uniform", "-p", "start=1"], "it takes: no parameters"),
+    (["--method", "lhf", "-p", "ratio=0.5"], "-p ratio: set it with --ratio or --count"),
+    (["--method", "voxel", "-p", "voxel_size=0.5"], "-p voxel_size: set it with --voxel-size"),
+    (["-p", "kernel_size=3", "-p", "kernel_size=5"], "-p kernel_size is given twice"),
+    (["--variant", "invariant", "-p", "variant=reference"], "give the variant once"),
+    (["-p", "nonsense"], "expected NAME=VALUE"),
+    (["--method", "hkc", "--voxel-size", "0.1"], "--voxel-size is for --method voxel"),
+    (["--ratio", "0.2", "--count", "5"], "not allowed with argument --ratio"),
+    (["--count", "100000"], "--count 100000 is more than the 1771 points"),
+    (["--count", "0"], "must be >= 1"),
+])
+def test_parameter_errors_exit_2(capsys, tmp_path, args, message):
+    code, out, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.ply", *args)
+    assert code == 2 and out == ""
+    assert message in err, err
+    assert not (tmp_path / "k.ply").exists()
+
+
+@pytest.mark.parametrize("method", ["hkc", "gfr", "voxel"])
+def test_count_keeps_exactly_m_points(capsys, tmp_path, method):
+    for count in (1, 333, 1771):
+        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "i.npy", "--count", count,
+                                "--method", method)
         assert code == 0, err
-    np.testing.assert_allclose(np.load(tmp_path / "s.npy"), expected, rtol=1e-12)
-    np.testing.assert_allclose(np.loadtxt(tmp_path / "s.csv", delimiter=",", skiprows=1)[:, 3], expected,
-                               rtol=1e-12)
+        assert np.unique(np.load(tmp_path / "i.npy")).size == count
 
 
-def test_compare_writes_table_and_picture(tmp_path):
-    proc = run("compare", MESH, "-o", tmp_path, "--samples", 2000, "--methods", "hkc,fps,uniform")
+def test_count_ratio_is_exact_for_every_size():
+    for n in range(1, 1200):
+        for m in range(1, n + 1):
+            assert _validate.n_keep(n, m / n) == m
+    rng = np.random.default_rng(0)
+    for n in rng.integers(1, 10**10, 2000):
+        m = int(rng.integers(1, n + 1))
+        assert _validate.n_keep(int(n), m / int(n)) == m
+
+
+def test_voxel_size_is_one_pass_at_that_size(capsys, tmp_path):
+    points = io.read_points(LAMPPOST).points
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "i.npy", "--method", "voxel",
+                            "--voxel-size", 0.5)
+    assert code == 0, err
+    expected = hgjax.voxel_sample(points, voxel_size=0.5)
+    np.testing.assert_array_equal(np.load(tmp_path / "i.npy"), expected)
+    assert expected.size < points.shape[0] // 2
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "j.npy", "--method", "voxel",
+                            "--voxel-size", 0.5, "--count", 100)
+    assert code == 0, err
+    np.testing.assert_array_equal(np.load(tmp_path / "j.npy"), hgjax.voxel_sample(points, 100 / len(points),
+                                                                                   voxel_size=0.5))
+
+
+def test_score_command(tmp_path, capsys):
+    points = io.read_points(LAMPPOST).points
+    expected = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "hkf"), "hkf"))
+    for ext in ("ply", "txt", "npy"):
+        code, _, err = run_here(capsys, "score", LAMPPOST, "-o", tmp_path / f"s.{ext}", "--method", "hkf",
+                                "--dtype", "float64")
+        assert code == 0, err
+    np.testing.assert_allclose(io.read_points(tmp_path / "s.ply").attributes["score"], expected, rtol=1e-6)
+    np.testing.assert_allclose(io.read_points(tmp_path / "s.txt").attributes["score"], expected, rtol=1e-6)
+    np.testing.assert_allclose(np.load(tmp_path / "s.npy")["score"], expected, rtol=1e-6)
+
+
+def test_score_float64(tmp_path):
+    proc = run("score", LAMPPOST, "-o", tmp_path / "s.ply", "--method", "hkf", "--dtype", "float64")
     assert proc.returncode == 0, proc.stderr
-    assert "| hkc | 400 | 2000 |" in proc.stdout
-    assert (tmp_path / "compare.csv").read_text().count("\n") == 4
-    assert (tmp_path / "compare.png").read_bytes()[:4] == b"\x89PNG"
+    score = io.read_points(tmp_path / "s.ply").attributes["score"]
+    assert score.dtype == np.float64
 
 
 def test_demo_runs_every_method():
@@ -88,43 +208,139 @@ def test_demo_runs_every_method():
     for method in hgjax.METHODS:
         assert f"\n{method} " in proc.stdout
     assert " 2000    400 " in proc.stdout
+    assert proc.stderr == ""
 
 
 def test_version_and_help(capsys):
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.startswith("hgjax ")
     code, out, _ = run_here(capsys, "--help")
-    assert code == 0 and "examples:" in out and "Exit codes" in out
-
-
-def test_errors_in_a_subprocess_exit_2_without_traceback():
-    proc = run("resample", "missing.ply", "-o", "x.ply")
-    assert proc.returncode == 2 and "missing.ply: no such file" in proc.stderr and proc.stdout == ""
+    assert code == 0 and "examples:" in out
+    assert "exit codes:" in out and "130  interrupted" in out and "HGJAX_CACHE_DIR" in out
 
 
 @pytest.mark.parametrize("args, message", [
-    (["resample", "missing.ply", "-o", "x.ply"], "missing.ply: no such file"),
+    (["resample", "missing.ply", "-o", "x.ply"], "cannot read missing.ply: no such file"),
     (["resample", MESH, "-o", "x.ply", "--ratio", "1.5"], "ratio must be in (0, 1]"),
     (["resample", MESH, "-o", "x.ply", "--ratio", "abc"], "not a number: 'abc'"),
     (["resample", MESH, "-o", "x.ply", "--method", "nope"], "invalid choice: 'nope'"),
-    (["resample", MESH, "-o", "x.obj"], "expected .ply, .xyz, .txt or .npy"),
+    (["resample", MESH, "-o", "x.obj"], "unsupported extension '.obj'"),
     (["resample", MESH, "-o", "x.ply", "--samples", "500", "--variant", "nope"], "unknown variant 'nope'"),
     (["resample", MESH, "-o", "x.ply", "--samples", "0"], "must be >= 1"),
+    (["resample", MESH, "-o", "x.ply", "--seed", "-1"], "argument --seed: must be in [0, 2**32); got -1"),
+    (["resample", MESH, "-o", "x.ply", "--seed", str(2**32)], "must be in [0, 2**32)"),
+    (["resample", MESH, "-o", "x.ply", "--seed", "1.5"], "argument --seed: not an integer: '1.5'"),
+    (["resample", MESH, "-o", "x.ply", "--key", "-3"], "argument --key: must be in [0, 2**32)"),
     (["compare", MESH, "--methods", "hkc,nope"], "unknown method(s) ['nope']"),
-    (["score", DATA / "README.md", "-o", "x.npy"], "README.md"),
+    (["score", DATA / "README.md", "-o", "x.ply"], "README.md"),
     (["score", MESH, "-o", "x.npy", "--method", "fps"], "invalid choice: 'fps'"),
     (["frobnicate"], "invalid choice"),
 ])
-def test_usage_errors_exit_2(capsys, args, message):
+def test_usage_errors_exit_2(capsys, monkeypatch, tmp_path, args, message):
+    monkeypatch.chdir(tmp_path)
     code, out, err = run_here(capsys, *args)
     assert code == 2
     assert message in err and out == ""
+    assert not list(tmp_path.iterdir())
 
 
-def test_write_failure_exits_1(tmp_path, capsys):
-    code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "no" / "dir" / "x.ply", "--samples", 500)
-    assert code == 1
-    assert "failed: FileNotFoundError" in err
+def test_errors_in_a_subprocess_exit_2_without_traceback(tmp_path):
+    for args in (["resample", "missing.ply", "-o", tmp_path / "x.ply"],
+                 ["resample", LAMPPOST, "-o", tmp_path / "x.ply", "--seed", "4294967296"],
+                 ["resample", LAMPPOST, "-o", tmp_path / "no" / "x.ply"]):
+        proc = run(*args)
+        assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+
+
+def test_unwritable_output_is_refused_before_computing(capsys, tmp_path, monkeypatch):
+    def fail(*args, **kwargs):
+        raise AssertionError("computed before the output was checked")
+
+    monkeypatch.setattr(hgjax, "neighbourhoods", fail)
+    monkeypatch.setattr(io, "read_points", fail)
+    code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "no" / "dir" / "x.ply")
+    assert code == 2 and "directory" in err and "does not exist" in err
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        if os.access(locked, os.W_OK):
+            pytest.skip("running as a user who can write anywhere")
+        code, _, err = run_here(capsys, "resample", MESH, LAMPPOST, "-o", locked)
+        assert code == 2 and "not writable" in err
+    finally:
+        locked.chmod(0o700)
+
+
+def test_output_onto_the_input(capsys, tmp_path):
+    path = tmp_path / "scan.ply"
+    source = io.read_points(LAMPPOST)
+    io.write_points(path, source.points, attributes=source.attributes)
+    code, _, err = run_here(capsys, "resample", path, "-o", path, "--method", "lhf", "--ratio", 0.25,
+                            "--dtype", "float64")
+    assert code == 0, err
+    idx = hgjax.resample(source.points, 0.25, method="lhf")
+    kept = io.read_points(path)
+    np.testing.assert_array_equal(kept.points, source.points[idx])
+    np.testing.assert_array_equal(kept.attributes["colors"], source.attributes["colors"][idx])
+
+
+def test_write_failure_exits_1(tmp_path, capsys, monkeypatch):
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(io, "write_points", full)
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "x.ply")
+    assert code == 1 and "failed: OSError" in err and "No space left" in err
+
+
+def test_too_many_samples_are_refused_up_front(capsys, tmp_path, monkeypatch):
+    start = time.perf_counter()
+    code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "x.ply", "--samples", 10**12)
+    assert code == 2 and "--samples 1000000000000 needs about 2048.0 GB" in err and "or fewer" in err
+    assert time.perf_counter() - start < 5
+    monkeypatch.setattr(cli, "_available_memory", lambda: 2**30)
+    code, _, err = run_here(capsys, "compare", MESH, "--samples", 10**6)
+    assert code == 2 and f"use --samples {2**30 // cli.BYTES_PER_SAMPLE} or fewer" in err
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "x.ply", "--samples", 10**6)
+    assert code == 0, err  # a point cloud is only subset: nothing is sampled
+
+
+def test_available_memory_from_the_system():
+    memory = cli._available_memory()
+    assert 2**20 < memory < 2**50
+
+
+def test_ctrl_c_exits_130_with_one_line(tmp_path):
+    out = tmp_path / "x.ply"
+    proc = subprocess.Popen([sys.executable, "-m", "hgjax", "resample", MESH, "-o", out, "--samples", 400000,
+                             "--method", "lhf", "--quiet"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(6)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert stderr == "hgjax: interrupted\n" and stdout == ""
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_float32_run_on_float64_input_does_not_warn(capsys, tmp_path):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "x.ply", "--method", "hkc")
+    assert code == 0 and "warning" not in err.lower()
+    assert not [w for w in caught if issubclass(w.category, hgjax.PrecisionWarning)]
+
+
+def test_jax_settings_are_restored_after_a_run(capsys, tmp_path):
+    import jax
+
+    before = (jax.config.jax_enable_x64, jax.config.jax_compilation_cache_dir)
+    code, _, err = run_here(capsys, "score", LAMPPOST, "-o", tmp_path / "s.ply", "--dtype", "float64")
+    assert code == 0, err
+    assert io.read_points(tmp_path / "s.ply").attributes["score"].dtype == np.float64
+    assert (jax.config.jax_enable_x64, jax.config.jax_compilation_cache_dir) == before
 
 
 def test_show_resampling_panels_equal_axes_and_errors(monkeypatch):
@@ -141,18 +357,50 @@ def test_show_resampling_panels_equal_axes_and_errors(monkeypatch):
         show_resampling(pts, np.array([50]))
     with pytest.raises(ValueError, match="scores must have shape"):
         show_resampling(pts, np.arange(3), scores=np.ones(3))
+    with pytest.raises(ValueError, match="colors must have shape"):
+        show_resampling(pts, np.arange(3), colors=np.ones((3, 3)))
+    with pytest.raises(ValueError, match="columns must be"):
+        show_resampling(pts, np.arange(3), columns=0)
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
     with pytest.raises(ImportError, match=r"hgjax\[plot\]"):
         show_resampling(pts, np.arange(3))
 
 
+def test_show_resampling_grid_and_scan_colours():
+    from hgjax.plot import show_resampling
+
+    pts = np.random.default_rng(0).random((40, 3))
+    panels = {f"m{i}": np.arange(i + 1) for i in range(9)}
+    fig = show_resampling(pts, panels)
+    width, height = fig.get_size_inches()
+    assert (width, height) == (16.0, 12.0)  # 10 panels: 4 columns, 3 rows
+    assert len({ax.get_subplotspec().rowspan.start for ax in fig.axes}) == 3
+    colors = np.zeros((40, 3), np.uint8)
+    colors[:, 0] = np.arange(40) * 6
+    fig = show_resampling(pts, np.array([3, 7]), colors=colors, columns=2)
+    kept = fig.axes[1].collections[0].get_facecolors()
+    np.testing.assert_allclose(kept[:, 0], [18 / 255, 42 / 255])
+    wide = show_resampling(pts, {"a": np.arange(3)}, colors=colors.astype(np.uint16) * 257)
+    np.testing.assert_allclose(wide.axes[0].collections[0].get_facecolors()[:, 0], colors[:, 0] / 255)
+
+
+def test_compare_writes_table_and_a_readable_picture(tmp_path, capsys):
+    import matplotlib.image
+
+    code, out, err = run_here(capsys, "compare", SCAN, "-o", tmp_path, "--samples", 2000)
+    assert code == 0, err
+    assert "| hkc | 400 | 2000 |" in out
+    assert (tmp_path / "compare.csv").read_text().count("\n") == len(hgjax.METHODS) + 1
+    height, width = matplotlib.image.imread(tmp_path / "compare.png").shape[:2]
+    assert width <= 2400 and 0.5 <= height / width <= 1.5, (width, height)
+
+
 @pytest.mark.parametrize("method", sorted(hgjax.METHODS))
 def test_every_method_resamples_to_ply_with_its_score(tmp_path, capsys, method):
     out = tmp_path / "k.ply"
-    code, _, err = run_here(capsys, "resample", DATA / "scans" / "scan_lamppost.ply", "-o", out, "--samples", 600,
-                            "--method", method, "--ratio", 0.1, "--quiet")
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--samples", 600, "--method", method,
+                            "--ratio", 0.1, "--quiet")
     assert code == 0, err
     kept = io.read_points(out)
     assert len(kept) == 60
-    has_score = any(name.startswith("score") for name in kept.attributes)
-    assert has_score == (method in hgjax.scores.__all__)
+    assert ("score" in kept.attributes) == (hgjax.METHODS[method].kind is not None)
