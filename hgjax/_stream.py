@@ -26,6 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hgjax import spatial
+
 BLOCK = 1024  # rows per vmapped block
 CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
 
@@ -66,7 +68,7 @@ def offsets_of(points, idx):
 
 
 def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: int | None = None,
-                       progress: bool = False):
+                       progress: bool = False, narrow: bool = False):
     """Apply ``fn`` to every neighbourhood of ``nb`` (traced: pure JAX; concrete: streamed).
 
     Args:
@@ -78,6 +80,11 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       args: arrays broadcast to every row (traced: new values do not recompile).
       chunk_size: rows per streamed chunk (concrete path only; never changes results).
       progress: tqdm bar on stderr for long streamed runs.
+      narrow: the rows list their neighbours first and padding after, and ``fn`` gives the
+        same result whatever the number of padding columns (e.g. exact counts). The
+        streamed path then runs the rows holding at most the 90th percentile count through
+        a second kernel of that many columns (a power of two): far less work when a few
+        rows set K.
 
     Returns:
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
@@ -91,22 +98,38 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
         padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
         out = _blocks(fn, padded(offsets), padded(valid), tuple(padded(jnp.asarray(a)) for a in row_args), args)
         return jax.tree.map(lambda x: x[:n], out)
-    return _stream(fn, np.asarray(points), np.asarray(idx), tuple(np.asarray(a) for a in row_args),
-                   tuple(jnp.asarray(a) for a in args), chunk_rows(chunk_size), progress)
+    points, idx, row_args = np.asarray(points), np.asarray(idx), tuple(np.asarray(a) for a in row_args)
+    args, chunk = tuple(jnp.asarray(a) for a in args), chunk_rows(chunk_size)
+    if narrow and n:
+        count = (idx < n).sum(axis=1)
+        width = spatial.bucket(int(np.percentile(count, 90)))
+        if width < idx.shape[1]:
+            small = count <= width
+            parts = [(rows, _stream(fn, points, np.flatnonzero(rows), idx[rows][:, :k], tuple(a[rows] for a in row_args),
+                                    args, chunk, progress)) for rows, k in ((small, width), (~small, idx.shape[1]))]
+            out = jax.tree.map(lambda x: np.empty((n,) + x.shape[1:], x.dtype), parts[0][1])
+            for rows, part in parts:
+                jax.tree.map(lambda o, x: o.__setitem__(rows, x), out, part)
+            return jax.tree.map(jax.device_put, out)
+    return jax.tree.map(jax.device_put, _stream(fn, points, np.arange(n), idx, row_args, args, chunk, progress))
 
 
-def _stream(fn, points, idx, row_args, args, chunk, progress):
-    """Host path of :func:`map_neighbourhoods`: fixed (C, K, 3) chunks through one kernel."""
-    n = points.shape[0]
+def _stream(fn, points, own, idx, row_args, args, chunk, progress):
+    """Host path of :func:`map_neighbourhoods`: fixed (C, K, 3) chunks through one kernel.
+
+    Streams the points ``own`` (R,) with their neighbours ``idx`` (R, K); returns NumPy
+    outputs (R, ...).
+    """
+    n, r = points.shape[0], idx.shape[0]
     ext = np.concatenate([points, np.zeros((1, 3), points.dtype)])
     kernel = _sharded(fn, len(row_args), len(args)) if len(jax.devices()) > 1 else _jitted(fn, len(row_args))
     outputs = []
-    bar = _progress(n, progress and n > 4 * chunk)
-    for start in range(0, n, chunk):
-        rows = slice(start, min(start + chunk, n))
+    bar = _progress(r, progress and r > 4 * chunk)
+    for start in range(0, r, chunk):
+        rows = slice(start, min(start + chunk, r))
         nbr = idx[rows]
         valid = nbr < n
-        offsets = np.where(valid[..., None], ext[nbr] - points[rows, None, :], 0).astype(points.dtype)
+        offsets = np.where(valid[..., None], ext[nbr] - ext[own[rows], None, :], 0).astype(points.dtype)
         pad = chunk - offsets.shape[0]
         fill = lambda x: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
         if outputs:
@@ -118,8 +141,7 @@ def _stream(fn, points, idx, row_args, args, chunk, progress):
             bar.update(rows.stop - rows.start)
     if bar is not None:
         bar.close()
-    host = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:n], *outputs)
-    return jax.tree.map(jax.device_put, host)
+    return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:r], *outputs)
 
 
 @functools.lru_cache(maxsize=None)

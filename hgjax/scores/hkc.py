@@ -105,7 +105,7 @@ def score(nb, *, kernel_size: int = 3, chunk_size: int | None = None, progress: 
     kernel_size = voxel.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     return _stream.map_neighbourhoods(_kernel(kernel_size), nb, row_args=(nb.scale,), chunk_size=chunk_size,
-                                      progress=progress)
+                                      progress=progress, narrow=True)
 
 
 def soft_score(nb, *, tau=0.1, kernel_size: int = 3):

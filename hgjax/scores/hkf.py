@@ -89,7 +89,7 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
     kernel_size = voxel.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkf")
     return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,),
-                                      chunk_size=chunk_size, progress=progress)
+                                      chunk_size=chunk_size, progress=progress, narrow=True)
 
 
 def soft_score(nb, *, tau=0.1, kernel_size: int = 3):
