@@ -325,9 +325,28 @@ def _available_memory() -> int:
         return FALLBACK_MEMORY
 
 
+def _is_mesh(path: str) -> bool:
+    """Whether ``path`` is a mesh (sampled to ``--samples`` points): by extension, and for
+    PLY by a face element in its header."""
+    ext = os.path.splitext(path)[1].lower()
+    if ext != ".ply":
+        return ext in MESH_EXTENSIONS
+    try:
+        with open(path, "rb") as fh:
+            for line in iter(fh.readline, b""):
+                words = line.split()
+                if words[:1] == [b"end_header"]:
+                    break
+                if words[:2] == [b"element", b"face"] and len(words) > 2 and words[2] != b"0":
+                    return True
+    except OSError:
+        pass
+    return False
+
+
 def _check_samples(samples: int | None, inputs: list[str]) -> None:
     """Refuse ``--samples`` on a mesh beyond what the memory holds, before sampling."""
-    meshes = [path for path in inputs if os.path.splitext(path)[1].lower() in MESH_EXTENSIONS]
+    meshes = [path for path in inputs if _is_mesh(path)]
     if samples is None or not meshes:
         return
     available = _available_memory()
@@ -408,6 +427,18 @@ def _compute(entry, points, ratio, params, key, progress: bool, voxel_size=None)
     return idx, scores, time.perf_counter() - start
 
 
+def count_ratio(count: int, n: int) -> float:
+    """count / n, checked to keep exactly ``count`` of ``n`` points under hgjax's rounding of
+    ratio * n (1e-9 relative: exact up to 5e8 points at least)."""
+    from hgjax import _validate
+
+    ratio = count / n
+    if _validate.n_keep(n, ratio) != count:
+        raise UsageError(f"--count {count} of {n} points cannot be kept exactly (ratio * N is rounded to 1e-9"
+                         f" relative); use --ratio")
+    return ratio
+
+
 def _prepare(args) -> tuple[list[str], list[str]]:
     """Inputs and their checked outputs, before anything is read or computed."""
     inputs = _expand(args.inputs)
@@ -429,7 +460,7 @@ def cmd_resample(args) -> None:
         n = len(data)
         if args.count is not None and args.count > n:
             raise UsageError(f"--count {args.count} is more than the {n} points of {path}")
-        ratio = args.count / n if args.count is not None else args.ratio
+        ratio = count_ratio(args.count, n) if args.count is not None else args.ratio
         if ratio is None and args.voxel_size is None:
             ratio = DEFAULT_RATIO
         idx, scores, seconds = _compute(entry, data.points, ratio, params, key, progress, args.voxel_size)
