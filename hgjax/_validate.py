@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable
 
+import jax
 import numpy as np
 
 FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -79,7 +80,8 @@ def n_keep(n_points: int, ratio: float) -> int:
     So a ratio whose product with N is an integer up to float rounding (0.2 x 1000 =
     200.00000000000003) keeps that integer, not one more.
     """
-    m = math.ceil(ratio * n_points - 1e-9 * n_points)
+    x = ratio * n_points
+    m = round(x) if abs(x - round(x)) <= 1e-9 * x else math.ceil(x)
     return int(min(max(m, 1), n_points))
 
 
@@ -128,8 +130,6 @@ def check_positive_array(value: Any, name: str, n: int) -> np.ndarray:
 
 def is_concrete(value: Any) -> bool:
     """True unless ``value`` is a JAX tracer (checks on tracers happen where they are concrete)."""
-    import jax
-
     return not isinstance(value, jax.core.Tracer)
 
 

@@ -406,7 +406,8 @@ def combine(gamma_a, gamma_b, ratio):
     xp = jnp if _stream.is_traced(gamma_a, gamma_b, ratio) else np
     g = xp.stack([xp.asarray(gamma_a), xp.asarray(gamma_b)], axis=1)  # (N, 2)
     n = g.shape[0]
-    m = xp.clip(xp.ceil(ratio * n - 1e-9 * n), 1, n).astype(xp.int32)
+    x = ratio * n
+    m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, n).astype(xp.int32)
     big = xp.sort(g, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
     total = big[0] + big[1]
     eps = xp.where(total > 0, big[1] / xp.where(total > 0, total, 1), 0.5).astype(g.dtype)

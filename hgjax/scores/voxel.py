@@ -25,19 +25,36 @@ from hgjax import _validate, spatial
 
 
 REFERENCE_D_FACTOR = 1.3  # d = 1.3 x resolution (REFERENCE.md)
-# The default variant's d factor: the best mean F1 of 1.0 ... 4.0 on the synthetic edge set
-# short of 3.0 and 4.0, which gain little F1 but lose real-cloud MCC and run 1.5-2x slower
+# The default variant's d = f x local spacing, f from the sampling irregularity c (the
+# coefficient of variation of nearest-neighbour distances): REGULAR_D_FACTOR for lattices
+# (c <= 0.25: grids up to noise p = 0.2 spacings), IRREGULAR_D_FACTOR for random samples
+# (c >= 0.45), linear in between. Measured on the edge benchmark in both regimes
 # (bench/results/edge_defaults.md).
-DEFAULT_D_FACTOR = 2.5
-LOCAL_K = 8  # neighbours over which the default variant's local resolution is a median
+REGULAR_D_FACTOR, IRREGULAR_D_FACTOR = 1.1, 1.6
+IRREGULARITY_RANGE = (0.25, 0.45)
+LOCAL_K = 16  # neighbours from which the default variant's local spacing is estimated
 MAX_COUNT = 256  # the default variant's cube shrinks to hold fewer points than this
 
 
-def d_factor_or_default(d_factor, variant: str) -> float:
-    """The given d factor, or the variant's default: 1.3 for "reference", 2.5 otherwise."""
-    if d_factor is None:
-        return REFERENCE_D_FACTOR if variant == "reference" else DEFAULT_D_FACTOR
-    return _validate.check_positive(d_factor, "d_factor")
+def default_d_factor(irregularity: float) -> float:
+    """The default variant's d factor for a cloud of this sampling irregularity.
+
+    Args:
+      irregularity: std / mean of the nearest-neighbour distances
+        (:func:`hgjax.spatial.irregularity`).
+
+    Returns:
+      1.1 up to 0.25 (lattice-like sampling), 1.6 from 0.45 (random sampling), linear
+      in between.
+
+    Examples:
+      >>> from hgjax.scores import voxel
+      >>> voxel.default_d_factor(0.0), voxel.default_d_factor(0.52)
+      (1.1, 1.6)
+    """
+    lo, hi = IRREGULARITY_RANGE
+    t = min(max((irregularity - lo) / (hi - lo), 0.0), 1.0)
+    return REGULAR_D_FACTOR + t * (IRREGULAR_D_FACTOR - REGULAR_D_FACTOR)
 
 
 def check_kernel_size(kernel_size) -> int:
@@ -169,11 +186,13 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
 
     * ``variant="reference"``: d_i = 1.3 x the intrinsic resolution (REFERENCE.md: mean
       distance to the nearest other point), duplicates kept;
-    * ``variant="invariant"`` (default): d_i = 2.5 x the point's local resolution, the median
-      nearest-distinct-neighbour distance over its 8 nearest distinct points, with exact
-      duplicates counted once. On a cloud of uniform density this is the intrinsic
-      resolution (up to sampling noise); where the density changes, the kernel follows the
-      local spacing. Where a cube would still hold 256 points or more (a sparse point next
+    * ``variant="invariant"`` (default): d_i = f x the point's local spacing s_i =
+      1 / sqrt(areal density) estimated from its 16 nearest distinct points
+      (:func:`hgjax.spatial.local_spacing`), exact duplicates counted once, and f from
+      the cloud's sampling irregularity (:func:`default_d_factor`: 1.1 on lattice-like
+      clouds, 1.6 on random samples). The spacing, unlike the nearest-neighbour distance,
+      means the same on grids and on random samples, and where the density changes the
+      kernel follows it. Where a cube would still hold 256 points or more (a sparse point next
       to a much denser region), it shrinks to the Chebyshev distance of the point's 256th
       nearest point: every cube holds all its points (no truncation) and at most 255, so
       mixed densities never raise a capacity error. Exact duplicates and far outliers
@@ -182,9 +201,10 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     Args:
       points: (N, 3) float32 or float64, N >= 2.
       variant: ``"invariant"`` or ``"reference"``.
-      d_factor: d = d_factor x resolution (default 2.5 invariant, 1.3 reference).
+      d_factor: d = d_factor x resolution (default: :func:`default_d_factor` for
+        "invariant", 1.3 for "reference").
       kernel_size: odd k of the k x k x k kernel.
-      resolution: a fixed resolution for every point instead of the computed one.
+      resolution: a fixed resolution (spacing) for every point instead of the computed one.
       dedupe: count exact duplicates once (default: True for "invariant", False for
         "reference").
       capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic.
@@ -197,7 +217,8 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     """
     pts = _validate.check_points(points)
     variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
-    d_factor = d_factor_or_default(d_factor, variant)
+    if d_factor is not None:
+        d_factor = _validate.check_positive(d_factor, "d_factor")
     kernel_size = check_kernel_size(kernel_size)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
@@ -208,7 +229,9 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     elif variant == "reference":
         res = np.full(index.n, spatial.resolution(index, robust=False) or 1.0)
     else:
-        res = spatial.local_resolution(index, LOCAL_K)
+        res = spatial.local_spacing(index, LOCAL_K)
+    if d_factor is None:
+        d_factor = REFERENCE_D_FACTOR if variant == "reference" else default_d_factor(spatial.irregularity(index))
     half = kernel_size / 2 * d_factor * res
     max_count = MAX_COUNT if variant == "invariant" else None
 
