@@ -353,7 +353,8 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     start = _validate.check_int(start, "start", minimum=0)
     if start >= n:
         raise ValueError(f"start must be < N = {n}; got {start}")
+    local = spatial.local_frame(pts)[0]  # float64 origin removed before any float32 cast
     if fps_backend(backend) == "fpsample":
-        return _fps_fpsample(np.asarray(pts), m, start)
-    p = jnp.asarray(pts, dtype=spatial.working_dtype(pts.dtype))
+        return _fps_fpsample(local, m, start)
+    p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))
     return np.asarray(_fps(p, m, jnp.int32(start))).astype(np.int64)

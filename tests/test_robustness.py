@@ -68,7 +68,7 @@ def test_mixed_densities_give_finite_scores_without_errors(method):
 
 
 @pytest.mark.parametrize("x64", [True, False], ids=["x64", "x32"])
-@pytest.mark.parametrize("method", ["hkc", "lhf", "ea", "gfr"])
+@pytest.mark.parametrize("method", ["hkc", "lhf", "ea", "gfr", "fps"])
 def test_georeferenced_offsets_keep_the_same_points(method, x64):
     p = _cloud(3000, seed=1) * 20.0  # metres, spacing about 0.05
     utm = p + np.array([512_345.678, 4_123_456.789, 87.5])
