@@ -146,7 +146,8 @@ def gfr_pairs(points, max_nn=100, radius_factor=None):
 
     radius_factor None: the reference rules 1-3 on float32 squared distances. Otherwise the
     invariant graph: Euclidean radius radius_factor x (median distance to the nearest distinct
-    point), each point keeps its max_nn nearest, a pair is stored when either end keeps it.
+    point), each point keeps the points at its max_nn nearest distinct locations, a pair is
+    stored when either end keeps it.
     Returns the sorted list of pairs and the (N, N) squared distances they were judged on.
     """
     p = np.asarray(points, dtype=np.float32 if radius_factor is None else np.float64)
@@ -178,7 +179,11 @@ def gfr_pairs(points, max_nn=100, radius_factor=None):
     pairs = set()
     for i in range(n):
         partners = sorted((q[i, j], j) for j in range(n) if j != i and 0 < q[i, j] < big_r**2)
-        pairs |= {(min(i, j), max(i, j)) for _, j in partners[:max_nn]}
+        locations = []  # the first max_nn distinct partner coordinates, in (q, index) order
+        for _, j in partners:
+            if tuple(p[j]) not in locations and len(locations) < max_nn:
+                locations.append(tuple(p[j]))
+        pairs |= {(min(i, j), max(i, j)) for _, j in partners if tuple(p[j]) in locations}
     return sorted(pairs), q
 
 

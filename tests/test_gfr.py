@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import math
 from collections import Counter
 
@@ -13,9 +12,9 @@ import pytest
 from jax.test_util import check_grads
 
 from conftest import TOL
+from hgjax.scores import gfr as gfr_module
 from naive import gfr_naive, gfr_pairs
 
-gfr_module = importlib.import_module("hgjax.scores.gfr")  # hgjax.scores.gfr is the function
 graph, high_pass = gfr_module.graph, gfr_module.high_pass
 
 

@@ -20,9 +20,10 @@ the points. Two graphs:
 * ``"invariant"`` (default), scale-invariant: radius R = ``radius_factor`` x resolution,
   Euclidean, with the resolution the median over points of the distance to the nearest
   DISTINCT point (exact duplicates and far outliers do not move it). Each point links to
-  its at most ``max_nn`` nearest points with 0 < ||p_i - p_j|| < R (equal distances:
-  smaller index first); a pair is stored once, in the row of its smaller index, when
-  either end links to the other. Scaling, translating or reordering the cloud leaves the
+  the points at its at most ``max_nn`` nearest distinct locations with
+  0 < ||p_i - p_j|| < R (equal distances: smaller index first; exact duplicates are one
+  location, so duplicating the cloud doubles every score); a pair is stored once, in the
+  row of its smaller index, when either end links to the other. Scaling, translating or reordering the cloud leaves the
   graph's shape unchanged, so the scores scale with the cloud and the ranking does not move.
 
 Weights, both graphs: w_ij = exp(-q_ij^2 / (2 v)), v the population variance of q over the
@@ -44,11 +45,11 @@ from scipy.spatial import cKDTree
 from hgjax import _validate
 from hgjax.scores import _common
 
-__all__ = ["gfr", "gfr_neighbourhood", "graph", "high_pass"]
+__all__ = ["gfr", "graph", "high_pass"]
 
 GFR_VARIANTS = ("invariant", "reference")
 MAX_NN = 100
-RADIUS_FACTOR = 2.5
+RADIUS_FACTOR = 10.0
 SKIP_SQ_DIST = 1e-10  # reference: points with a neighbour this close (squared) do not set minNN
 PAIR_BUDGET = 1 << 22  # candidate pairs examined per chunk of rows (bounds the host memory)
 
@@ -56,29 +57,6 @@ PAIR_BUDGET = 1 << 22  # candidate pairs examined per chunk of rows (bounds the 
 def _edge_weight(q, two_var):
     """exp(-q^2 / (2 v)), and 0 (the limit) where 2 v == 0."""
     return jnp.exp(-_common.safe_div(q * q, two_var, jnp.inf))
-
-
-def gfr_neighbourhood(centre, nbrs, valid, two_var):
-    """Weighted offsets w_ij (p_j - p_i) of one point's edges for a given 2 v.
-
-    Args:
-      centre: (3,) the point p_i.
-      nbrs: (K, 3) its graph neighbours, padding rows masked by ``valid`` (K,).
-      two_var: 2 v, twice the variance of the squared edge lengths (scalar).
-
-    Returns:
-      (K, 3) w_ij (p_j - p_i) with w_ij = exp(-q^2 / (2 v)), q = ||p_j - p_i||^2; zero rows
-      for padding.
-
-    Examples:
-      >>> import jax.numpy as jnp, hgjax
-      >>> nbrs = jnp.array([[1.0, 0, 0], [0, 0, 0]])
-      >>> hgjax.scores.gfr_neighbourhood(jnp.zeros(3), nbrs, jnp.array([True, False]), 2.0).tolist()
-      [[0.6065306597126334, 0.0, 0.0], [0.0, 0.0, 0.0]]
-    """
-    d = nbrs - centre[None, :]
-    w = _edge_weight(jnp.sum(d * d, axis=1), two_var)
-    return jnp.where(valid[:, None], w[:, None] * d, 0)
 
 
 def _sq_dist(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -138,13 +116,15 @@ def _chunks(tree: cKDTree, bound: float):
             yield part
 
 
-def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int, either_end: bool):
+def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int, location: np.ndarray | None):
     """Stored pairs (row, col), row < col, sorted, of the radius graph with squared radius r.
 
-    Each row i ranks its candidates j (0 < q_ij < r, q in the dtype of ``p``) by (q_ij, j)
-    and keeps the first ``max_nn``. ``either_end=False`` (reference): i ranks only j > i.
-    ``either_end=True`` (invariant): i ranks every j != i and a pair is stored when either
-    end keeps the other.
+    Reference (``location`` None): each row i ranks its candidates j > i (0 < q_ij < r, q in
+    the dtype of ``p``) by (q_ij, j) and keeps the first ``max_nn``. Invariant: ``location``
+    (N,) is the smallest index of the points at each point's coordinates; row i ranks the
+    distinct locations of its candidates j != i by (q_ij, location) and keeps every
+    candidate at the first ``max_nn`` of them (exact duplicates do not use up the cap); a
+    pair is stored when either end keeps the other.
     """
     n = p.shape[0]
     bound = np.sqrt(r) * (1 + 1e-5)  # q is rounded (float32 for the reference); exact test below
@@ -152,14 +132,22 @@ def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int, either_end: bool
     for part in _chunks(tree, bound):
         hits = cKDTree(tree.data[part]).sparse_distance_matrix(tree, bound, output_type="ndarray")
         i, j = part[hits["i"]], hits["j"].astype(np.int64)
-        keep = (i != j) if either_end else (i < j)
+        keep = (i < j) if location is None else (i != j)
         i, j = i[keep], j[keep]
         q = _sq_dist(p, i, j)
         keep = (q > 0) & (q < r)
         i, j, q = i[keep], j[keep], q[keep]
-        order = np.lexsort((j, q, i))
-        i, j = i[order], j[order]
-        rank = np.arange(i.size) - np.searchsorted(i, i)
+        if location is None:
+            order = np.lexsort((j, q, i))
+            i, j = i[order], j[order]
+            rank = np.arange(i.size) - np.searchsorted(i, i)
+        else:
+            order = np.lexsort((j, location[j], q, i))
+            i, j = i[order], j[order]
+            new = np.ones(i.size, dtype=bool)
+            new[1:] = (i[1:] != i[:-1]) | (location[j[1:]] != location[j[:-1]])
+            count = np.cumsum(new)
+            rank = count - count[np.searchsorted(i, i)]
         i, j = i[rank < max_nn], j[rank < max_nn]
         rows.append(np.minimum(i, j))
         cols.append(np.maximum(i, j))
@@ -176,11 +164,11 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         ``hgjax._validate.check_points``).
       variant: ``"invariant"`` (default): Euclidean radius ``radius_factor`` x resolution
         (median distance to the nearest distinct point), a pair stored when either end
-        ranks the other among its ``max_nn`` nearest. ``"reference"``: the authors' rules,
+        ranks the other among its ``max_nn`` nearest distinct locations. ``"reference"``: the authors' rules,
         squared radius min(10 minNN, 2 maxNN) on float32 squared distances, a pair stored
         in its smaller index's row among that row's ``max_nn`` nearest partners of higher
         index (module docstring).
-      radius_factor: the invariant radius in resolutions (default ``RADIUS_FACTOR`` = 2.5,
+      radius_factor: the invariant radius in resolutions (default ``RADIUS_FACTOR`` = 10,
         chosen on the edge benchmark, bench/results/gfr_radius.md). Only for ``"invariant"``.
       max_nn: the most partners a point ranks (reference: 100).
 
@@ -197,7 +185,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
       >>> import numpy as np
       >>> from hgjax.scores.gfr import graph
       >>> pts = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [10, 0, 0]])
-      >>> graph(pts).tolist()  # resolution 1 (median of 1, 1, 1, 8): radius 2.5
+      >>> graph(pts, radius_factor=2.5).tolist()  # resolution 1 (median of 1, 1, 1, 8): radius 2.5
       [[1, 2], [2, 4], [4, 4], [4, 4]]
     """
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
@@ -215,11 +203,14 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         p = pts.astype(np.float32)
         tree = cKDTree(p.astype(np.float64))
         r = _reference_radius(p, tree)
+        location = None
     else:
         p = pts.astype(np.float64)
         tree = cKDTree(p)
         r = (radius_factor * _resolution(tree)) ** 2
-    rows, cols = _pairs(p, tree, r, max_nn, either_end=variant == "invariant") if r > 0 else (
+        _, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
+        location = first[inverse.ravel()]
+    rows, cols = _pairs(p, tree, r, max_nn, location) if r > 0 else (
         np.zeros(0, np.int64), np.zeros(0, np.int64))
     counts = np.bincount(rows, minlength=n)
     idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
@@ -308,7 +299,7 @@ def gfr(points, *, variant: str = "invariant", radius_factor: float | None = Non
       points: (N, 3) float32 or float64; never modified.
       variant: ``"invariant"`` (default, scale-invariant radius) or ``"reference"`` (the
         authors' units-dependent graph); see :func:`graph`.
-      radius_factor: invariant radius in resolutions (default 2.5).
+      radius_factor: invariant radius in resolutions (default 10).
       max_nn: the most partners a point ranks (reference: 100).
 
     Returns:
@@ -318,9 +309,10 @@ def gfr(points, *, variant: str = "invariant", radius_factor: float | None = Non
       TypeError, ValueError: invalid points, variant, radius_factor or max_nn.
 
     Examples:
-      >>> import numpy as np, hgjax
+      >>> import numpy as np
+      >>> from hgjax.scores.gfr import gfr
       >>> pts = np.random.default_rng(0).random((200, 3))
-      >>> s = hgjax.scores.gfr(pts)
+      >>> s = gfr(pts)
       >>> s.shape, bool((s > 0).all())
       ((200,), True)
     """
