@@ -1,4 +1,7 @@
-"""Baselines (GFR, EA, PCA-AC) and samplers (uniform, voxel, fps) against naive NumPy loops."""
+"""Baselines (EA, PCA-AC, GFR selection) and samplers (uniform, voxel, fps) against naive NumPy loops.
+
+GFR's graph and score against naive references are in tests/test_gfr.py.
+"""
 
 from __future__ import annotations
 
@@ -12,33 +15,14 @@ from scipy.cluster.hierarchy import fcluster, linkage
 import hgjax
 from conftest import TOL
 
-pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")  # hgjax.scores.pca_ac is the function
+pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")
+assert pca_ac_module is hgjax.scores.pca_ac  # the module, not a function of the same name
 
 NEW_METHODS = ("gfr", "ea", "pca_ac", "uniform", "voxel", "fps")
 KEYED = ("gfr", "uniform")
 
 
 # ---------------------------------------------------------------- naive references
-def gfr_naive(points, max_nn=100, radius=None):
-    """REFERENCE.md's GFR score with a dense N x N Laplacian (loops over points)."""
-    p = np.asarray(points, dtype=np.float64)
-    n = len(p)
-    dist = np.sqrt(((p[:, None] - p[None]) ** 2).sum(-1))
-    nearest = np.array([dist[i][dist[i] > 0].min() for i in range(n) if (dist[i] > 0).any()])
-    radius = min(10 * nearest.min(), 2 * nearest.max()) if radius is None else radius
-    edges = []
-    for i in range(n):
-        nbrs = [j for j in np.argsort(dist[i], kind="stable") if 0 < dist[i, j] <= radius]
-        edges += [(i, j) for j in nbrs[:max_nn]]
-    q = np.array([dist[i, j] ** 2 for i, j in edges])
-    w0 = np.zeros((n, n))
-    for (i, j), qq in zip(edges, q):
-        w0[i, j] = np.exp(-qq**2 / (2 * q.var()))
-    w = w0 + w0.T
-    lap = np.diag(w.sum(axis=1)) - w
-    return np.linalg.norm(lap @ p, axis=1)
-
-
 def ea_naive(points, k=16):
     p = np.asarray(points, dtype=np.float64)
     out = np.zeros(len(p))
@@ -83,71 +67,66 @@ def tol(dtype):
     return TOL[np.dtype(dtype)]
 
 
+def scores_of(points, method, **params):
+    """The composition neighbourhoods -> score, as NumPy."""
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(points, method, **params), method, **params))
+
+
 # ---------------------------------------------------------------- scores vs naive
-@pytest.mark.parametrize("max_nn", [100, 3])
-def test_gfr_matches_naive(dtype, max_nn):
-    p = cloud(300, seed=1, scale=7.0)
-    want = gfr_naive(p, max_nn)
-    got = hgjax.scores.gfr(p.astype(dtype), max_nn=max_nn)
-    assert got.dtype == dtype
-    assert (want > 0).mean() > 0.5  # the radius graph is not trivial
-    np.testing.assert_allclose(got, want, rtol=tol(dtype), atol=tol(dtype) * want.max())
-
-
-def test_gfr_radius_override_matches_naive():
-    p = cloud(300, seed=16)
-    radius = 2 * hgjax.intrinsic_resolution(p)
-    want = gfr_naive(p, 100, radius)
-    assert (want > 0).mean() > 0.9
-    np.testing.assert_allclose(hgjax.scores.gfr(p, radius=radius), want, rtol=1e-10, atol=1e-10 * want.max())
-
-
-def test_gfr_duplicates_match_naive():
-    p = degenerate_clouds()["duplicates"]
-    want = gfr_naive(p)
-    np.testing.assert_allclose(hgjax.scores.gfr(p), want, rtol=1e-10, atol=1e-10 * want.max())
-
-
 @pytest.mark.parametrize("k", [16, 5])
 def test_ea_matches_naive(dtype, k):
     p = cloud(400, seed=2, scale=3.0)
     want = ea_naive(p, k)
-    got = hgjax.scores.ea(p.astype(dtype), k=k)
+    got = scores_of(p.astype(dtype), "ea", k=k)
     assert got.dtype == dtype
     np.testing.assert_allclose(got, want, rtol=tol(dtype), atol=tol(dtype) * want.max())
+
+
+def test_ea_with_duplicates_matches_naive_on_the_distinct_points():
+    p = degenerate_clouds()["duplicates"]  # 60 distinct points, 35 copies
+    want = ea_naive(p[:60], 16)
+    got = scores_of(p, "ea")  # dedupe=True by default: a copy scores as its first copy
+    np.testing.assert_allclose(got, np.concatenate([want, want[:30], want[:5]]), rtol=1e-10, atol=1e-14)
+    paper = scores_of(p, "ea", dedupe=False)
+    np.testing.assert_allclose(paper, ea_naive(p, 16), rtol=1e-10, atol=1e-14)
 
 
 def test_scores_follow_a_permutation():
     p = cloud(300, seed=3)
     perm = np.random.default_rng(0).permutation(len(p))
-    for score in (hgjax.scores.gfr, hgjax.scores.ea):
-        np.testing.assert_allclose(score(p[perm]), score(p)[perm], rtol=1e-12, atol=1e-14)
+    np.testing.assert_array_equal(scores_of(p[perm], "ea"), scores_of(p, "ea")[perm])
+    for method in ("ea", "pca_ac"):
+        a = hgjax.resample(p, 0.2, method=method)
+        assert set(perm[hgjax.resample(p[perm], 0.2, method=method)].tolist()) == set(a.tolist())
 
 
 def test_chunk_size(dtype):
     p = cloud(700, seed=15).astype(dtype)
-    np.testing.assert_array_equal(hgjax.scores.ea(p, chunk_size=128), hgjax.scores.ea(p))
-    base = hgjax.scores.gfr(p)
-    np.testing.assert_allclose(hgjax.scores.gfr(p, chunk_size=128), base, rtol=tol(dtype),
-                               atol=tol(dtype) * base.max())
+    nb = hgjax.neighbourhoods(p, "ea")
+    np.testing.assert_array_equal(hgjax.score(nb, "ea", chunk_size=128), hgjax.score(nb, "ea"))
 
 
 def test_scores_do_not_modify_input():
     p = cloud(200, seed=4)
     copy = p.copy()
-    hgjax.scores.gfr(p), hgjax.scores.ea(p), hgjax.scores.pca_ac(p)
+    for method in ("gfr", "ea", "pca_ac"):
+        hgjax.resample(p, 0.2, method=method, key=jax.random.key(0))
+        hgjax.soft_resample(p, 0.2, method=method)
     np.testing.assert_array_equal(p, copy)
 
 
 @pytest.mark.parametrize("name", sorted(degenerate_clouds()))
 def test_degenerate_clouds_give_finite_scores(name):
     p = degenerate_clouds()[name]
-    for values in (hgjax.scores.gfr(p), hgjax.scores.ea(p), hgjax.scores.pca_ac(p)[1]):
-        assert np.isfinite(values).all() and (values >= 0).all()
+    for method in ("gfr", "ea", "pca_ac"):
+        for values in (scores_of(p, method), np.asarray(hgjax.soft_score(hgjax.neighbourhoods(p, method), method))):
+            assert np.isfinite(values).all() and (values >= 0).all()
+    labels = hgjax.scores.pca_ac.ward_1d(scores_of(p, "pca_ac"), 2)
+    assert labels.shape == (len(p),) and set(labels.tolist()) <= {0, 1}
     if name == "all_equal":
-        assert not hgjax.scores.gfr(p).any() and not hgjax.scores.ea(p).any()
+        assert not scores_of(p, "gfr").any() and not scores_of(p, "ea").any()
     if name == "coplanar":
-        assert hgjax.scores.ea(p).max() < 1e-12
+        assert scores_of(p, "ea").max() < 1e-12
 
 
 # ---------------------------------------------------------------- PCA-AC
@@ -158,7 +137,7 @@ def test_ward_1d_matches_scipy(round_share, monkeypatch):
     for trial in range(30):
         v = rng.random(int(rng.integers(2, 150))) ** int(rng.integers(1, 4))
         k = int(rng.integers(1, min(len(v), 12) + 1))
-        ours = hgjax.scores.ward_1d(v, k)
+        ours = hgjax.scores.pca_ac.ward_1d(v, k)
         theirs = fcluster(linkage(v[:, None], method="ward"), k, criterion="maxclust")
         pairs = set(zip(ours.tolist(), theirs.tolist()))
         assert len(pairs) == len(set(ours.tolist())) == len(set(theirs.tolist())) == k, trial
@@ -171,8 +150,9 @@ def test_pca_ac_keeps_what_ea_keeps():
     a = hgjax.resample(p, 0.2, method="pca_ac", n_clusters=4)
     b = hgjax.resample(p, 0.2, method="ea")
     assert set(a.tolist()) == set(b.tolist())
-    labels, _ = hgjax.scores.pca_ac(p, n_clusters=4)
+    labels = hgjax.scores.pca_ac.ward_1d(scores_of(p, "pca_ac"), 4)
     assert np.all(np.diff(labels[a]) <= 0)  # highest cluster numbers first
+    np.testing.assert_array_equal(hgjax.scores.pca_ac.keep(scores_of(p, "ea"), 100, n_clusters=4), a)
 
 
 # ---------------------------------------------------------------- samplers
@@ -218,8 +198,13 @@ def test_same_key_same_output(method):
 def test_gfr_top_mode_keeps_largest_scores():
     p = cloud(300, seed=12)
     idx = hgjax.resample(p, 0.1, method="gfr", mode="top")
-    s = hgjax.scores.gfr(p)
+    s = scores_of(p, "gfr")
     assert s[idx].min() >= np.sort(s)[-len(idx)]
+    np.testing.assert_array_equal(hgjax.keep(s, 0.1, method="gfr", mode="top"), idx)
+    with pytest.raises(ValueError, match=r"key=jax\.random\.key\(0\)"):
+        hgjax.keep(s, 0.1, method="gfr")  # the default mode samples
+    keyed = hgjax.keep(s, 0.1, method="gfr", key=jax.random.key(3))
+    np.testing.assert_array_equal(keyed, hgjax.resample(p, 0.1, method="gfr", key=jax.random.key(3)))
 
 
 # ---------------------------------------------------------------- registry and errors
@@ -269,34 +254,13 @@ def test_bad_parameters():
     p = cloud(50)
     cases = [
         (lambda: hgjax.resample(p, 0.2, method="gfr", mode="best"), ValueError, "mode"),
-        (lambda: hgjax.scores.gfr(p, variant="invariant"), ValueError, "variant"),
-        (lambda: hgjax.scores.gfr(p, max_nn=0), ValueError, "max_nn"),
-        (lambda: hgjax.scores.gfr(p, radius=-1.0), ValueError, "radius"),
-        (lambda: hgjax.scores.ea(p, k=1), ValueError, "k"),
-        (lambda: hgjax.scores.ea(p, k=51), ValueError, "k=51"),
-        (lambda: hgjax.scores.pca_ac(p, n_clusters=0), ValueError, "n_clusters"),
+        (lambda: hgjax.neighbourhoods(p, "ea", k=1), ValueError, "k"),
+        (lambda: hgjax.neighbourhoods(p, "ea", k=51), ValueError, "k=51"),
+        (lambda: hgjax.resample(p, 0.2, method="pca_ac", n_clusters=0), ValueError, "n_clusters"),
+        (lambda: hgjax.resample(p, 0.2, method="ea", n_clusters=2), TypeError, "n_clusters"),
         (lambda: hgjax.farthest_point_sample(p, 0.2, start=50), ValueError, "start"),
         (lambda: hgjax.resample(p, 0.2, method="voxel", size=1.0), TypeError, "size"),
     ]
     for call, error, match in cases:
         with pytest.raises(error, match=match):
             call()
-
-
-def test_ball_matches_brute_force():
-    p = np.concatenate([cloud(200, seed=14), cloud(10, seed=14)])  # 10 exact duplicates
-    index = hgjax.neighbourhoods.SpatialIndex(p)
-    dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
-    radius = float(np.sort(dist, axis=1)[:, 6].mean())
-    for max_nn in (100, 4):
-        idx, d = index.ball(radius, max_nn=max_nn, capacity=2)
-        for i in range(len(p)):
-            inside = np.flatnonzero((dist[i] > 0) & (dist[i] <= radius))
-            want = inside[np.argsort(dist[i, inside], kind="stable")][:max_nn]
-            got = idx[i][idx[i] < len(p)]
-            if len(inside) <= max_nn:
-                np.testing.assert_array_equal(np.sort(got), np.sort(want))
-            else:  # truncated: the nearest kept (exact duplicates tie in the tree's order)
-                np.testing.assert_allclose(dist[i, got], dist[i, want], rtol=1e-12)
-            np.testing.assert_allclose(d[i][: len(got)], dist[i, got], rtol=1e-12)
-            assert np.all(np.diff(d[i][: len(got)]) >= 0) and np.isinf(d[i][len(got):]).all()

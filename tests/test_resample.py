@@ -9,12 +9,20 @@ import hgjax
 from hgjax import _validate
 
 HGSP = ["hkc", "hkf", "lhf"]
+
+
+def scores_of(points, method, **params):
+    """The composition neighbourhoods -> score, as NumPy."""
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(points, method, **params), method, **params))
+
+
 SCORES = {
-    "hkc": lambda p, **kw: hgjax.scores.hkc(p, **kw),
-    "hkf": lambda p, **kw: hgjax.scores.hkf(p, **kw),
-    "hkf_reference": lambda p, **kw: hgjax.scores.hkf(p, variant="reference", **kw),
-    "lhf": lambda p, **kw: hgjax.scores.lhf(p, ratio=0.2, **kw),
-    "lhf_reference": lambda p, **kw: hgjax.scores.lhf(p, ratio=0.2, variant="reference", **kw),
+    "hkc": lambda p, **kw: scores_of(p, "hkc", **kw),
+    "hkc_reference": lambda p, **kw: scores_of(p, "hkc", variant="reference", **kw),
+    "hkf": lambda p, **kw: scores_of(p, "hkf", **kw),
+    "hkf_reference": lambda p, **kw: scores_of(p, "hkf", variant="reference", **kw),
+    "lhf": lambda p, **kw: scores_of(p, "lhf", ratio=0.2, **kw),
+    "lhf_reference": lambda p, **kw: scores_of(p, "lhf", ratio=0.2, variant="reference", **kw),
 }
 
 
@@ -36,7 +44,7 @@ def test_resample_count_unique_in_range(method, ratio):
 def test_resample_orders_by_priority(method, largest):
     p = cloud()
     params = {"ratio": 0.25} if method == "lhf" else {}
-    s = getattr(hgjax.scores, method)(p, **params)
+    s = scores_of(p, method, **params)
     idx = hgjax.resample(p, 0.25, method=method)
     kept = s[idx]
     assert np.all(np.diff(kept) <= 0) if largest else np.all(np.diff(kept) >= 0)
@@ -60,8 +68,57 @@ def test_n_keep_is_ceil_without_float_surprises():
 
 def test_methods_registry_and_unknown_method():
     assert {"hkc", "hkf", "lhf"} <= set(hgjax.METHODS)
+    for name, entry in hgjax.METHODS.items():
+        assert isinstance(entry, hgjax.Method) and entry.name == name
+        assert (entry.kind is None) == (entry.score is None) == (entry.largest is None)
+    assert [hgjax.METHODS[m].largest for m in HGSP] == [False, False, True]
     with pytest.raises(ValueError, match=r"unknown method 'nope'; expected one of \["):
         hgjax.resample(cloud(), 0.2, method="nope")
+    with pytest.raises(ValueError, match="sampler without scores"):
+        hgjax.neighbourhoods(cloud(), "fps")
+    with pytest.raises(TypeError, match=r"unexpected parameter\(s\) \['foo'\]"):
+        hgjax.resample(cloud(), 0.2, method="hkc", foo=1)
+
+
+@pytest.mark.parametrize("method", HGSP)
+def test_resample_is_keep_of_score_of_neighbourhoods(method):
+    p = cloud(seed=3)
+    params = {"ratio": 0.2} if method == "lhf" else {}
+    nb = hgjax.neighbourhoods(p, method, **params)
+    assert nb.idx.dtype == np.int32 and nb.points.shape == (400, 3)
+    s = hgjax.score(nb, method, **params)
+    np.testing.assert_array_equal(hgjax.keep(s, 0.2, method=method), hgjax.resample(p, 0.2, method=method))
+    np.testing.assert_array_equal(hgjax.top_k(np.asarray(s), 80, largest=hgjax.METHODS[method].largest),
+                                  hgjax.keep(s, 0.2, method=method))
+
+
+@pytest.mark.parametrize("method", HGSP)
+def test_score_is_the_same_under_jit_and_vmap(method):
+    clouds = [cloud(300, seed=s) for s in range(2)]
+    params = {"ratio": 0.2} if method == "lhf" else {}
+    nbs = [hgjax.neighbourhoods(c, method, capacity=256 if method != "lhf" else None, **params) for c in clouds]
+    eager = [np.asarray(hgjax.score(nb, method, **params)) for nb in nbs]
+    jitted = jax.jit(lambda nb, **kw: hgjax.score(nb, method, **kw))
+    for nb, want in zip(nbs, eager):
+        np.testing.assert_allclose(np.asarray(jitted(nb, **params)), want, rtol=1e-12)
+    batch = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *nbs)
+    batched = jax.vmap(lambda nb: hgjax.score(nb, method, **params))(batch)
+    np.testing.assert_allclose(np.asarray(batched), np.stack(eager), rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(SCORES))
+def test_scores_follow_a_permutation_of_the_input(name):
+    p = cloud(300, seed=4)
+    perm = np.random.default_rng(5).permutation(len(p))
+    np.testing.assert_array_equal(SCORES[name](p[perm]), SCORES[name](p)[perm])
+
+
+@pytest.mark.parametrize("method", HGSP)
+def test_resample_does_not_depend_on_input_order(method):
+    p = cloud(300, seed=6)
+    perm = np.random.default_rng(7).permutation(len(p))
+    a, b = hgjax.resample(p, 0.2, method=method), hgjax.resample(p[perm], 0.2, method=method)
+    assert set(perm[b].tolist()) == set(a.tolist())
 
 
 @pytest.mark.parametrize(
@@ -93,29 +150,35 @@ def test_bad_ratio_type_and_parameters():
     with pytest.raises(TypeError, match="ratio must be a number"):
         hgjax.resample(cloud(), "0.2")
     with pytest.raises(ValueError, match="unknown variant 'paper'"):
-        hgjax.scores.hkc(cloud(), variant="paper")
+        hgjax.resample(cloud(), 0.2, method="hkc", variant="paper")
     with pytest.raises(ValueError, match="kernel_size must be odd"):
-        hgjax.scores.hkc(cloud(), kernel_size=4)
+        hgjax.neighbourhoods(cloud(), "hkc", kernel_size=4)
+    with pytest.raises(ValueError, match="kernel_size must be odd"):
+        hgjax.score(hgjax.neighbourhoods(cloud(), "hkc"), "hkc", kernel_size=4)
     with pytest.raises(ValueError, match="d_factor must be a finite number > 0"):
-        hgjax.scores.hkf(cloud(), d_factor=-1)
+        hgjax.neighbourhoods(cloud(), "hkf", d_factor=-1)
     with pytest.raises(ValueError, match="lengths must be a pair"):
-        hgjax.scores.lhf(cloud(), ratio=0.2, lengths=(4,))
+        hgjax.resample(cloud(), 0.2, method="lhf", lengths=(4,))
     with pytest.raises(ValueError, match=r"lengths\[0\] must be >= 3"):
-        hgjax.scores.lhf(cloud(), ratio=0.2, lengths=(2, 8))
+        hgjax.neighbourhoods(cloud(), "lhf", lengths=(2, 8))
     with pytest.raises(ValueError, match="unknown solver"):
-        hgjax.scores.lhf_single(cloud(), 8, solver="svd")
+        hgjax.scores.lhf.single(hgjax.neighbourhoods(cloud(), "lhf"), lengths=(8,), solver="svd")
+    with pytest.raises(ValueError, match="needs nb.scale"):
+        hgjax.score(hgjax.knn(cloud(), 8), "hkc")
+    with pytest.raises(ValueError, match="8 columns, too few for LHF with length 12"):
+        hgjax.score(hgjax.knn(cloud(), 8), "lhf", ratio=0.2)
 
 
 def test_too_few_points_for_the_neighbourhood():
-    with pytest.raises(ValueError, match="points has 5 point.*LHF with length 12.*at least 12"):
+    with pytest.raises(ValueError, match="points has 5 point.*k=12 nearest neighbours.*at least 12"):
         hgjax.resample(cloud(5), 0.2, method="lhf")
     with pytest.raises(ValueError, match="too few for HKC"):
-        hgjax.scores.hkc(cloud(1))
+        hgjax.neighbourhoods(cloud(1), "hkc")
 
 
 def test_checks_fire_for_jax_arrays_and_under_a_caller_jit_boundary():
     with pytest.raises(ValueError, match="NaN or inf"):
-        hgjax.scores.hkc(jnp.full((10, 3), jnp.nan))
+        hgjax.neighbourhoods(jnp.full((10, 3), jnp.nan), "hkc")
     idx = hgjax.resample(jnp.asarray(cloud()), 0.2)
     np.testing.assert_array_equal(idx, hgjax.resample(cloud(), 0.2))
 
@@ -145,8 +208,11 @@ def test_degenerate_clouds_give_no_nan(cloud_name, name, dtype):
 
 def test_all_equal_points_documented_values():
     p = np.ones((30, 3))
-    assert np.isinf(hgjax.scores.hkc(p)).all()  # only the centre voxel: low band is 0
-    np.testing.assert_array_equal(hgjax.scores.lhf_single(p, 8), 0.0)
+    assert np.isinf(scores_of(p, "hkc")).all()  # only the centre voxel: low band is 0
+    assert np.isinf(scores_of(p, "hkc", variant="reference")).all()
+    for variant in ("invariant", "reference"):
+        nb = hgjax.neighbourhoods(p, "lhf", variant=variant)
+        np.testing.assert_array_equal(hgjax.scores.lhf.single(nb, lengths=(8,), variant=variant), 0.0)
     idx = hgjax.resample(p, 0.2, method="lhf")
     np.testing.assert_array_equal(idx, np.arange(6))  # all tied: stable by index
 
@@ -162,11 +228,15 @@ def test_input_never_modified_and_readonly_input_accepted():
     np.testing.assert_array_equal(q, copy)
 
 
-def test_float64_without_x64_warns_and_keeps_dtype():
+def test_float64_without_x64_warns_and_computes_in_float32():
     jax.config.update("jax_enable_x64", False)
     try:
-        with pytest.warns(hgjax._stream.PrecisionWarning, match="computed in float32"):
-            s = hgjax.scores.hkc(cloud(100))
-        assert s.dtype == np.float64
+        with pytest.warns(hgjax.PrecisionWarning, match="computed in float32"):
+            nb = hgjax.neighbourhoods(cloud(100), "hkc")
+        assert nb.points.dtype == np.float32 and nb.scale.dtype == np.float32
+        assert hgjax.score(nb, "hkc").dtype == np.float32
+        with pytest.warns(hgjax.PrecisionWarning):
+            idx = hgjax.resample(cloud(100), 0.2, method="hkc")
+        assert len(np.unique(idx)) == 20
     finally:
         jax.config.update("jax_enable_x64", True)

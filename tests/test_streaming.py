@@ -1,57 +1,118 @@
-"""Streaming: one compilation for all chunks, chunk size never changes results."""
+"""Streaming: one compilation for all chunks and all cloud sizes, chunk size never changes results."""
 
-import importlib
+import contextlib
 
+import jax
 import numpy as np
 import pytest
 
 import hgjax
+from hgjax import _stream
+from hgjax.scores import ea, hkc, hkf, lhf
 
-
-hkc_module = importlib.import_module("hgjax.scores.hkc")  # the module, not the function
-lhf_module = importlib.import_module("hgjax.scores.lhf")
+SCORING = sorted(m for m, entry in hgjax.METHODS.items() if entry.kind is not None)
+# (method, params) pairs covering every streamed kernel and variant
+VARIANTS = [("hkc", {}), ("hkc", {"variant": "reference"}), ("hkf", {}), ("hkf", {"variant": "reference"}),
+            ("lhf", {"ratio": 0.2}), ("lhf", {"ratio": 0.2, "variant": "reference"}),
+            ("lhf", {"ratio": 0.2, "solver": "eigh"}), ("ea", {}), ("pca_ac", {})]
 
 
 def box_cloud(n, seed=0):
     return hgjax.eval.box_surface(n, seed=seed)
 
 
-@pytest.mark.parametrize("method", sorted(set(hgjax.METHODS) - {"uniform", "voxel", "fps"}))
-def test_every_chunked_method_is_chunk_invariant(method):
-    import jax
+@contextlib.contextmanager
+def backend_compiles():
+    """Counts XLA backend compilations inside the block (jax.monitoring event listener)."""
+    events = []
 
+    def listener(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            events.append(kwargs.get("fun_name", event))
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield events
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+
+
+@pytest.mark.parametrize("method", SCORING)
+def test_every_scoring_method_is_chunk_invariant_through_resample(method):
     p = box_cloud(3000, seed=1)
     key = jax.random.key(0)
     base = hgjax.resample(p, 0.2, method=method, key=key)
-    np.testing.assert_array_equal(hgjax.resample(p, 0.2, method=method, key=key, chunk_size=256), base)
+    for chunk in (256, 2500):  # 3 chunks of one block, 1 padded chunk of 3 blocks
+        np.testing.assert_array_equal(hgjax.resample(p, 0.2, method=method, key=key, chunk_size=chunk), base)
 
 
-def test_large_streaming_run_with_small_chunks():
+@pytest.mark.parametrize("method, params", VARIANTS, ids=[f"{m}-{'-'.join(map(str, p.values()))}" for m, p in VARIANTS])
+def test_scores_are_bitwise_chunk_invariant(method, params):
+    p = box_cloud(3000, seed=2)
+    nb = hgjax.neighbourhoods(p, method, **params)
+    base = np.asarray(hgjax.score(nb, method, **params))
+    for chunk in (1, 1024, 1025, 10_000):
+        np.testing.assert_array_equal(np.asarray(hgjax.score(nb, method, chunk_size=chunk, **params)), base)
+    # the traced path (inside a caller's jit) computes every row with the same block
+    traced = jax.jit(lambda nb: hgjax.score(nb, method, **params))(nb)
+    np.testing.assert_array_equal(np.asarray(traced), base)
+
+
+def test_chunk_rows_is_fixed_and_independent_of_n():
+    unit = _stream.BLOCK * len(jax.devices())
+    assert _stream.chunk_rows() == _stream.CHUNK_BLOCKS * unit
+    assert _stream.chunk_rows(1) == unit and _stream.chunk_rows(unit + 1) == 2 * unit
+
+
+def test_large_float32_streaming_run_with_small_chunks():
     p = box_cloud(100_000, seed=2).astype(np.float32)
-    small = hgjax.scores.lhf(p, ratio=0.2, chunk_size=4096)  # 25 chunks, last one padded
-    np.testing.assert_array_equal(small, hgjax.scores.lhf(p, ratio=0.2))
+    nb = hgjax.neighbourhoods(p, "lhf")
+    assert nb.points.dtype == np.float32
+    small = np.asarray(hgjax.score(nb, "lhf", ratio=0.2, chunk_size=4096))  # 25 chunks, the last one padded
+    np.testing.assert_array_equal(small, np.asarray(hgjax.score(nb, "lhf", ratio=0.2)))
     assert small.dtype == np.float32 and np.isfinite(small).all()
+    idx = hgjax.keep(small, 0.2, method="lhf")
+    assert len(np.unique(idx)) == 20_000
 
 
-def test_compiled_once_for_all_chunks_and_parameter_sweeps():
-    kernel = hkc_module._chunk_kernel(3)
-    p = box_cloud(5000, seed=3)
-    hgjax.scores.hkc(p, chunk_size=1024)
-    before = kernel._cache_size()
-    hgjax.scores.hkc(box_cloud(5000, seed=4), chunk_size=1024)  # same shapes, other data
-    hgjax.scores.hkc(p, chunk_size=1024, d_factor=1.6)  # float parameters are traced
-    assert kernel._cache_size() == before
-    lk = lhf_module._chunk_kernel(lhf_module.DEFAULT_LENGTHS, "invariant", "gram")
-    hgjax.scores.lhf(p, ratio=0.2, chunk_size=1024)
-    n_lhf = lk._cache_size()
-    hgjax.scores.lhf(p, ratio=0.3, chunk_size=1024)
-    assert lk._cache_size() == n_lhf
+def test_one_compilation_for_all_chunks_and_cloud_sizes():
+    kernels = [(hkc._kernel(3), 1, "hkc", {}), (hkf._kernel(3, "invariant"), 1, "hkf", {}),
+               (lhf._kernel(lhf.DEFAULT_LENGTHS, "invariant", "gram"), 0, "lhf", {"ratio": 0.2}),
+               (ea.variation, 0, "ea", {})]
+    for fn, n_row_args, method, params in kernels:
+        kernel = _stream._jitted(fn, n_row_args)
+        # a fixed capacity: the same K for every cloud (the HKC/HKF cube never holds 256 points)
+        first = hgjax.neighbourhoods(box_cloud(5000, seed=3), method, capacity=256, **params)
+        hgjax.score(first, method, **params)
+        compiled = kernel._cache_size()
+        assert compiled >= 1
+        with backend_compiles() as events:
+            for n, seed in ((5000, 4), (3000, 5), (20_000, 6)):  # other data, other sizes, more chunks
+                nb = hgjax.neighbourhoods(box_cloud(n, seed=seed), method, capacity=256, **params)
+                hgjax.score(nb, method, chunk_size=4096, **params)
+                hgjax.score(nb, method, **params)
+        assert kernel._cache_size() == compiled, method
+        assert events == [], (method, events)
 
 
-def test_gfr_scores_are_bitwise_chunk_invariant():
-    p = box_cloud(4000, seed=5)
-    radius = 2.5 * hgjax.intrinsic_resolution(p)  # a well-connected graph with capped rows
-    base = hgjax.scores.gfr(p, radius=radius, max_nn=12)
-    assert (base > 0).mean() > 0.9
-    for chunk in (256, 1000):
-        np.testing.assert_array_equal(hgjax.scores.gfr(p, radius=radius, max_nn=12, chunk_size=chunk), base)
+def test_float_parameter_sweeps_do_not_recompile():
+    nb = hgjax.neighbourhoods(box_cloud(2000, seed=7), "lhf")
+    score = jax.jit(lambda nb, ratio: hgjax.score(nb, "lhf", ratio=ratio))
+    weights = jax.jit(lambda nb, ratio, temperature, tau: hgjax.soft_weights(
+        nb, ratio, method="lhf", temperature=temperature, tau=tau))
+    score(nb, 0.1), weights(nb, 0.1, 0.05, 0.1)
+    with backend_compiles() as events:
+        for ratio in (0.2, 0.3, 0.5):
+            score(nb, ratio)
+            weights(nb, ratio, ratio / 4, ratio / 2)
+    assert events == []
+    assert score._cache_size() == 1 and weights._cache_size() == 1
+    # HKC's d_factor changes the neighbourhoods (host), never the compiled kernel
+    kernel = _stream._jitted(hkc._kernel(3), 1)
+    p = box_cloud(2000, seed=8)
+    hgjax.score(hgjax.neighbourhoods(p, "hkc", capacity=256), "hkc")
+    compiled = kernel._cache_size()
+    with backend_compiles() as events:
+        for d_factor in (1.6, 2.0):
+            hgjax.score(hgjax.neighbourhoods(p, "hkc", d_factor=d_factor, capacity=256), "hkc")
+    assert kernel._cache_size() == compiled and events == []
