@@ -334,13 +334,7 @@ def gamma(offsets, valid, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant"
         fn = _reference
     else:
         fn = _invariant_gram if solver == "gram" else _invariant_eigh
-    out = []
-    for n in lengths:
-        # Serialise the lengths: two batched LAPACK eigh calls running concurrently inside one
-        # XLA CPU program can deadlock in jaxlib's thread pool.
-        signal = jax.lax.optimization_barrier((signal, out))[0] if out else signal
-        out.append(fn(signal[:n]))
-    return jnp.stack(out)
+    return jnp.stack([fn(signal[:n]) for n in lengths])
 
 
 def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
@@ -500,8 +494,15 @@ def single(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: s
     variant = _common.check_variant(variant)
     solver = _validate.check_choice(solver, "solver", SOLVERS)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
-    out = _stream.map_neighbourhoods(_kernel(lengths, variant, solver), nb, chunk_size=chunk_size,
-                                     progress=progress)
+    if variant == "reference" or solver == "eigh":
+        # One length per compiled kernel: two batched LAPACK eigh calls in one XLA CPU program
+        # can deadlock in jaxlib 0.10's thread pool (bench/eigh_deadlock.py).
+        parts = [_stream.map_neighbourhoods(_kernel((n,), variant, solver), nb, chunk_size=chunk_size,
+                                            progress=progress) for n in lengths]
+        out = jnp.concatenate(parts, axis=1) if _stream.is_traced(nb) else np.concatenate(parts, axis=1)
+    else:
+        out = _stream.map_neighbourhoods(_kernel(lengths, variant, solver), nb, chunk_size=chunk_size,
+                                         progress=progress)
     return out if _stream.is_traced(nb) else np.asarray(out)
 
 
