@@ -2,8 +2,11 @@
 HKF, LHF and EA, written to bench/results/fig_<name>.png.
 
 Run from the repository root: ``PYTHONPATH=. python bench/figures.py`` (needs the ``plot`` extra).
+A quick check that writes elsewhere:
+``PYTHONPATH=. python bench/figures.py --shapes fandisk --samples 2000 --out /tmp/figs``.
 """
 
+import argparse
 import pathlib
 import sys
 
@@ -27,19 +30,25 @@ METHODS = ("hkc", "hkf", "lhf", "ea")
 SAMPLES, RATIO, SEED = 12000, 0.15, 0
 
 
-def main() -> int:
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=list(SHAPES))
+    parser.add_argument("--samples", type=int, default=SAMPLES)
+    parser.add_argument("--out", type=pathlib.Path, default=OUT)
+    args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    OUT.mkdir(parents=True, exist_ok=True)
-    for name, (file, view) in SHAPES.items():
-        data = read_points(MESHES / file, samples=SAMPLES, seed=SEED)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name in args.shapes:
+        file, view = SHAPES[name]
+        data = read_points(MESHES / file, samples=args.samples, seed=SEED)
         pts = data.points
         if name in ("bunny", "chair"):  # these meshes are y-up; show them z-up
             pts = pts[:, [0, 2, 1]] * np.array([1.0, -1.0, 1.0])
         kept = {m: hgjax.resample(pts, RATIO, method=m, key=jax.random.key(SEED)) for m in METHODS}
-        path = OUT / f"fig_{name}.png"
+        path = args.out / f"fig_{name}.png"
         show_resampling(pts, kept, view=view, path=path, panel_size=3.2,
-                        title=f"{file}: {SAMPLES} surface samples, {RATIO:.0%} kept")
-        print(f"wrote {path.relative_to(ROOT)}", file=sys.stderr)
+                        title=f"{file}: {args.samples} surface samples, {RATIO:.0%} kept")
+        print(f"wrote {path}", file=sys.stderr)
     return 0
 
 

@@ -1,17 +1,18 @@
 """Cost of gradients through soft resampling: forward vs forward + gradient, per smooth score.
 
-For each smooth score of :mod:`hgjax.soft` and each size N, on an edge-labelled box-union
+For each smooth score (``hgjax.soft_score``) and each size N, on an edge-labelled box-union
 cloud (:func:`hgjax.eval.box_union_cloud`, noise 0.1 resolution), the host neighbourhoods
-are built once, then two jitted functions of the points are timed after compilation
-(median of ``--repeats`` runs):
+are built once (``hgjax.neighbourhoods``), then two jitted functions of the points are timed
+after compilation (median of ``--repeats`` runs):
 
-* forward: ``soft_weights(points, idx, ratio)`` (smooth score + soft top-k), (N,) weights;
+* forward: ``soft_weights(nb, ratio, method=...)`` (smooth score + soft top-k), (N,) weights;
 * forward + gradient: ``jax.value_and_grad`` of sum(c * weights) with respect to the points
-  and the float parameters (temperature, tau, d).
+  (``nb.points``), the voxel spacing ``nb.scale`` where the method has one, and the float
+  parameters (temperature, tau where the method has it).
 
 Usage (writes bench/results/soft_cost.md):
 
-    python bench/soft_cost.py [--sizes 10000 100000] [--repeats 5] [--dtype float32]
+    python bench/soft_cost.py [--sizes 10000 100000] [--repeats 5] [--dtype float32] [--methods hkc ea]
 """
 
 from __future__ import annotations
@@ -49,20 +50,24 @@ def run(method, n, repeats, dtype):
     cloud = hgjax.eval.box_union_cloud(seed=0, n_points=n, noise=0.1)
     pts = cloud.points.astype(dtype)
     t = time.perf_counter()
-    idx, d = hgjax.soft_neighbourhoods(pts, method=method)
+    nb = hgjax.neighbourhoods(pts, method)
     host = time.perf_counter() - t
     c = jnp.asarray(np.random.default_rng(0).random(n), dtype)
+    has_tau = "tau" in hgjax.METHODS[method].params["soft_score"]
 
-    def weights(p, temperature, tau, d):
-        return hgjax.soft_weights(p, idx, RATIO, method=method, temperature=temperature, tau=tau, d=d)
+    def weights(p, scale, temperature, tau):
+        params = {"tau": tau} if has_tau else {}
+        return hgjax.soft_weights(hgjax.Neighbourhoods(p, nb.idx, scale), RATIO, method=method,
+                                  temperature=temperature, **params)
 
-    def loss(p, temperature, tau, d):
-        return jnp.sum(c * weights(p, temperature, tau, d))
+    def loss(p, scale, temperature, tau):
+        return jnp.sum(c * weights(p, scale, temperature, tau))
 
-    args = (jnp.asarray(pts), dtype(0.05), dtype(0.1), d)
+    args = (jnp.asarray(nb.points), None if nb.scale is None else jnp.asarray(nb.scale), dtype(0.05), dtype(0.1))
+    argnums = (0, 1, 2, 3) if nb.scale is not None else (0, 2, 3)
     fwd = median_time(jax.jit(weights), args, repeats)
-    grad = median_time(jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3))), args, repeats)
-    return host, fwd, grad, idx.shape[1]
+    grad = median_time(jax.jit(jax.value_and_grad(loss, argnums=argnums)), args, repeats)
+    return host, fwd, grad, nb.idx.shape[1]
 
 
 def main():
@@ -70,6 +75,7 @@ def main():
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float32")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=sorted(hgjax.METHODS))
     parser.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                                       "soft_cost.md"))
     a = parser.parse_args()
@@ -78,7 +84,7 @@ def main():
     dtype = np.dtype(a.dtype).type
     rows = []
     for n in a.sizes:
-        for method in METHODS:
+        for method in a.methods:
             host, fwd, grad, k = run(method, n, a.repeats, dtype)
             rows.append(f"| {method} | {n:,} | {k} | {host:.3f} | {fwd:.3f} | {grad:.3f} | {grad / fwd:.1f} |")
             print(rows[-1], flush=True)
@@ -93,7 +99,7 @@ def main():
         f"box-union clouds (seed 0, noise 0.1 resolution). Seconds, median of {a.repeats} runs after "
         "compilation. `host` = building the neighbourhoods once (SciPy, not differentiated); "
         "`forward` = jitted `soft_weights` (smooth score + soft top-k); `fwd+grad` = jitted "
-        "`value_and_grad` of sum(c * weights) with respect to the points, temperature, tau and d.",
+        "`value_and_grad` of sum(c * weights) with respect to the points, the voxel spacing d (HKC), temperature and tau.",
         "",
         "| score | N | K | host (s) | forward (s) | fwd+grad (s) | ratio |",
         "|---|---:|---:|---:|---:|---:|---:|",

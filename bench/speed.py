@@ -57,31 +57,13 @@ def _run_method(method: str, pts):
 
 
 def _build(method: str, pts):
-    """The host neighbourhood build that ``method`` performs (index + query)."""
-    from hgjax.neighbourhoods import SpatialIndex, _resolution
+    """The host neighbourhood build that ``method`` performs: ``hgjax.neighbourhoods``."""
+    import hgjax
 
-    from hgjax.scores import voxel
-    from hgjax.scores.lhf import DEFAULT_LENGTHS
-
-    from hgjax import _stream
-
-    index = SpatialIndex(pts)
     method, _, variant = method.partition(":")
-    chunks = index.chunks(_stream.auto_chunk_size(index.n, 32 * 27 * 8))  # streamed, as the methods query
-    if method in ("hkc", "hkf"):  # the cube of half-width 1.5 d with the variant's default d
-        half = 1.5 * voxel.d_factor_or_default(None, variant or "invariant") * _resolution(index)
-        for rows in chunks:
-            index.cube(half, rows)
-    elif method == "gfr":
-        import importlib
-
-        gfr = importlib.import_module("hgjax.scores.gfr")
-        chunk = 2**15
-        gfr._graph(index, gfr._radius(index, chunk), gfr.MAX_NN, chunk)
-    elif method in ("lhf", "ea", "pca_ac"):
-        k = max(DEFAULT_LENGTHS) if method == "lhf" else 16
-        for rows in chunks:
-            index.knn(k, rows)
+    if hgjax.METHODS[method].kind is None:
+        return None  # samplers work on the points directly: no build
+    return hgjax.neighbourhoods(pts, method, **({"variant": variant} if variant else {}))
 
 
 def worker(kind: str, n: int, repeats: int) -> dict:
