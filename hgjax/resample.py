@@ -110,16 +110,6 @@ def _gfr_select(scores, m, *, key=None, mode="random"):
     return weighted_sample(key, pi, m)
 
 
-def _gfr_build(points, *, variant="invariant", radius_factor=None, max_nn=gfr.MAX_NN):
-    pts = _validate.check_points(points)
-    idx = gfr.graph(pts, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
-    return spatial.Neighbourhoods(spatial.local_frame(pts)[0].astype(spatial.working_dtype(pts.dtype)), idx)
-
-
-def _gfr_score(nb, *, variant="invariant"):
-    return gfr.high_pass(nb.points, nb.idx, weights_dtype="float32" if variant == "reference" else None)
-
-
 def _pca_ac_select(scores, m, *, key=None, n_clusters=pca_ac.DEFAULT_N_CLUSTERS):
     del key  # deterministic
     return pca_ac.keep(scores, m, n_clusters=n_clusters)
@@ -140,8 +130,8 @@ METHODS: dict[str, Method] = {m.name: m for m in (
             f"{PAPER}, Alg. 3, Eqs. (14)-(16)", lhf.neighbourhoods, lhf.score, lhf.soft_score, _top(True)),
     _method("gfr", "graph", True, True,
             'graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
-            "Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", _gfr_build, _gfr_score,
-            _gfr_score, _gfr_select),
+            "Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", gfr.neighbourhoods, gfr.score,
+            gfr.soft_score, _gfr_select),
     _method("ea", "knn", True, False,
             "eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)", DICTA,
             ea.neighbourhoods, ea.score, ea.soft_score, _top(True)),

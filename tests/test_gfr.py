@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+import hgjax
+
 from conftest import TOL
 from hgjax.scores import gfr as gfr_module
 from naive import gfr_naive, gfr_pairs
@@ -220,24 +222,26 @@ def test_float32_matches_float64():
     np.testing.assert_allclose(got, want, rtol=TOL[np.dtype(np.float32)], atol=TOL[np.dtype(np.float32)] * want.max())
 
 
+def _public(p, **params):
+    """The public path: hgjax.score on hgjax.neighbourhoods (eager: streamed chunks)."""
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(p, "gfr", **params), "gfr", **params))
+
+
 def test_float64_points_without_x64_are_computed_in_float32():
     p = box_surface(300, 12)
-    jax.config.update("jax_enable_x64", False)
-    try:
-        s = gfr_module.gfr(p)
-    finally:
-        jax.config.update("jax_enable_x64", True)
-    assert s.dtype == np.float64
-    np.testing.assert_allclose(s, gfr_module.gfr(p), rtol=1e-3, atol=1e-3 * s.max())
+    with jax.enable_x64(False), pytest.warns(hgjax.PrecisionWarning):
+        s = _public(p)
+    assert s.dtype == np.float32
+    np.testing.assert_allclose(s, _public(p), rtol=1e-3, atol=1e-3 * s.max())
 
 
 # ------------------------------------------------------------------ host wrapper, arguments
-def test_gfr_is_graph_plus_high_pass_and_keeps_inputs():
+def test_public_path_is_graph_plus_high_pass_and_keeps_inputs():
     p = box_surface(400, 13)
     p.flags.writeable = False
     for variant, rtol in (("invariant", 1e-12), ("reference", 1e-6)):  # jit may round float32 weights otherwise
         want = scores(p, variant)
-        np.testing.assert_allclose(gfr_module.gfr(p, variant=variant), want, rtol=rtol, atol=rtol * want.max())
+        np.testing.assert_allclose(_public(p, variant=variant), want, rtol=rtol, atol=rtol * want.max())
     np.testing.assert_array_equal(graph(p), graph(p))
 
 
@@ -254,7 +258,7 @@ def test_argument_errors():
         (lambda: high_pass(p[:, :2], idx), ValueError, "points"),
         (lambda: high_pass(p, idx.astype(np.float64)), TypeError, "idx"),
         (lambda: high_pass(p, idx, weights_dtype=np.int32), TypeError, "weights_dtype"),
-        (lambda: gfr_module.gfr(p.astype(np.int64)), TypeError, "points"),
+        (lambda: gfr_module.neighbourhoods(p.astype(np.int64)), TypeError, "points"),
     ]
     for call, error, name in cases:
         with pytest.raises(error, match=name):

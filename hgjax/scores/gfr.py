@@ -37,15 +37,17 @@ the same length) every weight is exp(-inf) = 0, the limit of the formula, and ev
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hgjax import _validate
+from hgjax import _stream, _validate, spatial
 from hgjax.scores import _common
 
-__all__ = ["gfr", "graph", "high_pass"]
+__all__ = ["graph", "high_pass", "neighbourhoods", "score", "soft_score"]
 
 GFR_VARIANTS = ("invariant", "reference")
 MAX_NN = 100
@@ -266,57 +268,145 @@ def high_pass(points, idx, *, weights_dtype=None) -> jax.Array:
       [1.0279, 0.0042, 1.0321]
     """
     _check_graph(points, idx, weights_dtype)
-    points = jnp.asarray(points)
-    dtype = points.dtype
-    wdtype = dtype if weights_dtype is None else jnp.dtype(weights_dtype)
-    acc = jnp.promote_types(dtype, wdtype)
-    n = points.shape[0]
-    valid = idx < n
-    ext = jnp.concatenate([points, jnp.zeros((1, 3), dtype)])
-    dw = ext.astype(wdtype)[:n, None, :] - ext.astype(wdtype)[idx]  # (N, K, 3)
-    q = jnp.where(valid, dw[..., 0] * dw[..., 0] + dw[..., 1] * dw[..., 1] + dw[..., 2] * dw[..., 2], 0)
+    points, idx = jnp.asarray(points), jnp.asarray(idx)
+    wdtype = points.dtype if weights_dtype is None else jnp.dtype(weights_dtype)
+    offsets, valid = _stream.offsets_of(points, idx)  # (N, K, 3) p_j - p_i
+    # q from the points cast to wdtype first, as the authors' float32 code computes it.
+    q = jax.vmap(_sq_length)(*_stream.offsets_of(points.astype(wdtype), idx))
+    acc = jnp.promote_types(points.dtype, wdtype)
     count = jnp.sum(valid).astype(acc)
-    z = _common.safe_div(q.astype(acc), _common.safe_div(jnp.sum(q.astype(acc)), count, 0.0), 0.0)
-    z = jnp.where(valid, z, 0)
+    mean_q = _common.safe_div(jnp.sum(q.astype(acc)), count, 0.0)
+    z = _common.safe_div(q.astype(acc), mean_q, 0.0)
     mean_z = _common.safe_div(jnp.sum(z), count, 0.0)
-    var_z = _common.safe_div(jnp.sum(jnp.where(valid, (z - mean_z) ** 2, 0)), count, 0.0)
-    w = jnp.where(valid, _edge_weight(z, 2 * var_z).astype(wdtype), 0).astype(dtype)  # (N, K)
-    c = w[..., None] * (points[:, None, :] - ext[idx])  # (N, K, 3): W0_ij (p_i - p_j)
+    two_var = 2 * _common.safe_div(jnp.sum(jnp.where(valid, (z - mean_z) ** 2, 0)), count, 0.0)
+    c = jax.vmap(_flow, in_axes=(0, 0, 0, None, None, None))(offsets, valid, q, mean_q, two_var, wdtype)
     lp = jnp.sum(c, axis=1) - jnp.zeros_like(points).at[idx].add(c, mode="drop")
     return _common.safe_sqrt(jnp.sum(lp * lp, axis=1))
 
 
-_high_pass = jax.jit(high_pass, static_argnames="weights_dtype")
+def _sq_length(offsets, valid):
+    """(K,) squared lengths q of one point's stored pairs (0 for padding)."""
+    return jnp.where(valid, offsets[:, 0] * offsets[:, 0] + offsets[:, 1] * offsets[:, 1]
+                     + offsets[:, 2] * offsets[:, 2], 0)
 
 
-def gfr(points, *, variant: str = "invariant", radius_factor: float | None = None,
-        max_nn: int = MAX_NN) -> np.ndarray:
-    """GFR high-pass score ||(L P)_i||_2 per point (Chen et al. 2018); higher is sharper.
+def _flow(offsets, valid, q, mean_q, two_var, wdtype):
+    """(K, 3) W0_ij (p_i - p_j) of one point's stored pairs (K,) of squared length q (in wdtype).
 
-    :func:`graph` then :func:`high_pass` (float32 weights for the reference variant).
+    w = exp(-z^2 / (2 var z)) with z = q / mean q.
+    """
+    z = _common.safe_div(q.astype(mean_q.dtype), mean_q, 0.0)
+    w = jnp.where(valid, _edge_weight(z, two_var).astype(wdtype), 0).astype(offsets.dtype)
+    return -w[:, None] * offsets
+
+
+@functools.lru_cache(maxsize=None)
+def _flow_kernel(wdtype):
+    return functools.partial(_flow, wdtype=wdtype)
+
+
+def _weights_dtype(variant: str):
+    return np.dtype(np.float32) if variant == "reference" else None
+
+
+def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float | None = None,
+                   max_nn: int = MAX_NN, capacity: int | None = None) -> spatial.Neighbourhoods:
+    """The GFR graph as :class:`hgjax.Neighbourhoods` (host, not jittable): see :func:`graph`.
 
     Args:
       points: (N, 3) float32 or float64; never modified.
-      variant: ``"invariant"`` (default, scale-invariant radius) or ``"reference"`` (the
-        authors' units-dependent graph); see :func:`graph`.
-      radius_factor: invariant radius in resolutions (default 10).
-      max_nn: the most partners a point ranks (reference: 100).
+      variant, radius_factor, max_nn: as :func:`graph`.
+      capacity: fixed number of columns K (at least the fullest row); default the fullest
+        row rounded up to a power of two.
 
     Returns:
-      (N,) scores >= 0 in the dtype of ``points`` (all 0 when the graph has no pair).
+      Neighbourhoods whose row i lists the partners j > i of its stored pairs, padded with N;
+      points in a local frame and the working dtype.
 
     Raises:
-      TypeError, ValueError: invalid points, variant, radius_factor or max_nn.
+      TypeError, ValueError: invalid arguments, or a fixed capacity too small.
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax.scores.gfr import gfr
-      >>> pts = np.random.default_rng(0).random((200, 3))
-      >>> s = gfr(pts)
+      >>> from hgjax.scores import gfr
+      >>> nb = gfr.neighbourhoods(np.random.default_rng(0).random((100, 3)))
+      >>> nb.idx.shape[0], nb.scale is None
+      (100, True)
+    """
+    pts = _validate.check_points(points)
+    local = spatial.local_frame(pts)[0]
+    idx = graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
+    width = int((idx < pts.shape[0]).sum(axis=1).max(initial=0))
+    if capacity is not None and _validate.check_int(capacity, "capacity", minimum=1) < width:
+        raise ValueError(f"capacity={capacity} is too small: a GFR row holds {width} pairs; pass capacity >= {width}")
+    cols = spatial.bucket(width) if capacity is None else capacity
+    idx = np.pad(idx[:, :cols], ((0, 0), (0, cols - min(cols, idx.shape[1]))), constant_values=pts.shape[0])
+    return spatial.Neighbourhoods(local.astype(spatial.working_dtype(pts.dtype)), idx.astype(np.int32))
+
+
+def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, progress: bool = False):
+    """GFR score ||(L P)_i||_2 (Chen et al. 2018) of every point on its graph; higher is sharper.
+
+    Traced (inside jit, vmap or grad): :func:`high_pass`. Eager: two streamed passes of
+    fixed-size chunks (the squared pair lengths, then the weighted pair flows), whose
+    statistics and scatter-add (W0^T) run on the host, so a new cloud size does not
+    recompile. The two paths agree to rounding (1e-12 relative in float64).
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      variant: ``"reference"`` keeps q and w in float32 as the authors' code; static.
+      chunk_size: rows per streamed chunk on eager calls; never changes results.
+      progress: progress bar on stderr for long eager runs.
+
+    Returns:
+      (N,) scores >= 0 in the dtype of ``nb.points`` (0 where no pair is stored).
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((200, 3)), "gfr")
+      >>> s = hgjax.scores.gfr.score(nb)
       >>> s.shape, bool((s > 0).all())
       ((200,), True)
     """
-    pts = _validate.check_points(points)
-    idx = graph(pts, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
-    weights = np.float32 if variant == "reference" else None
-    return np.asarray(_high_pass(jnp.asarray(pts), jnp.asarray(idx), weights_dtype=weights), dtype=pts.dtype)
+    variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
+    wdtype = _weights_dtype(variant)
+    if _stream.is_traced(nb):
+        return high_pass(nb.points, nb.idx, weights_dtype=wdtype)
+    points, idx = np.asarray(nb.points), np.asarray(nb.idx)
+    _check_graph(points, idx, wdtype)
+    n = points.shape[0]
+    wdtype = points.dtype if wdtype is None else wdtype
+    cast = spatial.Neighbourhoods(points.astype(wdtype), idx)
+    q = np.asarray(_stream.map_neighbourhoods(_sq_length, cast, chunk_size=chunk_size), dtype=np.float64)
+    valid = idx < n
+    count = int(valid.sum())
+    mean_q = q.sum() / count if count else 0.0
+    z = q[valid] / mean_q if mean_q > 0 else np.zeros(count)
+    two_var = 2 * float(np.mean((z - z.mean()) ** 2)) if count else 0.0
+    acc = np.promote_types(points.dtype, wdtype)
+    c = np.asarray(_stream.map_neighbourhoods(_flow_kernel(np.dtype(wdtype)), nb, row_args=(q.astype(wdtype),), args=(np.asarray(mean_q, acc), np.asarray(two_var, acc)),
+                                              chunk_size=chunk_size, progress=progress))  # (N, K, 3)
+    flat = idx.ravel()
+    scattered = np.stack([np.bincount(flat, c[..., k].ravel(), minlength=n + 1)[:n] for k in range(3)], axis=1)
+    lp = c.sum(axis=1) - scattered
+    return jax.device_put(np.sqrt(np.sum(lp * lp, axis=1)).astype(points.dtype))
+
+
+def soft_score(nb, *, variant: str = "invariant"):
+    """GFR score as one pure JAX program (:func:`high_pass`): smooth in the points on a fixed graph.
+
+    Args:
+      nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      variant: as :func:`score`.
+
+    Returns:
+      (N,) scores >= 0; higher is sharper. Gradients are finite on every cloud.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "gfr")
+      >>> hgjax.scores.gfr.soft_score(nb).shape
+      (100,)
+    """
+    variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
+    return high_pass(nb.points, nb.idx, weights_dtype=_weights_dtype(variant))
