@@ -10,7 +10,7 @@ from importlib.metadata import PackageNotFoundError, version as _version
 
 from hgjax import eval, io, scores, spectrum  # noqa: A004 (hgjax.eval is the evaluation package)
 from hgjax import samplers as _samplers
-from hgjax.resample import (
+from hgjax.pipeline import (
     METHODS,
     Method,
     keep,

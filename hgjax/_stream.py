@@ -106,7 +106,8 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
         if width < idx.shape[1]:
             small = count <= width
             parts = [(rows, _stream(fn, points, np.flatnonzero(rows), idx[rows][:, :k], tuple(a[rows] for a in row_args),
-                                    args, chunk, progress)) for rows, k in ((small, width), (~small, idx.shape[1]))]
+                                    args, chunk, progress))
+                     for rows, k in ((small, width), (~small, idx.shape[1])) if rows.any()]
             out = jax.tree.map(lambda x: np.empty((n,) + x.shape[1:], x.dtype), parts[0][1])
             for rows, part in parts:
                 jax.tree.map(lambda o, x: o.__setitem__(rows, x), out, part)

@@ -290,15 +290,26 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
     return np.concatenate([chosen, np.setdiff1d(np.arange(q.shape[0]), rep)])[:m]
 
 
-def fps_backend(backend: str = "auto") -> str:
+def fps_backend(backend: str) -> str:
     """The FPS implementation ``backend`` resolves to: ``"fpsample"`` or ``"jax"``.
 
     ``"auto"`` is fpsample on JAX's CPU backend when the package is installed (the ``fps``
     extra), else the jitted JAX loop (accelerators, or no fpsample).
 
+    Args:
+      backend: ``"auto"``, ``"fpsample"`` or ``"jax"``.
+
+    Returns:
+      ``"fpsample"`` or ``"jax"``.
+
     Raises:
       ValueError: unknown backend.
       ImportError: ``"fpsample"`` asked for but not installed.
+
+    Examples:
+      >>> import hgjax
+      >>> hgjax.fps_backend("jax")
+      'jax'
     """
     backend = _validate.check_choice(backend, "backend", FPS_BACKENDS)
     installed = importlib.util.find_spec("fpsample") is not None

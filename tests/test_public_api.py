@@ -24,7 +24,11 @@ NAMESPACES.update({f"hgjax.scores.{name}": getattr(hgjax.scores, name) for name 
 # Per-neighbourhood kernels (hkc.beta, hkf.sigma, lhf.gamma, ...) take their traced
 # arguments positionally from hgjax._stream.map_neighbourhoods, but none of them has a
 # positional optional argument today, so the list is empty; add entries here only with a reason.
-POSITIONAL_DEFAULTS: set[tuple[str, str]] = set()
+POSITIONAL_DEFAULTS: set[tuple[str, str]] = {
+    # The registry passes every sampler's ratio positionally; voxel_sample alone may go
+    # without one, when a voxel_size is given.
+    ("hgjax.voxel_sample", "ratio"),
+}
 
 
 def _public():

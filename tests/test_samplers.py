@@ -61,13 +61,13 @@ def test_fps_fallback_when_the_start_is_not_honoured(monkeypatch):
 
 def test_fps_backend_choice(monkeypatch):
     installed = importlib.util.find_spec("fpsample") is not None
-    assert samplers.fps_backend() == ("fpsample" if installed else "jax")  # the suite runs on CPU
+    assert samplers.fps_backend("auto") == ("fpsample" if installed else "jax")  # the suite runs on CPU
     assert samplers.fps_backend("jax") == "jax"
     with pytest.raises(ValueError, match="backend"):
         samplers.fps_backend("gpu")
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name: None if name == "fpsample" else real(name))
-    assert samplers.fps_backend() == "jax"
+    assert samplers.fps_backend("auto") == "jax"
     with pytest.raises(ImportError, match="hgjax\\[fps\\]"):
         samplers.fps_backend("fpsample")
     p = np.array([[0.0, 0, 0], [1, 0, 0], [4, 0, 0], [2, 0, 0]])

@@ -69,6 +69,12 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True,
 
     Raises:
       TypeError, ValueError: invalid arguments, or N < k.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.scores import ea
+      >>> ea.neighbourhoods(np.random.default_rng(0).random((100, 3))).idx.shape
+      (100, 16)
     """
     k = _validate.check_int(k, "k", minimum=2)
     return spatial.knn(points, k, dedupe=dedupe, capacity=capacity)

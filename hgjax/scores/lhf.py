@@ -431,6 +431,12 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
 
     Raises:
       TypeError, ValueError: invalid arguments, or too few points.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.scores import lhf
+      >>> lhf.neighbourhoods(np.random.default_rng(0).random((100, 3)), lengths=(4, 8)).idx.shape
+      (100, 8)
     """
     lengths = _check_lengths(lengths)
     variant = _common.check_variant(variant)

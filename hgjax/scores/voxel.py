@@ -23,6 +23,8 @@ import numpy as np
 
 from hgjax import _validate, spatial
 
+__all__ = ["default_d_factor", "local_signal", "low_high", "neighbourhoods", "soft_local_signal"]
+
 
 REFERENCE_D_FACTOR = 1.3  # d = 1.3 x resolution (REFERENCE.md)
 # The default variant's d = f x local spacing, f from the sampling irregularity c (the
@@ -117,6 +119,13 @@ def local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, kernel_size
 
     Returns:
       (k^3,) counts in the dtype of ``offsets``.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores import voxel
+      >>> s = voxel.local_signal(jnp.array([[0.0, 0, 0], [1, 0, 0]]), jnp.ones(2, bool), 1.0, 3)
+      >>> [int(s[j]) for j in (13, 22)]  # centre voxel, voxel +x
+      [1, 1]
     """
     o = offsets
     h = (kernel_size - 1) // 2
@@ -154,6 +163,13 @@ def soft_local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, tau: j
 
     Returns:
       (k^3,) soft counts, x slowest and z fastest.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores import voxel
+      >>> s = voxel.soft_local_signal(jnp.array([[0.0, 0, 0], [1, 0, 0]]), jnp.ones(2, bool), 1.0, 1e-3, 3)
+      >>> [round(float(s[j]), 6) for j in (13, 22)]
+      [1.0, 1.0]
     """
     h = (kernel_size - 1) // 2
     faces = (jnp.arange(-h, h + 2, dtype=offsets.dtype) - 0.5) * d  # (k + 1,) bin faces
@@ -168,6 +184,20 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
     This is V diag(lam) V^T s and V diag(1 - lam) V^T s of the paper (Eq. (10) with the
     Haar-like high-pass G_hat = 1 - lam), computed without a basis: exact and
     basis-invariant.
+
+    Args:
+      s: (N_k,) local signal.
+      kernel_size: k (static).
+
+    Returns:
+      (low, high), each (N_k,).
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores import voxel
+      >>> low, high = voxel.low_high(jnp.zeros(27).at[13].set(1.0), 3)  # symmetric: no low band
+      >>> float(jnp.abs(low).max()), float(high[13])
+      (0.0, 1.0)
     """
     b, mu = low_band(kernel_size)
     b = jnp.asarray(b, dtype=s.dtype)
@@ -214,6 +244,13 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
 
     Raises:
       TypeError, ValueError: invalid arguments, N < 2, or a fixed capacity too small.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.scores import voxel
+      >>> nb = voxel.neighbourhoods(np.random.default_rng(0).random((300, 3)))
+      >>> nb.scale.shape, bool((nb.idx[:, 0] == np.arange(300)).all())
+      ((300,), True)
     """
     pts = _validate.check_points(points)
     variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
