@@ -99,7 +99,7 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
         out = _blocks(fn, padded(offsets), padded(valid), tuple(padded(jnp.asarray(a)) for a in row_args), args)
         return jax.tree.map(lambda x: x[:n], out)
     points, idx, row_args = np.asarray(points), np.asarray(idx), tuple(np.asarray(a) for a in row_args)
-    args, chunk = tuple(jnp.asarray(a) for a in args), chunk_rows(chunk_size)
+    args, chunk = tuple(jax.device_put(np.asarray(a)) for a in args), chunk_rows(chunk_size)
     if narrow and n:
         count = (idx < n).sum(axis=1)
         width = spatial.bucket(int(np.percentile(count, 90)))
