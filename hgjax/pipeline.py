@@ -124,7 +124,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
             f"{PAPER}, Alg. 1, Eq. (11)", voxel.neighbourhoods, hkc.score, hkc.soft_score, _top(False)),
     _method("hkf", "cube", False, False,
             "hypergraph kernel filtering: keep the smallest high-band share sigma",
-            f"{PAPER}, Alg. 2, Eq. (12)", voxel.neighbourhoods, hkf.score, hkf.soft_score, _top(False)),
+            f"{PAPER}, Alg. 2, Eq. (12)", voxel.neighbourhoods, hkf.score, hkc.soft_score, _top(False)),
     _method("lhf", "knn", True, False,
             "local hypergraph filtering: keep the largest two-length sharpness gamma",
             f"{PAPER}, Alg. 3, Eqs. (14)-(16)", lhf.neighbourhoods, lhf.score, lhf.soft_score, _top(True)),

@@ -12,7 +12,7 @@ the share of high-frequency energy:
   ||P_low s_i||), the L1 norm of the two band energies (L2 norms of the projections onto
   each band), which no choice of basis can change. For a cubic kernel this equals
   beta / (1 + beta) with HKC's beta, so it ranks points exactly like HKC, and its smooth
-  twin is :func:`hgjax.scores.hkc.soft_beta`.
+  twin is HKC's: the registry's HKF soft score is :func:`hgjax.scores.hkc.soft_score`.
 
 Lower sigma means sharper; resampling keeps the smallest. sigma is always finite in [0, 1].
 """
@@ -24,9 +24,9 @@ import functools
 import jax.numpy as jnp
 
 from hgjax import _stream, _validate
-from hgjax.scores import _common, hkc, voxel
+from hgjax.scores import _common, voxel
 
-__all__ = ["score", "sigma", "soft_score"]
+__all__ = ["score", "sigma"]
 
 
 def sigma(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant"):
@@ -90,23 +90,3 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
     _validate.check_scale(nb, "hkf")
     return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,),
                                       chunk_size=chunk_size, progress=progress, narrow=True)
-
-
-def soft_score(nb, *, tau=0.1, kernel_size: int = 3):
-    """Smooth HKF score: the invariant sigma of soft counts, :func:`hgjax.scores.hkc.soft_score`.
-
-    Args:
-      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`.
-      tau: softness of the voxel membership, relative to d (traced).
-      kernel_size: odd k (static).
-
-    Returns:
-      (N,) scores in [0, 1]; lower is sharper.
-
-    Examples:
-      >>> import numpy as np, hgjax
-      >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "hkf")
-      >>> hgjax.scores.hkf.soft_score(nb).shape
-      (100,)
-    """
-    return hkc.soft_score(nb, tau=tau, kernel_size=kernel_size)
