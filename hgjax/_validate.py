@@ -165,3 +165,74 @@ def check_scale(nb: Any, method: str) -> None:
     if nb.scale is None:
         raise ValueError(f"method {method!r} needs nb.scale, the voxel spacing per point; build the"
                          f" neighbourhoods with hgjax.neighbourhoods(points, {method!r})")
+
+
+def check_key(key, method: str, alternative: str = "") -> jax.Array:
+    """Return ``key`` after checking it is a ``jax.random`` key.
+
+    Args:
+      key: a typed key (``jax.random.key``) or a legacy uint32 (2,) key (``jax.random.PRNGKey``).
+      method: the method name quoted in the error.
+      alternative: extra advice appended to the error for a missing key.
+
+    Raises:
+      ValueError: if ``key`` is None.
+      TypeError: if ``key`` is not a key.
+    """
+    if key is None:
+        raise ValueError(f"method {method!r} draws random numbers and needs an explicit key:"
+                         f" pass key=jax.random.key(0){alternative}")
+    typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+    legacy = isinstance(key, (jax.Array, np.ndarray)) and key.dtype == np.uint32 and key.shape == (2,)
+    if not ((typed and key.shape == ()) or legacy):
+        raise TypeError(f"key must be a jax.random key such as jax.random.key(0); got"
+                        f" {type(key).__name__} {getattr(key, 'dtype', '')}{getattr(key, 'shape', '')}")
+    return key
+
+
+def check_kernel_size(kernel_size) -> int:
+    """Return the odd kernel size k >= 3 of HKC/HKF."""
+    k = check_int(kernel_size, "kernel_size", minimum=3)
+    if k % 2 == 0:
+        raise ValueError(f"kernel_size must be odd (3, 5, ...); got {k}")
+    return k
+
+
+def check_lengths(lengths) -> tuple[int, ...]:
+    """Return LHF's pair of lengths (N_a, N_b), each >= 3."""
+    if not isinstance(lengths, (tuple, list)) or len(lengths) != 2:
+        raise ValueError(f"lengths must be a pair (N_a, N_b); got {lengths!r}")
+    return tuple(check_int(n, f"lengths[{i}]", minimum=3) for i, n in enumerate(lengths))
+
+
+def check_graph(points, idx, weights_dtype) -> None:
+    """Shapes and dtypes of high_pass's arguments (static, so also valid under jit and vmap)."""
+    shape, idx_shape = np.shape(points), np.shape(idx)
+    if len(shape) != 2 or shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3); got {shape}")
+    if len(idx_shape) != 2 or idx_shape[0] != shape[0]:
+        raise ValueError(f"idx must have shape ({shape[0]}, K); got {idx_shape}")
+    if not np.issubdtype(points.dtype, np.floating):
+        raise TypeError(f"points must be a float array; got {points.dtype}")
+    if not np.issubdtype(idx.dtype, np.integer):
+        raise TypeError(f"idx must be an integer array; got {idx.dtype}")
+    if weights_dtype is not None and np.dtype(weights_dtype) not in FLOAT_DTYPES:
+        raise TypeError(f"weights_dtype must be None, float32 or float64; got {weights_dtype!r}")
+
+
+def check_scores(scores, name="scores") -> np.ndarray:
+    s = np.asarray(scores)
+    if s.ndim != 1:
+        raise ValueError(f"{name} must have shape (N,); got {s.shape}")
+    if not np.issubdtype(s.dtype, np.floating):
+        raise TypeError(f"{name} must be a float array; got dtype {s.dtype}")
+    if np.isnan(s).any():
+        raise ValueError(f"{name} contains NaN")
+    return s
+
+
+def check_capacity(capacity, width: int, what: str) -> None:
+    """Raise when a fixed ``capacity`` (columns) is below the fullest row's ``width``."""
+    if capacity is not None and width > capacity:
+        raise ValueError(f"capacity={capacity} is too small: a {what} holds {width} points;"
+                         f" pass capacity >= {width} (or capacity=None to size it automatically)")

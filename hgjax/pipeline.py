@@ -103,7 +103,7 @@ def _gfr_select(scores, m, *, key=None, mode="random"):
     mode = _validate.check_choice(mode, "mode", GFR_MODES)
     if mode == "top":
         return top_k(scores, m, largest=True)
-    samplers.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
+    _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
     values = np.asarray(scores, dtype=np.float64)
     n, total = values.shape[0], float(np.sum(values))
     pi = 0.8 * values / total + 0.2 / n if total > 0 else np.full(n, 1.0 / n)

@@ -26,29 +26,6 @@ VOXEL_SLACK = 1 / 64  # a grid with M to M (1 + slack) voxels ends the search
 FPS_BACKENDS = ("auto", "fpsample", "jax")
 
 
-def check_key(key, method: str, alternative: str = "") -> jax.Array:
-    """Return ``key`` after checking it is a ``jax.random`` key.
-
-    Args:
-      key: a typed key (``jax.random.key``) or a legacy uint32 (2,) key (``jax.random.PRNGKey``).
-      method: the method name quoted in the error.
-      alternative: extra advice appended to the error for a missing key.
-
-    Raises:
-      ValueError: if ``key`` is None.
-      TypeError: if ``key`` is not a key.
-    """
-    if key is None:
-        raise ValueError(f"method {method!r} draws random numbers and needs an explicit key:"
-                         f" pass key=jax.random.key(0){alternative}")
-    typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
-    legacy = isinstance(key, (jax.Array, np.ndarray)) and key.dtype == np.uint32 and key.shape == (2,)
-    if not ((typed and key.shape == ()) or legacy):
-        raise TypeError(f"key must be a jax.random key such as jax.random.key(0); got"
-                        f" {type(key).__name__} {getattr(key, 'dtype', '')}{getattr(key, 'shape', '')}")
-    return key
-
-
 def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     """A uniformly random subset of ceil(ratio N) points, without replacement.
 
@@ -71,7 +48,7 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     """
     pts = _validate.check_points(points)
     m = _validate.n_keep(pts.shape[0], _validate.check_ratio(ratio))
-    return weighted_sample(check_key(key, "uniform"), np.ones(pts.shape[0]), m)
+    return weighted_sample(_validate.check_key(key, "uniform"), np.ones(pts.shape[0]), m)
 
 
 def _voxel_codes(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:

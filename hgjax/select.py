@@ -21,17 +21,6 @@ __all__ = ["soft_select", "top_k", "weighted_sample"]
 BISECTION_STEPS = 64
 
 
-def _check_scores(scores, name="scores") -> np.ndarray:
-    s = np.asarray(scores)
-    if s.ndim != 1:
-        raise ValueError(f"{name} must have shape (N,); got {s.shape}")
-    if not np.issubdtype(s.dtype, np.floating):
-        raise TypeError(f"{name} must be a float array; got dtype {s.dtype}")
-    if np.isnan(s).any():
-        raise ValueError(f"{name} contains NaN")
-    return s
-
-
 def top_k(scores, m: int, *, largest: bool = True) -> np.ndarray:
     """Indices of the m best scores, best first; equal scores keep index order (stable).
 
@@ -54,7 +43,7 @@ def top_k(scores, m: int, *, largest: bool = True) -> np.ndarray:
       >>> top_k(np.array([0.5, 2.0, 2.0, 1.0]), 2, largest=False).tolist()
       [0, 3]
     """
-    s = _check_scores(scores)
+    s = _validate.check_scores(scores)
     n = s.shape[0]
     m = _validate.check_int(m, "m", minimum=1)
     if m > n:
@@ -92,7 +81,7 @@ def weighted_sample(key: jax.Array, weights, m: int) -> np.ndarray:
       >>> sorted(idx.tolist())
       [1, 2]
     """
-    w = _check_scores(weights, "weights")
+    w = _validate.check_scores(weights, "weights")
     if (w < 0).any() or not np.isfinite(w).all() or not (w > 0).any():
         raise ValueError("weights must be finite, >= 0 and not all zero")
     if key is None:

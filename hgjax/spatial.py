@@ -377,9 +377,7 @@ def pad_queries(index: SpatialIndex, query, capacity, what: str) -> np.ndarray:
     """
     parts = [query(rows) for rows in index.chunks(QUERY_ROWS)]
     width = max(p.shape[1] for p in parts)
-    if capacity is not None and width > capacity:
-        raise ValueError(f"capacity={capacity} is too small: a {what} holds {width} points;"
-                         f" pass capacity >= {width} (or capacity=None to size it automatically)")
+    _validate.check_capacity(capacity, width, what)
     cols = bucket(width) if capacity is None else capacity
     return np.concatenate([np.pad(p, ((0, 0), (0, cols - p.shape[1])), constant_values=index.n) for p in parts])
 

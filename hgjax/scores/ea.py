@@ -13,11 +13,7 @@ variation is defined as 0 (no shape at all, hence not sharp), so no NaN ever app
 
 from __future__ import annotations
 
-import functools
-
-import jax
 import jax.numpy as jnp
-import numpy as np
 
 from hgjax import _stream, _validate, spatial
 from hgjax.scores import _common

@@ -220,21 +220,6 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     return idx
 
 
-def _check_graph(points, idx, weights_dtype) -> None:
-    """Shapes and dtypes of high_pass's arguments (static, so also valid under jit and vmap)."""
-    shape, idx_shape = np.shape(points), np.shape(idx)
-    if len(shape) != 2 or shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3); got {shape}")
-    if len(idx_shape) != 2 or idx_shape[0] != shape[0]:
-        raise ValueError(f"idx must have shape ({shape[0]}, K); got {idx_shape}")
-    if not jnp.issubdtype(points.dtype, jnp.floating):
-        raise TypeError(f"points must be a float array; got {points.dtype}")
-    if not jnp.issubdtype(idx.dtype, jnp.integer):
-        raise TypeError(f"idx must be an integer array; got {idx.dtype}")
-    if weights_dtype is not None and np.dtype(weights_dtype) not in _validate.FLOAT_DTYPES:
-        raise TypeError(f"weights_dtype must be None, float32 or float64; got {weights_dtype!r}")
-
-
 def high_pass(points, idx, *, weights_dtype=None) -> jax.Array:
     """GFR score ||(L P)_i||_2 on a fixed graph (pure JAX: jit, vmap and grad work).
 
@@ -267,7 +252,7 @@ def high_pass(points, idx, *, weights_dtype=None) -> jax.Array:
       >>> [round(s, 4) for s in high_pass(pts, idx).tolist()]
       [1.0279, 0.0042, 1.0321]
     """
-    _check_graph(points, idx, weights_dtype)
+    _validate.check_graph(points, idx, weights_dtype)
     points, idx = jnp.asarray(points), jnp.asarray(idx)
     wdtype = points.dtype if weights_dtype is None else jnp.dtype(weights_dtype)
     offsets, valid = _stream.offsets_of(points, idx)  # (N, K, 3) p_j - p_i
@@ -337,8 +322,8 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
     local = spatial.local_frame(pts)[0]
     idx = graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
     width = int((idx < pts.shape[0]).sum(axis=1).max(initial=0))
-    if capacity is not None and _validate.check_int(capacity, "capacity", minimum=1) < width:
-        raise ValueError(f"capacity={capacity} is too small: a GFR row holds {width} pairs; pass capacity >= {width}")
+    if capacity is not None:
+        _validate.check_capacity(_validate.check_int(capacity, "capacity", minimum=1), width, "GFR row")
     cols = spatial.bucket(width) if capacity is None else capacity
     idx = np.pad(idx[:, :cols], ((0, 0), (0, cols - min(cols, idx.shape[1]))), constant_values=pts.shape[0])
     return spatial.Neighbourhoods(local.astype(spatial.working_dtype(pts.dtype)), idx.astype(np.int32))
@@ -373,7 +358,7 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     if _stream.is_traced(nb):
         return high_pass(nb.points, nb.idx, weights_dtype=wdtype)
     points, idx = np.asarray(nb.points), np.asarray(nb.idx)
-    _check_graph(points, idx, wdtype)
+    _validate.check_graph(points, idx, wdtype)
     n = points.shape[0]
     wdtype = points.dtype if wdtype is None else wdtype
     cast = spatial.Neighbourhoods(points.astype(wdtype), idx)

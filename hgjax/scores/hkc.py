@@ -102,7 +102,7 @@ def score(nb, *, kernel_size: int = 3, chunk_size: int | None = None, progress: 
       >>> hgjax.scores.hkc.score(nb).shape
       (200,)
     """
-    kernel_size = voxel.check_kernel_size(kernel_size)
+    kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     return _stream.map_neighbourhoods(_kernel(kernel_size), nb, row_args=(nb.scale,), chunk_size=chunk_size,
                                       progress=progress, narrow=True)
@@ -126,7 +126,7 @@ def soft_score(nb, *, tau=0.1, kernel_size: int = 3):
       >>> bool(((s >= 0) & (s <= 1)).all())
       True
     """
-    kernel_size = voxel.check_kernel_size(kernel_size)
+    kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     tau = _validate.check_traced_positive(tau, "tau")
     return _common.soft_map(functools.partial(soft_beta, kernel_size=kernel_size), nb, (nb.scale,), (tau,))

@@ -86,7 +86,7 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
       True
     """
     variant = _common.check_variant(variant)
-    kernel_size = voxel.check_kernel_size(kernel_size)
+    kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkf")
     return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,),
                                       chunk_size=chunk_size, progress=progress, narrow=True)

@@ -408,12 +408,6 @@ def combine(gamma_a, gamma_b, ratio):
     return eps * g[:, 0] + (1 - eps) * g[:, 1]
 
 
-def _check_lengths(lengths) -> tuple[int, ...]:
-    if not isinstance(lengths, (tuple, list)) or len(lengths) != 2:
-        raise ValueError(f"lengths must be a pair (N_a, N_b); got {lengths!r}")
-    return tuple(_validate.check_int(n, f"lengths[{i}]", minimum=3) for i, n in enumerate(lengths))
-
-
 def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None,
                    capacity: int | None = None) -> spatial.Neighbourhoods:
     """k-nearest neighbourhoods of LHF, k = max(lengths) (host, not jittable).
@@ -438,7 +432,7 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
       >>> lhf.neighbourhoods(np.random.default_rng(0).random((100, 3)), lengths=(4, 8)).idx.shape
       (100, 8)
     """
-    lengths = _check_lengths(lengths)
+    lengths = _validate.check_lengths(lengths)
     variant = _common.check_variant(variant)
     dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
     return spatial.knn(points, max(lengths), dedupe=dedupe, capacity=capacity)
@@ -530,7 +524,7 @@ def soft_score(nb, *, ratio, tau=0.1, lengths=DEFAULT_LENGTHS):
       >>> hgjax.scores.lhf.soft_score(nb, ratio=0.2).shape
       (100,)
     """
-    lengths = _check_lengths(lengths)
+    lengths = _validate.check_lengths(lengths)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
     tau = _validate.check_traced_positive(tau, "tau")
     g = _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))

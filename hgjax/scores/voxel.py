@@ -59,13 +59,6 @@ def default_d_factor(irregularity: float) -> float:
     return REGULAR_D_FACTOR + t * (IRREGULAR_D_FACTOR - REGULAR_D_FACTOR)
 
 
-def check_kernel_size(kernel_size) -> int:
-    k = _validate.check_int(kernel_size, "kernel_size", minimum=3)
-    if k % 2 == 0:
-        raise ValueError(f"kernel_size must be odd (3, 5, ...); got {k}")
-    return k
-
-
 @functools.lru_cache(maxsize=None)
 def integer_offsets(kernel_size: int) -> np.ndarray:
     """(N_k, 3) integer voxel offsets, x slowest and z fastest."""
@@ -256,7 +249,7 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
     if d_factor is not None:
         d_factor = _validate.check_positive(d_factor, "d_factor")
-    kernel_size = check_kernel_size(kernel_size)
+    kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
