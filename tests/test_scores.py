@@ -1,7 +1,10 @@
-"""HGSP scores: fast kernels against the naive references, and the kernel test matrix."""
+"""HGSP scores: fast kernels against the naive NumPy references, and the kernel test matrix.
+
+The library path is ``hgjax.score(hgjax.neighbourhoods(p, method, **params), method, **params)``;
+per-neighbourhood kernels take ``offsets`` (K, 3) = neighbours minus the point and ``valid`` (K,).
+"""
 
 import functools
-import importlib
 
 import jax
 import jax.numpy as jnp
@@ -11,11 +14,14 @@ from scipy.stats import spearmanr
 
 import hgjax
 from hgjax import spectrum
-from hgjax.scores import voxel
-from hgjax.scores.voxel import DEFAULT_D_FACTOR
+from hgjax.scores import ea, hkc, hkf, lhf, voxel
+
 
 import naive
 from conftest import TOL
+
+ONE_BLOCK = 1024  # eager chunk for the eigh-based kernels (see tests/test_api.py)
+D_FACTOR = 2.5  # an explicit voxel-spacing factor, passed to both the library and the naive loop
 
 
 def random_cloud(n=120, seed=0):
@@ -25,7 +31,7 @@ def random_cloud(n=120, seed=0):
 def grid_cloud(jitter=0.0):
     """Points of an integer grid on the surface of a 5 x 5 x 5 box (sharp edges, symmetric).
 
-    kNN neighbourhoods on an exact grid are ambiguous (equidistant neighbours); the LHF
+    kNN neighbourhoods on an exact grid are ambiguous (equidistant neighbours); the LHF and EA
     cases use a 1e-4 jitter so both implementations see the same neighbour sets.
     """
     g = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
@@ -35,6 +41,17 @@ def grid_cloud(jitter=0.0):
 
 CLOUDS = {"random": random_cloud(), "grid": grid_cloud(), "jittered_grid": grid_cloud(1e-4)}
 RESOLUTION = {name: naive.resolution(p) for name, p in CLOUDS.items()}
+
+
+def naive_ea(points, k=ea.DEFAULT_K):
+    """EA surface variation l0 / (l0 + l1 + l2) by brute-force neighbours, one eigvalsh per point."""
+    p = np.asarray(points, dtype=np.float64)
+    out = np.empty(len(p))
+    for i, rows in enumerate(naive.knn_rows(p, k)):
+        y = p[rows] - p[rows].mean(axis=0)
+        lam = np.linalg.eigvalsh(y.T @ y)
+        out[i] = max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0
+    return out
 
 
 def _close(got, want, dtype):
@@ -48,11 +65,11 @@ def _close(got, want, dtype):
 def _naive(name, cloud):
     p = CLOUDS[cloud]
     if name == "hkc":
-        return naive.hkc(p, d_factor=DEFAULT_D_FACTOR)
+        return naive.hkc(p, d_factor=D_FACTOR)
     if name == "hkf_reference":
         return naive.hkf(p)  # same d as the library call below: same R, same LAPACK basis
     if name == "hkf_invariant":
-        b = naive.hkc(p, d_factor=DEFAULT_D_FACTOR)
+        b = naive.hkc(p, d_factor=D_FACTOR)
         with np.errstate(invalid="ignore"):
             return np.where(np.isinf(b), 1.0, b / (1 + b))
     if name == "lhf3_reference":
@@ -65,39 +82,45 @@ def _naive(name, cloud):
         big_a, big_b = np.sort(ga)[::-1][m - 1], np.sort(gb)[::-1][m - 1]
         eps = big_b / (big_a + big_b)
         return eps * ga + (1 - eps) * gb
+    if name == "ea":
+        return naive_ea(p)
     raise KeyError(name)
 
 
+def host_score(p, method, **params):
+    """The public host path: neighbourhoods, then score, as a NumPy array."""
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(p, method, **params), method, **params))
+
+
+def lhf_single(p, n, **params):
+    """Single-length LHF gamma on the n nearest points (the point itself first)."""
+    eigh = params.get("variant") == "reference" or params.get("solver") == "eigh"
+    nb = hgjax.knn(p, n)
+    return np.asarray(lhf.single(nb, lengths=(n,), chunk_size=ONE_BLOCK if eigh else None, **params))[:, 0]
+
+
 FAST = {
-    "hkc": lambda p, **kw: hgjax.scores.hkc(p, **kw),
-    "hkf_reference": lambda p, **kw: hgjax.scores.hkf(p, variant="reference", **kw),
-    "hkf_invariant": lambda p, **kw: hgjax.scores.hkf(p, **kw),
-    "lhf3_reference": lambda p, **kw: hgjax.scores.lhf_single(p, 3, variant="reference", **kw),
-    "lhf8_invariant": lambda p, **kw: hgjax.scores.lhf_single(p, 8, **kw),
-    "lhf_combined_invariant": lambda p, **kw: hgjax.scores.lhf(p, ratio=0.2, lengths=(5, 9), **kw),
+    "hkc": lambda p, **kw: host_score(p, "hkc", d_factor=D_FACTOR, **kw),
+    "hkf_reference": lambda p, **kw: host_score(p, "hkf", variant="reference", **kw),
+    "hkf_invariant": lambda p, **kw: host_score(p, "hkf", d_factor=D_FACTOR, **kw),
+    "lhf3_reference": lambda p, **kw: lhf_single(p, 3, variant="reference"),
+    "lhf8_invariant": lambda p, **kw: lhf_single(p, 8),
+    "lhf_combined_invariant": lambda p, **kw: host_score(p, "lhf", ratio=0.2, lengths=(5, 9)),
+    "ea": lambda p, **kw: host_score(p, "ea"),
 }
+KNN = ("lhf", "ea")  # exact-grid kNN rows are ambiguous: these run on the jittered grid
 
-
-CASES = [(name, cloud) for name in sorted(FAST) for cloud in ("random", "grid")
-         if not (name.startswith("lhf") and cloud == "grid")]
-CASES += [(name, "jittered_grid") for name in sorted(FAST) if name.startswith("lhf")]
+CASES = [(name, cloud) for name in sorted(FAST) for cloud in ("random", "grid") if not (name.startswith(KNN) and cloud == "grid")]
+CASES += [(name, "jittered_grid") for name in sorted(FAST) if name.startswith(KNN)]
 
 
 @pytest.mark.parametrize("name,cloud", CASES)
 def test_fast_matches_naive(name, cloud, dtype):
     p = CLOUDS[cloud].astype(dtype)
-    kw = {} if name.startswith("lhf") else {"resolution": RESOLUTION[cloud]}
+    kw = {} if name.startswith(KNN) else {"resolution": RESOLUTION[cloud]}
     got = FAST[name](p, **kw)
     assert got.dtype == dtype and got.shape == (len(p),)
     _close(got, _naive(name, cloud), dtype)
-
-
-@pytest.mark.parametrize("name", sorted(FAST))
-def test_chunked_equals_unchunked_bitwise(name):
-    p = random_cloud(700, seed=4)
-    base = FAST[name](p)  # one chunk of 768 rows
-    np.testing.assert_array_equal(FAST[name](p, chunk_size=128), base)  # 6 chunks
-    np.testing.assert_array_equal(FAST[name](p, chunk_size=300), base)  # rounded to 384: 2 chunks
 
 
 @pytest.mark.parametrize("name", sorted(FAST))
@@ -119,15 +142,15 @@ def test_lhf_gram_solver_equals_eigh_solver():
             # Near-collinear triples (mu_s / mu_l ~ 1e-6 in the random cloud at n = 3) need the
             # small eigenvalue summed in the kernel's second pass: from the Gram it is only
             # good to ~1e-10 here.
-            np.testing.assert_allclose(hgjax.scores.lhf_single(p, n, solver="gram"),
-                                       hgjax.scores.lhf_single(p, n, solver="eigh"), rtol=1e-12, atol=1e-14)
+            np.testing.assert_allclose(lhf_single(p, n, solver="gram"),
+                                       lhf_single(p, n, solver="eigh"), rtol=1e-12, atol=1e-14)
 
 
 def test_lhf_invariant_equals_reference_when_every_eigenspace_is_one_dimensional():
     """n = 3: the null space is 1-D (c_1 = 1), so the expected L1 is the L1 in any basis."""
     p = random_cloud(200, seed=13)
-    np.testing.assert_allclose(hgjax.scores.lhf_single(p, 3),
-                               hgjax.scores.lhf_single(p, 3, variant="reference"), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(lhf_single(p, 3),
+                               lhf_single(p, 3, variant="reference"), rtol=1e-10, atol=1e-12)
 
 
 def _isotropic_signal(rng):
@@ -137,9 +160,9 @@ def _isotropic_signal(rng):
 
 
 def _lhf_kernel(sig, solver="gram"):
+    """Invariant gamma of one signal (its first row, the point itself, is 0) through lhf.gamma."""
     n = len(sig)
-    return float(hgjax.scores.lhf_neighbourhood(jnp.zeros(3), jnp.asarray(sig), jnp.ones(n, bool),
-                                                lengths=(n,), solver=solver)[0])
+    return float(lhf.gamma(jnp.asarray(sig), jnp.ones(n, bool), lengths=(n,), solver=solver)[0])
 
 
 def _spectrum(sig):
@@ -161,7 +184,7 @@ def test_lhf_reference_is_basis_dependent_but_close_for_longer_signals():
     (REFERENCE.md measured Spearman 0.90-0.98 between two LAPACK builds).
     """
     p = random_cloud(150, seed=7)
-    got, want = hgjax.scores.lhf_single(p, 8, variant="reference"), naive.lhf_single(p, 8)
+    got, want = lhf_single(p, 8, variant="reference"), naive.lhf_single(p, 8)
     assert spearmanr(got, want).statistic > 0.85
 
 
@@ -181,7 +204,7 @@ def _rotate_in_eigenspaces(v, lam, rng, tol=1e-9):
 def test_invariant_scores_do_not_depend_on_the_basis_inside_degenerate_eigenspaces():
     rng = np.random.default_rng(8)
     # HKF: the kernel's 25-dimensional high band.
-    lam, v, t = voxel.reference_spectrum(3, 1.0)
+    lam, v, t = voxel.reference_spectrum(3)
     s = rng.integers(0, 3, size=27).astype(np.float64)
     s[13] += 1
     base = spectrum.band_energies(jnp.asarray(v), t, jnp.asarray(s))
@@ -191,8 +214,7 @@ def test_invariant_scores_do_not_depend_on_the_basis_inside_degenerate_eigenspac
         rot = spectrum.band_energies(jnp.asarray(vr), t, jnp.asarray(s))
         np.testing.assert_allclose(rot[2:], base[2:], rtol=1e-12)  # L2 band energies: invariant
         l1_changed |= abs(float(rot[0] / rot[1] - base[0] / base[1])) > 1e-6
-        sigma = hgjax.scores.hkf_neighbourhood(jnp.zeros(3), jnp.asarray(voxel.integer_offsets(3)),
-                                               jnp.asarray(s > 0), 1.0)
+        sigma = hkf.sigma(jnp.asarray(voxel.integer_offsets(3)), jnp.asarray(s > 0), 1.0)
         h, l = float(rot[2]), float(rot[3])
         if (s > 1).any():
             continue  # the neighbourhood above encodes occupancy only
@@ -225,8 +247,8 @@ def _result_dtypes(jaxpr):
 
 def test_lhf_gram_kernel_computes_in_the_callers_float32():
     """No silent float64 promotion under x64 (NumPy float64 constants would cause one)."""
-    f = functools.partial(hgjax.scores.lhf_neighbourhood, lengths=(4, 8))
-    jaxpr = jax.make_jaxpr(f)(jnp.zeros(3, jnp.float32), jnp.ones((8, 3), jnp.float32), jnp.ones(8, bool))
+    f = functools.partial(lhf.gamma, lengths=(4, 8))
+    jaxpr = jax.make_jaxpr(f)(jnp.ones((8, 3), jnp.float32), jnp.ones(8, bool))
     dtypes = set(_result_dtypes(jaxpr.jaxpr))
     assert np.dtype(np.float32) in dtypes and np.dtype(np.float64) not in dtypes
 
@@ -234,8 +256,7 @@ def test_lhf_gram_kernel_computes_in_the_callers_float32():
 def test_lhf_invariant_is_scale_free_bitwise(dtype):
     """gamma(2^k s) == gamma(s) bitwise, also where float32 squares would under- or overflow."""
     sig = np.r_[np.zeros((1, 3)), np.random.default_rng(19).normal(size=(9, 3))]
-    gamma = jax.jit(lambda s: hgjax.scores.lhf_neighbourhood(jnp.zeros(3, s.dtype), s, jnp.ones(10, bool),
-                                                             lengths=(4, 10)))
+    gamma = jax.jit(lambda s: lhf.gamma(s, jnp.ones(10, bool), lengths=(4, 10)))
     want = np.asarray(gamma(jnp.asarray(sig, dtype)))
     assert want.dtype == dtype and (want > 0).all()
     for k in (-70, -20, 20, 60):
@@ -243,7 +264,7 @@ def test_lhf_invariant_is_scale_free_bitwise(dtype):
 
 
 def test_lhf_unit_scale_is_an_exact_power_of_two(dtype):
-    unit_scale = importlib.import_module("hgjax.scores.lhf")._unit_scale
+    unit_scale = lhf._unit_scale
     sig = np.random.default_rng(20).normal(size=(8, 3)).astype(dtype)
     for k in (-100, -30, 0, 30, 100):
         s = np.ldexp(sig, k).astype(dtype)
@@ -283,42 +304,43 @@ def test_lhf_invariant_is_the_reference_l1_averaged_over_random_bases():
 
 def test_jit_equals_eager_per_neighbourhood():
     p = random_cloud(60, seed=9)
-    nb = hgjax.knn(p, 8)
-    centre, nbrs, valid = jnp.asarray(p[0]), jnp.asarray(p[nb.idx[0]]), jnp.ones(8, bool)
-    fn = functools.partial(hgjax.scores.lhf_neighbourhood, lengths=(5, 8))
+    offsets, valid = jnp.asarray(p[hgjax.knn(p, 8).idx[0]] - p[0]), jnp.ones(8, bool)
+    fn = functools.partial(lhf.gamma, lengths=(5, 8))
     # XLA may contract products and sums into FMAs under jit (the Gram's y = s Q already
-    # differs in the last bit): agree to rounding. Bitwise equality across chunk sizes holds.
-    np.testing.assert_allclose(jax.jit(fn)(centre, nbrs, valid), fn(centre, nbrs, valid), rtol=1e-14)
-    cb = hgjax.cube(p, 0.3)
-    row = cb.idx[0]
-    nbrs = jnp.asarray(np.concatenate([p, np.zeros((1, 3))])[row])
+    # differs in the last bit): agree to rounding.
+    np.testing.assert_allclose(jax.jit(fn)(offsets, valid), fn(offsets, valid), rtol=1e-14)
+    row = hgjax.cube(p, 0.3).idx[0]
     valid = jnp.asarray(row < 60)
-    # Fusion under jit may change the last bit of the norms: agree to rounding.
-    np.testing.assert_allclose(jax.jit(hgjax.scores.hkc_neighbourhood)(centre, nbrs, valid, 0.2),
-                               hgjax.scores.hkc_neighbourhood(centre, nbrs, valid, 0.2), rtol=1e-14)
+    offsets = jnp.asarray(np.where(row[:, None] < 60, np.r_[p, np.zeros((1, 3))][row] - p[0], 0))
+    np.testing.assert_allclose(jax.jit(hkc.beta)(offsets, valid, 0.2), hkc.beta(offsets, valid, 0.2), rtol=1e-14)
+    assert 0 < float(hkc.beta(offsets, valid, 0.2)) < np.inf
 
 
 def test_vmap_equals_loop_per_neighbourhood():
     p = random_cloud(40, seed=10)
-    nb = hgjax.knn(p, 6)
-    nbrs = jnp.asarray(p[nb.idx])
-    fn = functools.partial(hgjax.scores.lhf_neighbourhood, lengths=(6,))
-    batched = jax.vmap(fn)(jnp.asarray(p), nbrs, jnp.ones((40, 6), bool))
-    looped = jnp.stack([fn(jnp.asarray(p[i]), nbrs[i], jnp.ones(6, bool)) for i in range(40)])
+    offsets = jnp.asarray(p[hgjax.knn(p, 6).idx] - p[:, None, :])
+    valid = jnp.ones(6, bool)
+    fn = functools.partial(lhf.gamma, lengths=(6,))
+    batched = jax.vmap(fn, in_axes=(0, None))(offsets, valid)
+    looped = jnp.stack([fn(offsets[i], valid) for i in range(40)])
     np.testing.assert_allclose(batched, looped, rtol=1e-13)
 
 
-def test_hkc_variants_coincide_and_hkf_invariant_ranks_like_hkc():
+def test_hkc_variants_differ_only_in_neighbourhoods_and_hkf_invariant_is_beta_over_one_plus_beta():
     p = random_cloud(300, seed=11)
-    beta = hgjax.scores.hkc(p)
-    np.testing.assert_array_equal(beta, hgjax.scores.hkc(p, variant="reference", d_factor=DEFAULT_D_FACTOR))
-    # The variants differ only in their default d factor: 1.3 (REFERENCE.md) for "reference".
-    np.testing.assert_array_equal(hgjax.scores.hkc(p, variant="reference"), hgjax.scores.hkc(p, d_factor=1.3))
-    assert not np.array_equal(hgjax.scores.hkc(p, variant="reference"), beta)
-    sigma = hgjax.scores.hkf(p)
+    res = naive.resolution(p)
+    beta = host_score(p, "hkc", resolution=res, d_factor=D_FACTOR)
+    # Same resolution and d: the same cubes (no duplicates, no cube near the 256 cap), same beta.
+    np.testing.assert_array_equal(beta, host_score(p, "hkc", variant="reference", d_factor=D_FACTOR))
+    # The reference variant's default d factor is 1.3 (REFERENCE.md).
+    np.testing.assert_array_equal(host_score(p, "hkc", variant="reference"),
+                                  host_score(p, "hkc", resolution=res, d_factor=1.3))
+    assert not np.array_equal(host_score(p, "hkc", variant="reference"), beta)
+    sigma = host_score(p, "hkf", resolution=res, d_factor=D_FACTOR)
     with np.errstate(invalid="ignore"):
         want = np.where(np.isinf(beta), 1, beta / (1 + beta))
     np.testing.assert_allclose(sigma, want, rtol=1e-12)
+    assert np.isfinite(beta).any() and not np.allclose(want, want[0])
 
 
 def test_scores_keep_float32():
