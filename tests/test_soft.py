@@ -1,4 +1,9 @@
-"""Differentiable soft resampling (hgjax.soft): smooth scores, soft top-k, gradients."""
+"""Differentiable soft resampling: soft_score, soft_select, soft_weights, soft_resample.
+
+Gradients with respect to nb.points (a new hgjax.Neighbourhoods(points, nb.idx, nb.scale) inside
+the differentiated function) and the float parameters (tau, ratio, temperature); soft -> hard
+limits; validation.
+"""
 
 import functools
 
@@ -9,43 +14,36 @@ import pytest
 from jax.test_util import check_grads
 
 import hgjax
-from hgjax import soft
-from hgjax.scores import voxel
+from hgjax.scores import hkc, lhf, voxel
 
-METHODS = sorted(soft.SOFT_METHODS)
-DISTINCT = [m for m in METHODS if m != "hkf"]  # soft "hkf" is the same function as soft "hkc"
+METHODS = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
+TAU_METHODS = ("hkc", "hkf", "lhf")  # soft scores with a tau
 N = 160
 RATIO = 0.25  # RATIO * N is an integer: the hard top-k keeps exactly that many
+CAPACITY = 128  # fixed K: one compilation serves every cloud of a method (GFR rows hold ~100)
 
 
-def box_surface(seed, n, noise=0.0, size=(3.0, 2.0, 1.5)):
-    """n points uniform on the surface of an axis-aligned box, plus Gaussian noise."""
-    rng = np.random.default_rng(seed)
-    size = np.asarray(size)
-    areas = np.array([size[1] * size[2], size[0] * size[2], size[0] * size[1]])
-    axis = rng.choice(3, size=n, p=areas / areas.sum())
-    pts = rng.random((n, 3)) * size
-    pts[np.arange(n), axis] = rng.integers(0, 2, n) * size[axis]
-    return pts + noise * rng.standard_normal((n, 3))
+def box_surface(seed, n, noise=0.0):
+    """n points on the surface of an axis-aligned 3 x 2 x 1.5 box, plus Gaussian noise."""
+    p = hgjax.eval.box_surface(n, seed, size=(3.0, 2.0, 1.5))
+    return p + noise * np.random.default_rng(seed).standard_normal((n, 3))
+
+
+def floats_of(method, tau=0.1, temperature=0.05):
+    """The traced float parameters of soft_weights for a method."""
+    return {"ratio": RATIO, "temperature": temperature, **({"tau": tau} if method in TAU_METHODS else {})}
+
+
+def weights_of(points, nb, method, floats):
+    """soft_weights with nb.points replaced by ``points`` (differentiable in both)."""
+    nb = hgjax.Neighbourhoods(points, nb.idx, nb.scale)
+    return hgjax.soft_weights(nb, floats["ratio"], method=method, **{k: v for k, v in floats.items() if k != "ratio"})
 
 
 @functools.lru_cache(maxsize=None)
 def setup(method, seed=0, noise=0.01):
     pts = box_surface(seed, N, noise)
-    idx, d = hgjax.soft_neighbourhoods(pts, method=method)
-    return pts, idx, d
-
-
-@functools.lru_cache(maxsize=None)
-def jitted_weights(method):
-    return jax.jit(hgjax.soft_weights, static_argnames=("ratio", "method", "kernel_size", "lengths"))
-
-
-scores = jax.jit(soft.soft_scores, static_argnames=("method", "ratio", "kernel_size", "lengths"))
-
-
-def weights(method, pts, idx, d, *, temperature=0.05, tau=0.1):
-    return jitted_weights(method)(pts, idx, RATIO, method=method, temperature=temperature, tau=tau, d=d)
+    return pts, hgjax.neighbourhoods(pts, method)
 
 
 # ------------------------------------------------------------------------- soft_select
@@ -95,61 +93,64 @@ def test_soft_select_rejects_matrix():
 
 
 def test_soft_hkf_is_soft_hkc():
-    pts, idx, d = setup("hkc")
-    np.testing.assert_array_equal(scores(pts, idx, method="hkf", d=d), scores(pts, idx, method="hkc", d=d))
+    _, nb = setup("hkc")
+    np.testing.assert_array_equal(hgjax.soft_score(nb, "hkf"), hgjax.soft_score(nb, "hkc"))
 
 
-@pytest.mark.parametrize("method", DISTINCT)
+@pytest.mark.parametrize("method", [m for m in METHODS if m not in ("hkf", "pca_ac")])  # = hkc, ea
 def test_check_grads_scores(method):
-    pts, idx, d = setup(method)
-    if method in ("hkc", "hkf"):
-        f, args = (lambda p, tau, d: soft.soft_scores(p, idx, method=method, d=d, tau=tau)), (pts, 0.3, d)
+    pts = box_surface(0, 48, 0.01)
+    nb = hgjax.neighbourhoods(pts, method)
+    if method in TAU_METHODS:
+        extra = {"ratio": RATIO} if method == "lhf" else {}
+        f = lambda p, tau: hgjax.soft_score(hgjax.Neighbourhoods(p, nb.idx, nb.scale), method, tau=tau, **extra)  # noqa: E731
+        args = (pts, 0.3)
     else:
-        f, args = (lambda p, tau: soft.soft_scores(p, idx, method=method, tau=tau, ratio=RATIO)), (pts, 0.3)
+        f, args = (lambda p: hgjax.soft_score(hgjax.Neighbourhoods(p, nb.idx, nb.scale), method)), (pts,)
     # LHF's weight eps (Eq. (16)) is an order statistic of the gammas, smooth only piecewise:
-    # on this cloud a step of 1e-5 crosses one of its kinks, 1e-6 does not.
+    # a step of 1e-6 does not cross one of its kinks on this cloud.
     check_grads(jax.jit(f), args, order=1, modes=("fwd", "rev"), eps=1e-6)
 
 
 def test_check_grads_weights():
-    pts, idx, _ = setup("ea")
-    f = jax.jit(lambda p, t: hgjax.soft_weights(p, idx, RATIO, method="ea", temperature=t))
-    check_grads(f, (jnp.asarray(pts), 0.01), order=1, modes=("fwd", "rev"), eps=1e-6)
+    pts, nb = setup("ea")
+    f = jax.jit(lambda p, t, r: weights_of(p, nb, "ea", {"ratio": r, "temperature": t}))
+    check_grads(f, (jnp.asarray(pts), 0.01, RATIO), order=1, modes=("fwd", "rev"), eps=1e-6)
 
 
-def degenerate_clouds(n=144):
-    """Degenerate clouds of n points each (one compilation serves them all)."""
-    rng = np.random.default_rng(4)
-    g = np.stack(np.meshgrid(np.arange(12.0), np.arange(12.0), indexing="ij"), -1).reshape(-1, 2)
-    base = box_surface(5, n // 3)
+def degenerate_clouds(n=32):
+    """Degenerate clouds of n points each."""
+    g = np.stack(np.meshgrid(np.arange(4.0), np.arange(8.0), indexing="ij"), -1).reshape(-1, 2)
+    base = box_surface(5, n // 4)
     return {
-        "flat": np.c_[g, np.zeros(n)],  # exactly planar grid: symmetric signals, beta = inf
-        "line": np.c_[np.arange(float(n)), np.zeros(n), np.zeros(n)],  # collinear
-        "dup": np.concatenate([base, base, base]),  # every point three times
-        "cluster": np.concatenate([np.zeros((24, 3)), box_surface(6, n - 24)]),  # 24 identical points
-        "noisy": box_surface(7, n) + 0.2 * rng.standard_normal((n, 3)),
+        "coplanar": np.c_[g, np.zeros(n)],  # exactly planar grid: symmetric signals, beta = inf
+        "collinear": np.c_[np.arange(float(n)), 2 * np.arange(float(n)), np.zeros(n)],
+        "duplicate": np.concatenate([base] * 4),  # every point four times
+        "all_equal": np.full((n, 3), 0.25),
     }
 
 
-@pytest.mark.parametrize("method", DISTINCT)
+@functools.lru_cache(maxsize=None)
+def value_and_grads(method):
+    c = jnp.asarray(np.random.default_rng(8).random(32))
+    loss = lambda p, nb, floats: jnp.sum(c * weights_of(p, nb, method, floats))  # noqa: E731
+    return jax.jit(jax.value_and_grad(loss, argnums=(0, 2)))
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_gradients_finite_on_degenerate_clouds(method):
-    c = np.random.default_rng(8).random(144)
-
-    def loss(p, idx, t, tau, d):
-        return jnp.sum(c * hgjax.soft_weights(p, idx, RATIO, method=method, temperature=t, tau=tau, d=d))
-
-    @jax.jit
-    def value_grads_tangent(p, idx, d):
-        value, grads = jax.value_and_grad(loss, argnums=(0, 2, 3, 4))(p, idx, 0.05, 0.1, d)
-        _, tangent = jax.jvp(lambda p: loss(p, idx, 0.05, 0.1, d), (p,), (jnp.ones_like(p),))
-        return value, grads, tangent
-
     for case, pts in degenerate_clouds().items():
-        idx, d = hgjax.soft_neighbourhoods(pts, method=method, capacity=256)
-        value, grads, tangent = value_grads_tangent(pts, idx, d)
-        assert np.isfinite(value) and np.isfinite(tangent), case
-        for g in grads:
-            assert np.isfinite(np.asarray(g)).all(), case
+        nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
+        value, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
+        assert np.isfinite(value), case
+        assert np.isfinite(np.asarray(g_points)).all(), case
+        assert all(np.isfinite(float(g)) for g in g_floats.values()), (case, g_floats)
+        assert set(g_floats) == set(floats_of(method))
+    # On a generic cloud the gradients are not all zero (the test above could not pass vacuously).
+    pts = box_surface(3, 32, 0.01)
+    nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
+    _, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
+    assert float(jnp.abs(g_points).max()) > 0 and float(g_floats["ratio"]) != 0
 
 
 def isotropic_signal(seed=14):
@@ -159,13 +160,14 @@ def isotropic_signal(seed=14):
 
 
 def soft_gamma(s, tau):
+    """Smooth invariant gamma of one signal s (n, 3), first row the point itself (0)."""
     n = s.shape[0]
-    return soft.soft_lhf_neighbourhood(jnp.zeros(3, s.dtype), s, jnp.ones(n, bool), tau, lengths=(n,))[0]
+    return lhf.soft_gamma(s, jnp.ones(n, bool), tau, lengths=(n,))[0]
 
 
 def hard_gamma(s):
     n = s.shape[0]
-    return hgjax.scores.lhf_neighbourhood(jnp.zeros(3, s.dtype), s, jnp.ones(n, bool), lengths=(n,))[0]
+    return lhf.gamma(s, jnp.ones(n, bool), lengths=(n,))[0]
 
 
 def test_soft_lhf_is_continuous_where_the_hard_one_jumps_at_equal_eigenvalues():
@@ -226,47 +228,57 @@ def jittered_lattice(seed, jitter=0.08):
     return shell + jitter * np.random.default_rng(seed).uniform(-1, 1, shell.shape)
 
 
+def lattice_neighbourhoods(seed):
+    """HKC neighbourhoods of a jittered lattice with d = 1 exactly."""
+    return hgjax.neighbourhoods(jittered_lattice(seed), "hkc", resolution=1.0, d_factor=1.0)
+
+
 def test_soft_counts_converge_to_hard_counts():
-    pts = jittered_lattice(0)
-    idx, d = hgjax.soft_neighbourhoods(pts, method="hkc", resolution=1.0, d_factor=1.0, capacity=128)
-    ext = np.concatenate([pts, np.zeros((1, 3))])
-    hard = jax.vmap(lambda c, nb, v: voxel.local_signal(c, nb, v, d, 3))(pts, ext[idx], idx < len(pts))
+    nb = lattice_neighbourhoods(0)
+    offsets = jnp.asarray(np.where(nb.mask[..., None], np.r_[nb.points, np.zeros((1, 3))][nb.idx] - nb.points[:, None], 0))
+    valid = jnp.asarray(nb.mask)
+    hard = jax.vmap(lambda o, v: voxel.local_signal(o, v, 1.0, 3))(offsets, valid)
     errors = []
     for tau in (0.3, 0.1, 0.03, 0.01):
-        f = jax.vmap(lambda c, nb, v: soft.soft_local_signal(c, nb, v, d, tau))
-        errors.append(float(jnp.max(jnp.abs(f(pts, ext[idx], idx < len(pts)) - hard))))
+        soft = jax.vmap(lambda o, v: voxel.soft_local_signal(o, v, 1.0, tau, 3))(offsets, valid)
+        errors.append(float(jnp.max(jnp.abs(soft - hard))))
     assert errors == sorted(errors, reverse=True)
     assert errors[-1] < 1e-12 and errors[0] > 1e-3
 
 
-def test_soft_hkc_converges_to_hard_scores():
-    pts = jittered_lattice(1)
-    idx, d = hgjax.soft_neighbourhoods(pts, method="hkc", resolution=1.0, d_factor=1.0, capacity=128)
-    sigma = hgjax.scores.hkf(pts, resolution=1.0, d_factor=1.0)
-    beta = hgjax.scores.hkc(pts, resolution=1.0, d_factor=1.0)
-    errors = [float(np.max(np.abs(scores(pts, idx, method="hkc", d=d, tau=tau) - sigma)))
+def test_soft_hkc_converges_to_beta_over_one_plus_beta():
+    nb = lattice_neighbourhoods(1)
+    beta = np.asarray(hgjax.score(nb, "hkc"))
+    sigma = np.asarray(hgjax.score(nb, "hkf"))
+    errors = [float(np.max(np.abs(np.asarray(hgjax.soft_score(nb, "hkc", tau=tau)) - sigma)))
               for tau in (0.3, 0.1, 0.01)]
     assert errors == sorted(errors, reverse=True) and errors[-1] < 1e-9
-    soft_sigma = np.asarray(scores(pts, idx, method="hkf", d=d, tau=0.01))
+    soft_sigma = np.asarray(hgjax.soft_score(nb, "hkc", tau=0.01))
     finite = np.isfinite(beta)
+    assert finite.any() and (~finite).any()
     np.testing.assert_allclose(soft_sigma[finite] / (1 - soft_sigma[finite]), beta[finite], rtol=1e-8)
     assert (soft_sigma[~finite] > 1 - 1e-9).all()  # beta = inf  <->  sigma = 1
+    # The per-neighbourhood kernels directly: soft_beta -> beta / (1 + beta).
+    o = jnp.array([[0.0, 0, 0], [1.02, 0, 0], [0, 0.97, 0]])
+    b = float(hkc.beta(o, jnp.ones(3, bool), 1.0))
+    assert 0 < b < np.inf
+    assert float(hkc.soft_beta(o, jnp.ones(3, bool), 1.0, 1e-3)) == pytest.approx(b / (1 + b), rel=1e-9)
 
 
 def test_soft_lhf_converges_to_hard_lhf():
     pts = box_surface(2, N, 0.02)
-    idx, _ = hgjax.soft_neighbourhoods(pts, method="lhf")
-    hard = hgjax.scores.lhf(pts, ratio=RATIO)
-    far = np.asarray(scores(pts, idx, method="lhf", tau=1e-9, ratio=RATIO))
+    nb = hgjax.neighbourhoods(pts, "lhf")
+    hard = np.asarray(hgjax.score(nb, "lhf", ratio=RATIO))
+    far = np.asarray(hgjax.soft_score(nb, "lhf", tau=1e-9, ratio=RATIO))
     np.testing.assert_allclose(far, hard, atol=1e-9)
-    blurred = np.asarray(scores(pts, idx, method="lhf", tau=0.3, ratio=RATIO))
+    blurred = np.asarray(hgjax.soft_score(nb, "lhf", tau=0.3, ratio=RATIO))
     assert np.abs(blurred - hard).max() > 1e-3
 
 
-def test_soft_ea_equals_hard_ea():
-    pts, idx, _ = setup("ea")
-    np.testing.assert_allclose(scores(pts, idx, method="ea"), hgjax.scores.ea(pts), rtol=1e-9,
-                               atol=1e-12)
+@pytest.mark.parametrize("method", ["ea", "pca_ac"])
+def test_soft_ea_equals_hard_ea(method):
+    _, nb = setup(method)
+    np.testing.assert_allclose(hgjax.soft_score(nb, method), hgjax.score(nb, method), rtol=1e-9, atol=1e-12)
 
 
 # ------------------------------------------------------------------------- soft -> hard
@@ -274,13 +286,14 @@ def test_soft_ea_equals_hard_ea():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_low_temperature_support_matches_hard_selection(method):
-    pts, idx, d = setup(method)
+    pts, nb = setup(method)
     m = round(RATIO * N)
-    if method in ("hkc", "hkf", "lhf", "ea"):
-        hard = hgjax.resample(pts, RATIO, method=method)  # the paper's hard pipeline
-    else:  # soft GFR scores the fixed kNN graph, not GFR's radius graph
-        hard = hgjax.top_k(np.asarray(scores(pts, idx, method="gfr")), m)
-    w = np.asarray(weights(method, pts, idx, d, temperature=1e-6, tau=1e-4))
+    params = {"ratio": RATIO} if method == "lhf" else {}
+    if method == "gfr":  # GFR's hard selection samples; its deterministic mode keeps the top scores
+        hard = hgjax.keep(hgjax.score(nb, method), RATIO, method=method, mode="top")
+    else:
+        hard = hgjax.keep(hgjax.score(nb, method, **params), RATIO, method=method)
+    w = np.asarray(weights_of(nb.points, nb, method, floats_of(method, tau=1e-4, temperature=1e-6)))
     support = np.flatnonzero(w > 0.5)
     overlap = np.intersect1d(support, hard).size / m
     assert overlap >= 0.95, overlap
@@ -290,60 +303,96 @@ def test_low_temperature_support_matches_hard_selection(method):
 # ------------------------------------------------------------------------- batching, jit
 
 
-@pytest.mark.parametrize("method", ["hkc", "lhf"])
+@pytest.mark.parametrize("method", ["hkc", "lhf", "gfr"])
 def test_vmap_over_batch_equals_loop(method):
-    clouds = [box_surface(10 + b, N, 0.01) for b in range(8)]
-    nbhd = [hgjax.soft_neighbourhoods(p, method=method) for p in clouds]
-    pts = jnp.asarray(np.stack(clouds))
-    idx = jnp.asarray(np.stack([i for i, _ in nbhd]))
-    d = jnp.asarray([dd for _, dd in nbhd])
-    f = lambda p, i, d: hgjax.soft_weights(p, i, RATIO, method=method, d=d)  # noqa: E731
-    batched = jax.jit(jax.vmap(f))(pts, idx, d)
-    loop = np.stack([jitted_weights(method)(pts[b], idx[b], RATIO, method=method, d=d[b]) for b in range(8)])
-    assert batched.shape == (8, N)
+    nbs = [hgjax.neighbourhoods(box_surface(10 + b, N, 0.01), method, capacity=CAPACITY) for b in range(4)]
+    stacked = jax.tree.map(lambda *x: np.stack(x), *nbs)
+    f = jax.jit(lambda nb, ratio: hgjax.soft_weights(nb, ratio, method=method))
+    batched = jax.jit(jax.vmap(f, in_axes=(0, None)))(stacked, RATIO)
+    assert batched.shape == (4, N)
+    loop = np.stack([f(nb, RATIO) for nb in nbs])
     np.testing.assert_allclose(batched, loop, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(batched.sum(axis=1), RATIO * N, rtol=1e-9)
+    f(nbs[0], 0.5)
+    assert f._cache_size() == 1  # ratio is traced: a new value does not recompile
 
 
-def test_soft_resample_jit_vmap_grad():
-    clouds = np.stack([box_surface(20 + b, N, 0.01) for b in range(2)])
-    f = jax.jit(lambda p, tau: hgjax.soft_resample(p, RATIO, method="hkc", tau=tau), static_argnums=())
-    w = jax.vmap(f, in_axes=(0, None))(clouds, 0.1)
-    for b in range(2):
-        idx, d = hgjax.soft_neighbourhoods(clouds[b], method="hkc")
-        np.testing.assert_allclose(w[b], weights("hkc", clouds[b], idx, d), rtol=1e-9)
-    c = jnp.asarray(np.random.default_rng(0).random(N))
-    g = jax.jit(jax.grad(lambda p, tau, dfac: jnp.sum(c * hgjax.soft_resample(p, RATIO, tau=tau, d_factor=dfac)),
-                         argnums=(0, 1, 2)))(clouds[0], 0.1, 1.3)
-    assert all(np.isfinite(np.asarray(x)).all() for x in g)
-    assert float(jnp.abs(g[0]).max()) > 0 and float(g[1]) != 0 and float(g[2]) != 0
+def test_soft_resample_is_soft_weights_of_neighbourhoods_and_rejects_tracers():
+    pts = box_surface(20, N, 0.01)
+    nb = hgjax.neighbourhoods(pts, "hkc")
+    np.testing.assert_array_equal(hgjax.soft_resample(pts, RATIO, method="hkc", tau=0.2),
+                                  hgjax.soft_weights(nb, RATIO, method="hkc", tau=0.2))
+    with pytest.raises(TypeError, match=r"neighbourhoods.*soft_weights"):
+        jax.jit(lambda p: hgjax.soft_resample(p, RATIO))(pts)
+    with pytest.raises(TypeError, match=r"neighbourhoods.*soft_weights"):
+        jax.grad(lambda p: hgjax.soft_resample(p, RATIO).sum())(pts)
 
 
 def test_keeps_float32():
-    pts, idx, d = setup("hkc")
-    w = weights("hkc", pts.astype(np.float32), idx, np.float32(d))
-    assert w.dtype == np.float32
-    np.testing.assert_allclose(float(w.sum()), RATIO * N, rtol=1e-4)
+    pts = box_surface(0, N, 0.01).astype(np.float32)
+    for method in ("hkc", "ea"):
+        w = weights_of(*(lambda nb: (nb.points, nb))(hgjax.neighbourhoods(pts, method)), method, floats_of(method))
+        assert w.dtype == np.float32, method
+        np.testing.assert_allclose(float(w.sum()), RATIO * N, rtol=1e-4)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_soft_weights_are_scale_free(method):
+    """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights."""
+    pts = box_surface(9, 96, 0.01)
+    want = np.asarray(hgjax.soft_resample(pts, RATIO, method=method))
+    tiny = np.asarray(hgjax.soft_resample((pts * 1e-8).astype(np.float32), RATIO, method=method))
+    big = np.asarray(hgjax.soft_resample(pts * 1e3, RATIO, method=method))
+    np.testing.assert_allclose(big, want, atol=1e-6)
+    np.testing.assert_allclose(tiny, want, atol=2e-3)
+
+
+@pytest.mark.parametrize("method", ["hkc", "hkf"])
+def test_soft_hkc_hkf_on_all_duplicate_cloud(method):
+    pts = np.tile([[0.3, -1.0, 2.0]], (40, 1))
+    w = np.asarray(hgjax.soft_resample(pts, RATIO, method=method))
+    assert np.isfinite(w).all()
+    np.testing.assert_allclose(w, RATIO, rtol=1e-6)  # every point alike: equal weights
 
 
 # ------------------------------------------------------------------------- errors
 
 
+@pytest.mark.parametrize("name", ["tau", "temperature"])
+@pytest.mark.parametrize("value", [float("nan"), 0.0, -0.1])
+def test_bad_tau_and_temperature_raise_value_error_naming_them(name, value):
+    pts, nb = setup("hkc")
+    for call in (lambda: hgjax.soft_weights(nb, RATIO, method="hkc", **{name: value}),
+                 lambda: hgjax.soft_resample(pts, RATIO, method="hkc", **{name: value}),
+                 lambda: jax.jit(lambda nb: hgjax.soft_weights(nb, RATIO, method="hkc", **{name: value}))(nb)):
+        with pytest.raises(ValueError, match=name):
+            call()
+    if name == "tau":
+        with pytest.raises(ValueError, match="tau"):
+            hgjax.soft_score(nb, "lhf", ratio=RATIO, tau=value)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_soft_resample_rejects_nan_points_and_too_few_points(method):
+    pts = box_surface(0, 40, 0.01)
+    bad = pts.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="points"):
+        hgjax.soft_resample(bad, RATIO, method=method)
+    if method != "gfr":  # GFR's radius graph has no minimum size
+        with pytest.raises(ValueError, match="points"):
+            hgjax.soft_resample(pts[:1], RATIO, method=method, **({"k": 40} if method in ("ea", "pca_ac") else {}))
+
+
 def test_errors():
-    pts, idx, d = setup("hkc")
+    _, nb = setup("hkc")
     with pytest.raises(ValueError, match="unknown method 'nope'"):
-        hgjax.soft_weights(pts, idx, RATIO, method="nope")
-    with pytest.raises(ValueError, match="needs the voxel spacing d"):
-        hgjax.soft_scores(pts, idx, method="hkc")
-    with pytest.raises(ValueError, match="needs ratio"):
-        hgjax.soft_scores(pts, idx, method="lhf")
-    with pytest.raises(ValueError, match=r"points must have shape \(N, 3\)"):
-        hgjax.soft_weights(pts[:, :2], idx, RATIO, d=d)
-    with pytest.raises(ValueError, match="idx must have shape"):
-        hgjax.soft_weights(pts, idx[:10], RATIO, d=d)
-    with pytest.raises(TypeError, match="float32 or float64"):
-        hgjax.soft_weights(pts.astype(np.int64), idx, RATIO, d=d)
+        hgjax.soft_weights(nb, RATIO, method="nope")
+    with pytest.raises(ValueError, match="nb.scale"):
+        hgjax.soft_score(hgjax.Neighbourhoods(nb.points, nb.idx), "hkc")
+    with pytest.raises(TypeError, match="ratio"):
+        hgjax.soft_score(setup("lhf")[1], "lhf")
     with pytest.raises(ValueError, match="ratio must be in"):
-        hgjax.soft_weights(pts, idx, 1.5, d=d)
-    with pytest.raises(ValueError, match="max_capacity=4"):
-        hgjax.soft_neighbourhoods(pts, method="hkc", capacity=4)
+        hgjax.soft_weights(nb, 1.5, method="hkc")
+    with pytest.raises(TypeError, match="bogus"):
+        hgjax.soft_score(nb, "hkc", bogus=1)
