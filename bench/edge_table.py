@@ -3,7 +3,7 @@
 Usage (from the repository root):
   python bench/edge_table.py              # full tables and figures into bench/results/
   python bench/edge_table.py --defaults-rows   # only Table 1's default-settings rows, printed
-  python bench/edge_table.py --defaults   # LHF lengths / HKC-HKF d_factor study
+  python bench/edge_defaults.py           # the defaults study (edge_defaults.md), per regime
   python bench/edge_table.py --quick --out /tmp/x   # tiny smoke run (CI)
 """
 
@@ -51,7 +51,7 @@ QUICK_SETS = {"grid": {"n_shapes": 2, "n_points": 3000}, "random": {"n_shapes": 
 ALTERNATIVES = {
     "hkc": [{"variant": "reference", "d_factor": f} for f in (1.0, 2.0, 2.5)],
     "hkf": [{"variant": "reference", "d_factor": f} for f in (1.0, 2.0, 2.5)],
-    "lhf": [{"variant": "reference", "lengths": ln} for ln in ((3, 6), (4, 8), (12, 24))],
+    "lhf": [{"variant": "reference", "lengths": ln} for ln in ((4, 8), (6, 12), (12, 24))],
     "gfr": [{"variant": "reference", "mode": "top"}],
     "ea": [{"k": k} for k in (8, 32)],
     "pca_ac": [{"k": k} for k in (8, 32)],
@@ -303,42 +303,9 @@ def ratio_sweep(args, runs, out):
     return lines + md_table(["method"] + [f"alpha={r}" for r in ratios], rows) + ["", "Figure: `edge_ratio.png`.", ""]
 
 
-def defaults(args, out, command):
-    """Parameter study: F1 on the synthetic set and MCC on the labelled clouds per setting."""
-    lengths = [(3, 6), (4, 8), (6, 12), (8, 16), (12, 24)] if not args.quick else [(4, 8)]
-    factors = (1.0, 1.3, 1.6, 2.0, 2.5, 3.0, 4.0) if not args.quick else (1.3, 2.0)
-    settings = [(rot, p) for rot in (False, True) for p in (0.0, 0.2)]
-    sets = {s: synthetic_clouds(n_shapes=args.n_shapes, n_points=args.n_points, rotate=s[0], noise=s[1])
-            for s in settings}
-    real = [] if args.quick else [hgjax.eval.load_labelled(f) for f in sorted(LABELLED.glob("*.gt.ply"))]
-    candidates = [(f"lhf {v[:3]} lengths={ln}", "lhf", {"variant": v, "lengths": ln})
-                  for v in ("invariant", "reference") for ln in lengths]
-    # HKC's two variants are identical (REFERENCE.md: 1 - lam is constant on each eigenspace).
-    candidates += [(f"{m} {v[:3]} d_factor={f}", m, {"variant": v, "d_factor": f})
-                   for m, v in (("hkc", "invariant"), ("hkf", "invariant"), ("hkf", "reference")) for f in factors]
-    rows = []
-    for label, m, p in candidates:
-        f1 = [mean_metrics(sets[s], m, p, RATIO)["f1"] for s in settings]
-        mcc = [run_one(c, m, p, c.edge_mask.sum() / len(c.points))["mcc"] for c in real]
-        both = [f"{(np.mean(f1) + np.mean(mcc)) / 2:.3f}"] if mcc else []
-        rows.append([label] + [f"{v:.3f}" for v in f1] + [f"{np.mean(f1):.3f}"] + [f"{v:.3f}" for v in mcc]
-                    + ([f"{np.mean(mcc):.3f}"] if mcc else []) + both)
-        print(label, rows[-1][1:], flush=True)
-    header = (["setting"] + [f"{'rot' if r else 'axis'} p={p}" for r, p in settings] + ["mean F1"]
-              + [f"MCC {c.name}" for c in real] + (["mean MCC", "(F1 + MCC) / 2"] if real else []))
-    lines = ["# Defaults study: F1 at ratio 0.2 on the synthetic edge set, MCC on the labelled clouds", "",
-             f"Command: `{command}`", "",
-             f"{args.n_shapes} shapes x {args.n_points} points, means over shapes. MCC keeps exactly E points "
-             "(the true edge count) on each labelled cloud, as in edge_table.md.", "",
-             "Rule for the defaults of the default variant: the largest (mean F1 + mean MCC) / 2; settings within "
-             "0.01 of it count as tied and the cheapest of them (smallest lengths or d factor) wins.", ""]
-    (out / "edge_defaults.md").write_text("\n".join(lines + md_table(header, rows) + [""]))
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="tiny run (2 shapes, 600 points)")
-    parser.add_argument("--defaults", action="store_true", help="parameter study into edge_defaults.md")
     parser.add_argument("--defaults-rows", action="store_true",
                         help="print Table 1 with the methods' default settings in both regimes (no file)")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
@@ -352,7 +319,7 @@ def main(argv=None):
     if args.defaults_rows:
         defaults_rows(QUICK_SETS if args.quick else REGIME_SETS)
     else:
-        (defaults if args.defaults else table)(args, args.out, command.strip())
+        table(args, args.out, command.strip())
 
 
 if __name__ == "__main__":

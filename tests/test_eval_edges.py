@@ -96,6 +96,28 @@ def test_load_labelled():
         pytest.skip("labelled data not available")
     cloud = hgjax.eval.load_labelled(path)
     assert cloud.points.shape == (7212, 3) and int(cloud.edge_mask.sum()) == 479
+    assert int(hgjax.eval.load_labelled(path, scheme="pcednet").edge_mask.sum()) == 479
+
+
+def test_load_labelled_bazazian(tmp_path):
+    """Bazazian et al.'s scheme: white non-edge, any other colour (red, yellow) edge."""
+    import trimesh
+
+    pts = np.random.default_rng(0).random((5, 3))
+    rgba = np.array([[255, 255, 255, 255], [255, 0, 0, 255], [255, 255, 0, 255], [255, 255, 255, 255],
+                     [255, 0, 0, 255]], dtype=np.uint8)
+    path = tmp_path / "baz.gt.ply"
+    trimesh.PointCloud(pts, colors=rgba).export(path)
+    cloud = hgjax.eval.load_labelled(path)
+    assert cloud.edge_mask.tolist() == [False, True, True, False, True]
+    assert hgjax.eval.load_labelled(path, scheme="bazazian").edge_mask.tolist() == cloud.edge_mask.tolist()
+    with pytest.raises(ValueError, match="not one of the labels"):
+        hgjax.eval.load_labelled(path, scheme="pcednet")
+    with pytest.raises(ValueError, match="scheme"):
+        hgjax.eval.load_labelled(path, scheme="other")
+    real = ROOT.parent / "shared" / "data" / "labelled" / "baz_twoplane45.gt.ply"
+    if real.exists():
+        assert int(hgjax.eval.load_labelled(real).edge_mask.sum()) == 294
 
 
 def test_metrics_hand_computed():

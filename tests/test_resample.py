@@ -165,12 +165,14 @@ def test_bad_ratio_type_and_parameters():
         hgjax.scores.lhf.single(hgjax.neighbourhoods(cloud(), "lhf"), lengths=(8,), solver="svd")
     with pytest.raises(ValueError, match="needs nb.scale"):
         hgjax.score(hgjax.knn(cloud(), 8), "hkc")
-    with pytest.raises(ValueError, match="8 columns, too few for LHF with length 12"):
+    k = max(hgjax.scores.lhf.DEFAULT_LENGTHS)  # the default lengths need k > 8 columns
+    with pytest.raises(ValueError, match=f"8 columns, too few for LHF with length {k}"):
         hgjax.score(hgjax.knn(cloud(), 8), "lhf", ratio=0.2)
 
 
 def test_too_few_points_for_the_neighbourhood():
-    with pytest.raises(ValueError, match="points has 5 point.*k=12 nearest neighbours.*at least 12"):
+    k = max(hgjax.scores.lhf.DEFAULT_LENGTHS)
+    with pytest.raises(ValueError, match=f"points has 5 point.*k={k} nearest neighbours.*at least {k}"):
         hgjax.resample(cloud(5), 0.2, method="lhf")
     with pytest.raises(ValueError, match="too few for HKC"):
         hgjax.neighbourhoods(cloud(1), "hkc")

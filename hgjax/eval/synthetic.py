@@ -552,21 +552,26 @@ def box_surface(n: int, seed: int, *, size=(1.0, 0.8, 0.6)) -> np.ndarray:
     return _sample_surface(box, n, np.random.default_rng([seed, _SAMPLES]))
 
 
-def load_labelled(path: str | os.PathLike) -> EdgeCloud:
-    """Read a PCEDNet ground-truth PLY (colour-coded edge labels).
+def load_labelled(path: str | os.PathLike, *, scheme: str = "auto") -> EdgeCloud:
+    """Read a ground-truth PLY with colour-coded edge labels (PCEDNet or Bazazian et al.).
 
-    Colours: (168, 0, 0) edge, (255, 255, 255) non-edge, (255, 196, 93) near-edge, which is
-    counted as non-edge.
+    Two colour schemes. PCEDNet (Himeur et al. 2022): (168, 0, 0) edge, (255, 255, 255)
+    non-edge, (255, 196, 93) near-edge, which is counted as non-edge. Bazazian et al.
+    (DICTA 2015, the EA / PCA-AC data): white (255, 255, 255) non-edge, any other colour
+    (red, yellow) edge. ``scheme="auto"`` reads a file whose colours are all PCEDNet labels
+    as PCEDNet and any other file as Bazazian.
 
     Args:
       path: a ``*.gt.ply`` point cloud with per-vertex RGB(A) colours.
+      scheme: ``"auto"`` (default), ``"pcednet"`` or ``"bazazian"``.
 
     Returns:
       An :class:`EdgeCloud` with float64 points, ``edge_points`` = the edge points,
       ``resolution`` the intrinsic resolution and ``delta`` 0.0.
 
     Raises:
-      ValueError: if the file has no colours or a colour that is not one of the labels.
+      ValueError: if the file has no colours, or (``"pcednet"``) a colour that is not one of
+        its labels.
 
     Examples:
       >>> import pathlib, hgjax
@@ -581,12 +586,18 @@ def load_labelled(path: str | os.PathLike) -> EdgeCloud:
     colours = getattr(cloud, "colors", None)
     if colours is None or len(colours) != len(points):
         raise ValueError(f"{path} has no per-point colours to read the labels from")
+    if scheme not in ("auto", "pcednet", "bazazian"):
+        raise ValueError(f"scheme must be 'auto', 'pcednet' or 'bazazian'; got {scheme!r}")
     rgb = np.asarray(colours)[:, :3].astype(int)
     known = np.array([LABEL_EDGE, LABEL_NON_EDGE, LABEL_NEAR_EDGE])
     match = (rgb[:, None, :] == known[None]).all(-1)
-    if not match.any(axis=1).all():
+    pcednet = bool(match.any(axis=1).all())
+    if scheme == "pcednet" and not pcednet:
         bad = rgb[~match.any(axis=1)][0].tolist()
         raise ValueError(f"{path} has colour {bad}, not one of the labels {known.tolist()}")
-    edge_mask = match[:, 0]
+    if scheme == "pcednet" or (scheme == "auto" and pcednet):
+        edge_mask = match[:, 0]
+    else:  # Bazazian et al.: any non-white colour is an edge
+        edge_mask = ~(rgb == np.array(LABEL_NON_EDGE)).all(-1)
     name = os.path.basename(os.fspath(path)).removesuffix(".gt.ply")
     return EdgeCloud(points, edge_mask, points[edge_mask], intrinsic_resolution(points), 0.0, name)
