@@ -83,8 +83,8 @@ def kept_metrics(cloud, idx):
                                    resolution=cloud.resolution)
 
 
-def score_cloud(cloud, ratio):
-    """{(method, setting): metrics} for every setting of SWEEPS and the defaults, on one cloud."""
+def score_cloud(cloud, ratio, methods=tuple(SWEEPS)):
+    """{(method, setting): metrics} for every setting of SWEEPS and the defaults of ``methods``, on one cloud."""
     p = cloud.points
     out = {}
 
@@ -93,18 +93,20 @@ def score_cloud(cloud, ratio):
         idx = hgjax.keep(s, ratio, method=method, **(keep_params or {}))
         out[method, setting] = kept_metrics(cloud, idx)
 
-    for f in SWEEPS["hkc"][1] + (DEFAULT,):  # HKC and HKF share the cube neighbourhoods
+    for f in SWEEPS["hkc"][1] + (DEFAULT,) if {"hkc", "hkf"} & set(methods) else ():
         nb = hgjax.neighbourhoods(p, "hkc", **({} if f == DEFAULT else {"d_factor": f}))
-        run("hkc", nb, f)
-        run("hkf", nb, f)
-    nb = hgjax.neighbourhoods(p, "lhf", lengths=max(SWEEPS["lhf"][1], key=max))  # knn rows are prefixes
-    for ln in SWEEPS["lhf"][1]:
-        run("lhf", nb, ln, {"lengths": ln})
-    run("lhf", hgjax.neighbourhoods(p, "lhf"), DEFAULT)
-    for rf in SWEEPS["gfr"][1] + (DEFAULT,):
+        for m in ("hkc", "hkf"):  # HKC and HKF share the cube neighbourhoods
+            if m in methods:
+                run(m, nb, f)
+    if "lhf" in methods:
+        nb = hgjax.neighbourhoods(p, "lhf", lengths=max(SWEEPS["lhf"][1], key=max))  # knn rows are prefixes
+        for ln in SWEEPS["lhf"][1]:
+            run("lhf", nb, ln, {"lengths": ln})
+        run("lhf", hgjax.neighbourhoods(p, "lhf"), DEFAULT)
+    for rf in SWEEPS["gfr"][1] + (DEFAULT,) if "gfr" in methods else ():
         run("gfr", hgjax.neighbourhoods(p, "gfr", **({} if rf == DEFAULT else {"radius_factor": rf})), rf,
             keep_params={"mode": "top"})
-    for k in SWEEPS["ea"][1] + (DEFAULT,):
+    for k in SWEEPS["ea"][1] + (DEFAULT,) if "ea" in methods else ():
         run("ea", hgjax.neighbourhoods(p, "ea", **({} if k == DEFAULT else {"k": k})), k)
     return out
 
@@ -118,16 +120,22 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="tiny smoke run")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
+    parser.add_argument("--methods", default=None,
+                        help=f"comma-separated subset of {','.join(SWEEPS)} (default: all)")
     args = parser.parse_args(argv)
     command = ("python bench/edge_defaults.py " + " ".join(sys.argv[1:] if argv is None else argv)).strip()
     sizes = QUICK_SIZES if args.quick else SIZES
+    methods = list(SWEEPS) if args.methods is None else args.methods.split(",")
+    unknown = set(methods) - set(SWEEPS)
+    if unknown:
+        parser.error(f"unknown methods {sorted(unknown)}; expected some of {list(SWEEPS)}")
     t0 = time.time()
     # columns: (regime, sub-setting) -> list of per-cloud {(method, setting): value}
     columns, notes = {}, {}
     for regime, size in sizes.items():
         for p in NOISES:
             clouds = hgjax.eval.synthetic_set(regime=regime, noise=p, rotate=False, **size)
-            res = [score_cloud(c, RATIO) for c in clouds]
+            res = [score_cloud(c, RATIO, methods) for c in clouds]
             columns[regime, f"p={p}"] = [{k: v["f1_over_best"] for k, v in r.items()} for r in res]
             notes[regime, f"p={p}"] = (f"N {np.mean([len(c.points) for c in clouds]):.0f}, edge share "
                                        f"{100 * np.mean([c.edge_mask.mean() for c in clouds]):.1f} %, irregularity "
@@ -137,7 +145,7 @@ def main(argv=None):
     for f in files:
         c = hgjax.eval.load_labelled(f)
         e = int(c.edge_mask.sum())
-        r = score_cloud(c, e / len(c.points))
+        r = score_cloud(c, e / len(c.points), methods)
         assert all(v["n_kept"] == e for v in r.values())
         columns["real", c.name] = [{k: v["mcc"] for k, v in r.items()}]
         notes["real", c.name] = f"N {len(c.points)}, E {e}, irregularity {irregularity(c.points):.3f}"
@@ -163,7 +171,8 @@ def main(argv=None):
     lines.append("- `real`: " + "; ".join(f"{c}: {notes['real', c]}" for r, c in columns if r == "real"))
     lines.append("")
     verdicts = {}
-    for method, (param, values) in SWEEPS.items():
+    for method in methods:
+        param, values = SWEEPS[method]
         settings = list(values) + [DEFAULT]
         lines += [f"## {method} ({param})", "", "Rule: " + rule_text(method), ""]
         header = ["setting"]
@@ -197,7 +206,7 @@ def main(argv=None):
                                            [[m, SWEEPS[m][0], "yes" if v else "NO"] for m, v in verdicts.items()])
     lines += ["", f"Run time {time.time() - t0:.0f} s on this machine (2 shared cores).", ""]
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "edge_defaults.md").write_text("\n".join(lines))
+    (args.out / ("edge_defaults.md" if args.methods is None else f"edge_defaults_{'_'.join(methods)}.md")).write_text("\n".join(lines))
     print("\n".join(lines))
 
 
