@@ -54,7 +54,8 @@ def hkc(points, d_factor=1.3, k=3):
 def hkf(points, d_factor=1.3, k=3):
     p = np.asarray(points, dtype=np.float64)
     d = d_factor * resolution(p)
-    c, lam, v = _kernel_spectrum(d, k)
+    c, lam, _ = _kernel_spectrum(d, k)
+    _, _, v = _kernel_spectrum(1.0, k)  # the basis hgjax fixes: eigh of R at unit spacing
     t = int(np.argmax(np.diff(lam)) + 1)
     out = np.empty(len(p))
     for i in range(len(p)):

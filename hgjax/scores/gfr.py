@@ -378,7 +378,11 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
 
 
 def soft_score(nb, *, variant: str = "invariant"):
-    """GFR score as one pure JAX program (:func:`high_pass`): smooth in the points on a fixed graph.
+    """GFR score in units of the RMS pair length, one pure JAX program: smooth on a fixed graph.
+
+    :func:`high_pass` divided by sqrt(mean q) over the stored pairs, so the soft score (and
+    the soft top-k temperature, in score units) does not depend on the cloud's units; the
+    ranking is :func:`score`'s.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
@@ -394,4 +398,8 @@ def soft_score(nb, *, variant: str = "invariant"):
       (100,)
     """
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
-    return high_pass(nb.points, nb.idx, weights_dtype=_weights_dtype(variant))
+    points, idx = jnp.asarray(nb.points), jnp.asarray(nb.idx)
+    q = jax.vmap(_sq_length)(*_stream.offsets_of(points, idx))
+    count = jnp.sum(idx < points.shape[0]).astype(points.dtype)
+    unit = _common.safe_sqrt(_common.safe_div(jnp.sum(q), count, 0.0))  # the RMS pair length
+    return _common.safe_div(high_pass(points, idx, weights_dtype=_weights_dtype(variant)), unit, 0.0)

@@ -87,7 +87,9 @@ def reference_spectrum(kernel_size: int) -> tuple[np.ndarray, np.ndarray, int]:
     """The spectrum as REFERENCE.md computes it: NumPy ``eigh`` of R for the kernel.
 
     R is built from the integer voxel offsets (d = 1): for another d, R scales by d^2, which
-    leaves the normalised eigenvalues and the band threshold unchanged.
+    leaves the normalised eigenvalues, the band threshold and the eigenspaces unchanged.
+    Only the basis LAPACK returns inside the degenerate eigenspaces depends on the bits of
+    R; fixing d = 1 makes the reference scores independent of the cloud's units and dtype.
 
     Returns:
       (lam, V, t): lam (N_k,) = eig / max eig (ascending), V (N_k, N_k) the basis NumPy's
