@@ -26,20 +26,21 @@ import sys, numpy as np, jax, hgjax
 from hgjax import _stream
 from hgjax.scores import lhf
 jax.config.update("jax_enable_x64", True)
+LENGTHS = (6, 12)
 p = hgjax.eval.box_union_cloud(seed=int(sys.argv[2]), n_points=int(sys.argv[1])).points
-nb = hgjax.neighbourhoods(p, "lhf", variant="reference")
+nb = hgjax.neighbourhoods(p, "lhf", variant="reference", lengths=LENGTHS)
 def barrier(offsets, valid):
     signal, out = jax.numpy.where(valid[:, None], offsets, 0), []
-    for n in lhf.DEFAULT_LENGTHS:
+    for n in LENGTHS:
         signal = jax.lax.optimization_barrier((signal, out))[0] if out else signal
         out.append(lhf._reference(signal[:n]))
     return jax.numpy.stack(out)
 if sys.argv[3] == "barrier":
     g = _stream.map_neighbourhoods(barrier, nb)
 elif sys.argv[3] == "joint":
-    g = _stream.map_neighbourhoods(lhf._kernel(lhf.DEFAULT_LENGTHS, "reference", "gram"), nb)
+    g = _stream.map_neighbourhoods(lhf._kernel(LENGTHS, "reference", "gram"), nb)
 else:
-    g = lhf.single(nb, variant="reference")
+    g = lhf.single(nb, lengths=LENGTHS, variant="reference")
 print(float(np.asarray(g).sum()))
 """
 LAYOUTS = {"split": "one length per kernel (hgjax)", "joint": "both lengths in one kernel",
