@@ -195,7 +195,7 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
       >>> import numpy as np, hgjax
       >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((500, 3)), "lhf")
       >>> nb.idx.shape, nb.idx.dtype
-      ((500, 12), dtype('int32'))
+      ((500, 16), dtype('int32'))
     """
     entry = _scoring(method)
     return entry.build(points, **_split(entry, "build", params))
