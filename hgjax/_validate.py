@@ -46,9 +46,8 @@ def check_points(points: Any, name: str = "points") -> np.ndarray:
         raise ValueError(f"{name} must have shape (N, 3); got {arr.shape}")
     if arr.shape[0] == 0:
         raise ValueError(f"{name} must contain at least one point; got shape {arr.shape}")
-    finite = np.isfinite(arr).all(axis=1)
-    if not finite.all():
-        bad = np.flatnonzero(~finite)
+    if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):  # NaN propagates through min and max
+        bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
         raise ValueError(
             f"{name} contains {bad.size} point(s) with NaN or inf coordinates"
             f" (first at row {int(bad[0])}); drop them first, e.g. points[np.isfinite(points).all(1)]"
