@@ -5,12 +5,21 @@ Usage:
   python bench/speed.py --scale         # adds N = 1e7 (streaming; float32) and a log-log PNG
   python bench/speed.py --sizes 10000 --methods hkc,lhf --repeats 3 --out /tmp/speed.md
   python bench/speed.py --sizes 1000000 --methods lhf,lhf:reference --out bench/results/speed_lhf_reference.md
+  python bench/speed.py --real          # real scans against synthetic clouds -> bench/results/speed_real.md
 
 Each (method, N) runs in a fresh subprocess so its peak RSS is its own. Times are medians of
 ``--repeats`` calls after one warm-up call; the warm-up's extra time is reported as compile
 time. The yardstick ``cKDTree(points).query(points, k=16, workers=-1)`` (random input order,
 tree build included) is timed in the same run. Clouds are sampled uniformly on the surface of
 a box (``hgjax.eval.box_surface``), float32 at 1e7 and float64 (with x64) below.
+
+``--real`` times real data against synthetic clouds of the same N, all in ONE process (side
+by side, so a shared machine's load hits every cloud alike): the table-and-mug scan
+(``shared/data/scans/scan_table_mug.ply``), the same scan with 30 % of its points duplicated,
+and a densely sampled mesh, each beside ``hgjax.eval.box_union_cloud`` of the same N and the
+bare kNN of the same cloud. Every method runs once per cloud as a warm-up, then the clouds
+take turns for each timed call (round robin), and the ratio real / synthetic is checked
+against the 1.2x target.
 """
 
 from __future__ import annotations
@@ -35,6 +44,12 @@ SCALE_METHODS = ("hkc", "hkf", "lhf", "ea", "gfr")
 # Points of the naive loop timed at 1e4, extrapolated per point (naive HKC takes ~2 s a point).
 NAIVE_POINTS = {"hkc": 20, "lhf": 200}
 SMALL_REPEATS = 11  # at least this many timed calls at N <= 1e4, where one call takes ~0.05 s
+DATA = ROOT.parent / "shared" / "data"
+REAL_SCAN = DATA / "scans" / "scan_table_mug.ply"
+REAL_MESH = DATA / "meshes" / "fandisk.obj"
+REAL_METHODS = ("hkc", "hkf", "lhf", "gfr", "ea", "pca_ac", "fps", "voxel")
+REAL_TARGET = 1.2  # real / synthetic of the same N
+DUPLICATE_SHARE = 0.3
 
 
 def _cloud(n: int):
@@ -149,6 +164,95 @@ def _scale_worker(method: str, pts, repeats: int) -> dict:
             "us_per_point_1e6": statistics.median(times) / 10**6 * 1e6, "peak_mb": _peak_mb()}
 
 
+def _real_clouds() -> list[tuple[str, str, object]]:
+    """(name, synthetic twin name, points) of the real-data comparison, in timing order."""
+    import numpy as np
+    import trimesh
+
+    import hgjax
+
+    scan = hgjax.io.read_points(REAL_SCAN).points
+    n = scan.shape[0]
+    rng = np.random.default_rng(0)
+    copies = scan[np.sort(rng.choice(n, round(DUPLICATE_SHARE * n), replace=False))]
+    dup = np.concatenate([scan, copies])[rng.permutation(n + copies.shape[0])]
+    mesh = trimesh.load(REAL_MESH, force="mesh")
+    dense = np.asarray(trimesh.sample.sample_surface(mesh, n, seed=0)[0], dtype=np.float64)
+    syn = lambda m: np.asarray(hgjax.eval.box_union_cloud(seed=0, n_points=m).points, dtype=np.float64)
+    return [("mug scan", "synthetic", scan), (f"mug + {DUPLICATE_SHARE:.0%} duplicates", "synthetic dup N", dup),
+            (f"{REAL_MESH.stem} dense", "synthetic", dense), ("synthetic", None, syn(n)),
+            ("synthetic dup N", None, syn(dup.shape[0]))]
+
+
+def real_worker(methods, repeats: int) -> dict:
+    """Warm end-to-end times of ``methods`` and the bare kNN on every real-data cloud, one process."""
+    import jax
+    from scipy.spatial import cKDTree
+
+    import hgjax
+
+    jax.config.update("jax_enable_x64", True)
+    clouds = _real_clouds()
+    out = {"clouds": [(name, twin, int(p.shape[0])) for name, twin, p in clouds], "times": {}}
+
+    def timed(fn) -> float:
+        t = time.perf_counter()
+        fn()
+        return time.perf_counter() - t
+
+    for m in ["knn"] + list(methods):
+        if m == "knn":
+            call = lambda p: cKDTree(p).query(p, k=16, workers=-1)
+        else:
+            params = {"mode": "top"} if m == "gfr" else {}
+            call = lambda p, m=m, params=params: hgjax.resample(p, 0.2, method=m, **params)
+        times = {name: [] for name, _, _ in clouds}
+        for name, _, p in clouds:
+            call(p)  # warm-up
+        for _ in range(repeats):
+            for name, _, p in clouds:
+                times[name].append(timed(lambda p=p, call=call: call(p)))
+        out["times"][m] = times
+        print(f"{m}: " + ", ".join(f"{k} {statistics.median(v):.3f}" for k, v in times.items()),
+              file=sys.stderr, flush=True)
+    out["peak_mb"] = _peak_mb()
+    return out
+
+
+def real_report(r: dict, repeats: int, command: str) -> list[str]:
+    """Markdown of :func:`real_worker`'s result."""
+    med = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r["times"].items()}
+    sizes = {name: n for name, _, n in r["clouds"]}
+    real = [(name, twin) for name, twin, _ in r["clouds"] if twin is not None]
+    lines = [
+        "# Speed on real scans against synthetic clouds of the same N",
+        "",
+        f"Command: `{command}`  ",
+        f"Machine: {os.cpu_count()} cores, {platform.processor() or platform.machine()}, device {_device()}, "
+        f"jax {__import__('jax').__version__}, {time.strftime('%Y-%m-%d')}; float64 (x64), one process "
+        f"(peak RSS {r['peak_mb']:.0f} MB).  ",
+        f"Clouds: the mug scan ({REAL_SCAN.relative_to(ROOT.parent)}); the same scan with "
+        f"{DUPLICATE_SHARE:.0%} of its points duplicated (seed 0, shuffled); {REAL_MESH.name} sampled "
+        "uniformly (trimesh, seed 0) to the scan's N; `box_union_cloud(seed=0, n_points=N)` of the same N "
+        "(synthetic).  ",
+        f"Warm end-to-end `hgjax.resample(points, 0.2, method=m)` (gfr: mode=\"top\"), median of {repeats} calls "
+        "after one warm-up per cloud, the clouds timed in turn; kNN = bare "
+        "`cKDTree(p).query(p, k=16, workers=-1)` of the same cloud (build included); "
+        f"ratio = real / synthetic of the same N, target <= {REAL_TARGET}.",
+        "",
+        "| cloud | N | method | real s | synthetic s | real / synthetic | within 1.2x | real / its kNN | synthetic / its kNN |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, twin in real:
+        for m in med:
+            a, b = med[m][name], med[m][twin]
+            ok = "yes" if a / b <= REAL_TARGET else "**no**"
+            lines.append(f"| {name} | {sizes[name]:,} | {'bare kNN k=16' if m == 'knn' else m} | {a:.3f} | {b:.3f} | "
+                         f"{a / b:.2f} | {ok if m != 'knn' else ''} | {a / med['knn'][name]:.2f} | "
+                         f"{b / med['knn'][twin]:.2f} |")
+    return lines
+
+
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
@@ -175,14 +279,32 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", default="10000,100000,1000000")
     parser.add_argument("--methods", default=None, help="comma list (default: all registered)")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", default=str(HERE / "results" / "speed.md"))
+    parser.add_argument("--real", action="store_true",
+                        help="real scans against synthetic clouds of the same N -> results/speed_real.md")
+    parser.add_argument("--out", default=None, help="default results/speed.md (--real: results/speed_real.md)")
     args = parser.parse_args(argv)
     if args.worker:
         kind, n, repeats = args.worker
-        print(json.dumps(worker(kind, int(n), int(repeats))))
+        if kind == "real":
+            print(json.dumps(real_worker(n.split(","), int(repeats))))
+        else:
+            print(json.dumps(worker(kind, int(n), int(repeats))))
         return
 
     import hgjax
+
+    if args.real:
+        methods = args.methods.split(",") if args.methods else list(REAL_METHODS)
+        out = subprocess.run([sys.executable, __file__, "--worker", "real", ",".join(methods), str(args.repeats)],
+                             stdout=subprocess.PIPE, text=True, cwd=ROOT, check=True)
+        command = "python bench/speed.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        lines = real_report(json.loads(out.stdout.strip().splitlines()[-1]), args.repeats, command.strip())
+        path = Path(args.out or HERE / "results" / "speed_real.md")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("\n".join(lines) + "\n")
+        print("\n".join(lines))
+        return
+    args.out = args.out or str(HERE / "results" / "speed.md")
 
     methods = args.methods.split(",") if args.methods else sorted(hgjax.METHODS)
     sizes = [int(float(s)) for s in args.sizes.split(",")]
@@ -233,9 +355,13 @@ def main(argv=None) -> None:
             if "error" in r:
                 lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | |")
                 continue
-            jax_part = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7
-            lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | {r['build']:.3f} | "
-                         f"{jax_part:.2f} | {n / r['median']:,.0f} | {r['compile']:.2f} | {r['peak_mb']:.0f} |")
+            if hgjax.METHODS[m.partition(":")[0]].kind is None:  # samplers: no neighbourhood build
+                build, jax_part = "", ""
+            else:
+                ratio = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7
+                build, jax_part = f"{r['build']:.3f}", f"{ratio:.2f}"
+            lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | {build} | "
+                         f"{jax_part} | {n / r['median']:,.0f} | {r['compile']:.2f} | {r['peak_mb']:.0f} |")
     scale_rows = [(m, results[(m, 10**7)]) for m in methods if "us_per_point" in results.get((m, 10**7), {})]
     if scale_rows:
         lines += ["", "Time per point, float32, 1e7 against 1e6 timed in the same process (medians of "
