@@ -48,6 +48,7 @@ __all__ = [
 
 _MORTON_BITS = 21  # 3 * 21 = 63 bits fit in uint64
 RESOLUTION_SAMPLES = 1000
+CUBE_GROUPS = 8  # cube queries bound each eighth of a batch (by half-width) separately
 
 
 class PrecisionWarning(UserWarning):
@@ -282,9 +283,7 @@ class SpatialIndex:
         while todo.size:
             if max_count is not None:
                 k = min(k, max_count)
-            dist, idx = self.tree.query(queries[todo], k=k, p=np.inf, distance_upper_bound=float(h[todo].max()),
-                                        workers=-1)
-            dist, idx = dist.reshape(todo.size, k), idx.reshape(todo.size, k)
+            dist, idx = self._cube_query(queries[todo], k, h[todo])
             full = dist[:, -1] < h[todo]
             if k == max_count:  # shrink the full cubes to exclude their max_count-th point
                 h[todo[full]] = dist[full, -1]
@@ -297,6 +296,22 @@ class SpatialIndex:
             out[todo[done], :width] = np.where(inside[done, :width], idx[done, :width], self.n)
             todo, k = todo[~done], min(2 * k, self.n)
         return out, h
+
+    def _cube_query(self, queries: np.ndarray, k: int, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(R, k) Chebyshev k-nearest distances and indices, each row searched within about its own h.
+
+        cKDTree takes one distance bound per call; a batch's largest h lets every row of a cloud
+        whose density varies (a scan: near and far from the sensor) search far past its own cube.
+        Rows are grouped by h (spatial order kept inside a group) and each group is bounded by
+        its largest h. Every row still gets all its points closer than its h: the same sets.
+        """
+        groups = CUBE_GROUPS if h.size >= CUBE_GROUPS * 128 and h.min() < h.max() else 1
+        dist, idx = np.empty((h.size, k)), np.empty((h.size, k), dtype=np.intp)
+        for g in np.array_split(np.argsort(h, kind="stable"), groups):
+            g = np.sort(g)
+            d, i = self.tree.query(queries[g], k=k, p=np.inf, distance_upper_bound=float(h[g].max()), workers=-1)
+            dist[g], idx[g] = d.reshape(g.size, k), i.reshape(g.size, k)
+        return dist, idx
 
     def ball(self, radius: float, rows: slice | np.ndarray = slice(None), *, max_nn: int,
              capacity: int = 16) -> tuple[np.ndarray, np.ndarray]:

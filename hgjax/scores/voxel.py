@@ -272,8 +272,9 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     def query(rows):
         idx, half[rows] = index.cube(half[rows], rows, capacity=capacity[0], max_count=max_count)
         # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
-        # percentile count instead of doubling up from 32 again.
-        capacity[0] = spatial.bucket(int(np.percentile((idx < index.n).sum(axis=1), 95)) + 1)
+        # percentile count instead of doubling up from 32 again (exact, not a power of two: a
+        # host query compiles nothing, and k = 64 for a 95th percentile of 35 doubled the work).
+        capacity[0] = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
         return idx
 
     idx = spatial.pad_queries(index, query, cap, "cube")
