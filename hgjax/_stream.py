@@ -26,7 +26,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import spatial
 
 BLOCK = 1024  # rows per vmapped block
 CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
@@ -82,9 +81,9 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       progress: tqdm bar on stderr for long streamed runs.
       narrow: the rows list their neighbours first and padding after, and ``fn`` gives the
         same result whatever the number of padding columns (e.g. exact counts). The
-        streamed path then runs the rows holding at most the 90th percentile count through
-        a second kernel of that many columns (a power of two): far less work when a few
-        rows set K.
+        streamed path then runs the rows holding at most w points through a second kernel
+        of w columns, w the power of two that minimises rows x columns over both kernels:
+        far less work when a few rows set K.
 
     Returns:
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
@@ -102,7 +101,10 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
     args, chunk = tuple(jax.device_put(np.asarray(a)) for a in args), chunk_rows(chunk_size)
     if narrow and n:
         count = (idx < n).sum(axis=1)
-        width = spatial.bucket(int(np.percentile(count, 90)))
+        widths = [w for w in (8 << i for i in range(20)) if w < idx.shape[1]]
+        # The narrow width with the least work: rows x columns over both kernels.
+        cost = [np.count_nonzero(count <= w) * w + np.count_nonzero(count > w) * idx.shape[1] for w in widths]
+        width = widths[int(np.argmin(cost))] if widths else idx.shape[1]
         if width < idx.shape[1]:
             small = count <= width
             parts = [(rows, _stream(fn, points, np.flatnonzero(rows), idx[rows][:, :k], tuple(a[rows] for a in row_args),
