@@ -118,15 +118,11 @@ def _chunks(tree: cKDTree, bound: float):
             yield part
 
 
-def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int, location: np.ndarray | None):
-    """Stored pairs (row, col), row < col, sorted, of the radius graph with squared radius r.
+def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int):
+    """Stored pairs (row, col), row < col, sorted, of the reference radius graph (squared radius r).
 
-    Reference (``location`` None): each row i ranks its candidates j > i (0 < q_ij < r, q in
-    the dtype of ``p``) by (q_ij, j) and keeps the first ``max_nn``. Invariant: ``location``
-    (N,) is the smallest index of the points at each point's coordinates; row i ranks the
-    distinct locations of its candidates j != i by (q_ij, location) and keeps every
-    candidate at the first ``max_nn`` of them (exact duplicates do not use up the cap); a
-    pair is stored when either end keeps the other.
+    Each row i ranks its candidates j > i (0 < q_ij < r, q in the dtype of ``p``) by
+    (q_ij, j) and keeps the first ``max_nn``.
     """
     n = p.shape[0]
     bound = np.sqrt(r) * (1 + 1e-5)  # q is rounded (float32 for the reference); exact test below
@@ -134,27 +130,79 @@ def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int, location: np.nda
     for part in _chunks(tree, bound):
         hits = cKDTree(tree.data[part]).sparse_distance_matrix(tree, bound, output_type="ndarray")
         i, j = part[hits["i"]], hits["j"].astype(np.int64)
-        keep = (i < j) if location is None else (i != j)
-        i, j = i[keep], j[keep]
+        i, j = i[i < j], j[i < j]
         q = _sq_dist(p, i, j)
         keep = (q > 0) & (q < r)
         i, j, q = i[keep], j[keep], q[keep]
-        if location is None:
-            order = np.lexsort((j, q, i))
-            i, j = i[order], j[order]
-            rank = np.arange(i.size) - np.searchsorted(i, i)
-        else:
-            order = np.lexsort((j, location[j], q, i))
-            i, j = i[order], j[order]
-            new = np.ones(i.size, dtype=bool)
-            new[1:] = (i[1:] != i[:-1]) | (location[j[1:]] != location[j[:-1]])
-            count = np.cumsum(new)
-            rank = count - count[np.searchsorted(i, i)]
-        i, j = i[rank < max_nn], j[rank < max_nn]
-        rows.append(np.minimum(i, j))
-        cols.append(np.maximum(i, j))
-    key = np.unique(np.concatenate(rows) * n + np.concatenate(cols))
+        order = np.lexsort((j, q, i))
+        i, j = i[order], j[order]
+        rank = np.arange(i.size) - np.searchsorted(i, i)
+        rows.append(i[rank < max_nn])
+        cols.append(j[rank < max_nn])
+    return _split_keys(np.concatenate(rows) * n + np.concatenate(cols), n)
+
+
+def _split_keys(key: np.ndarray, n: int):
+    """Sorted distinct pairs (key // n, key % n) of int64 pair keys (a sort: faster than np.unique's hash)."""
+    key = np.sort(key)
+    key = key[np.concatenate([[True], key[1:] != key[:-1]])] if key.size else key
     return key // n, key % n
+
+
+def _expand(a: np.ndarray, b: np.ndarray, inverse: np.ndarray):
+    """Caller pairs (row, col), row < col, sorted: every copy of location a with every copy of b.
+
+    ``inverse`` (N,) maps each point to its location.
+    """
+    n = inverse.size
+    members = np.argsort(inverse, kind="stable")  # points grouped by location, by index
+    count = np.bincount(inverse, minlength=int(inverse.max(initial=-1)) + 1)
+    start = np.cumsum(count) - count
+    size = count[a] * count[b]
+    pair = np.repeat(np.arange(a.size), size)
+    within = np.arange(pair.size) - np.repeat(np.cumsum(size) - size, size)
+    x = members[start[a][pair] + within // count[b][pair]]
+    y = members[start[b][pair] + within % count[b][pair]]
+    return _split_keys(np.minimum(x, y).astype(np.int64) * n + np.maximum(x, y), n)
+
+
+def _location_pairs(u: np.ndarray, r: float, max_nn: int, tie: np.ndarray):
+    """Undirected pairs (a, b), a < b, of distinct locations ``u`` (U, 3) float64.
+
+    Each location keeps its ``max_nn`` nearest other locations at squared distance q < r,
+    ranked by (q, tie); a pair is stored when either end keeps the other. One bounded
+    k-nearest query per location, asked again with more columns only for the rows whose
+    query came back full while ties with the cap (or too few points) may lie beyond it.
+    """
+    m = u.shape[0]
+    tree = cKDTree(u)
+    bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
+    rows, cols = [], []
+    todo, k = np.arange(m), min(max_nn + 9, m)
+    while todo.size:
+        again = []
+        for batch in np.array_split(todo, max(1, todo.size * k // PAIR_BUDGET)):
+            _, j = tree.query(u[batch], k=k, distance_upper_bound=bound, workers=-1)
+            j = j.reshape(batch.size, k)
+            real = j < m
+            jj = np.where(real, j, 0)
+            d = u[batch][:, None, :] - u[jj]  # (R, k, 3)
+            q = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
+            valid = real & (q > 0) & (q < r)
+            q = np.where(valid, q, np.inf)
+            order = np.lexsort((np.where(valid, tie[jj], m), q), axis=1)  # by (q, tie) in each row
+            q, j = np.take_along_axis(q, order, axis=1), np.take_along_axis(j, order, axis=1)
+            n_valid = valid.sum(axis=1)
+            cap = min(max_nn, k) - 1
+            last = q[np.arange(batch.size), np.maximum(n_valid - 1, 0)]
+            open_rows = real.all(axis=1) & (k < m) & ((n_valid < max_nn) | (q[:, cap] >= last))
+            again.append(batch[open_rows])
+            take = (np.arange(k) < max_nn) & np.isfinite(q) & ~open_rows[:, None]
+            a = np.broadcast_to(batch[:, None], j.shape)[take]
+            rows.append(np.minimum(a, j[take]))
+            cols.append(np.maximum(a, j[take]))
+        todo, k = np.concatenate(again), min(2 * k, m)
+    return _split_keys(np.concatenate(rows) * m + np.concatenate(cols), m)
 
 
 def graph(points, *, variant: str = "invariant", radius_factor: float | None = None,
@@ -201,19 +249,17 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
             radius_factor, "radius_factor")
     pts = np.asarray(points)
     n = pts.shape[0]
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     if variant == "reference":
         p = pts.astype(np.float32)
         tree = cKDTree(p.astype(np.float64))
         r = _reference_radius(p, tree)
-        location = None
+        rows, cols = _pairs(p, tree, r, max_nn) if r > 0 else empty
     else:
         p = pts.astype(np.float64)
-        tree = cKDTree(p)
-        r = (radius_factor * _resolution(tree)) ** 2
-        _, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
-        location = first[inverse.ravel()]
-    rows, cols = _pairs(p, tree, r, max_nn, location) if r > 0 else (
-        np.zeros(0, np.int64), np.zeros(0, np.int64))
+        r = (radius_factor * _resolution(cKDTree(p))) ** 2
+        u, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
+        rows, cols = _expand(*_location_pairs(u, r, max_nn, first), inverse.ravel()) if r > 0 else empty
     counts = np.bincount(rows, minlength=n)
     idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
     idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
