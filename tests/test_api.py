@@ -198,35 +198,26 @@ def test_capacity_too_small_names_the_capacity_needed(method):
 # ----------------------------------------------------------------- validation
 
 
-@pytest.mark.parametrize("call", [
-    lambda nb: hgjax.score(nb, "nope"),
-    lambda nb: hgjax.soft_score(nb, "nope"),
-    lambda nb: hgjax.neighbourhoods(nb.points, "nope"),
-    lambda nb: hgjax.keep(np.zeros(3), 0.5, method="nope"),
-    lambda nb: hgjax.soft_weights(nb, 0.5, method="nope"),
+UNKNOWN_METHOD = (ValueError, "unknown method 'nope'")
+UNKNOWN_PARAMETER = (TypeError, "bogus")
+
+
+@pytest.mark.parametrize("call, error", [
+    (lambda nb: hgjax.score(nb, "nope"), UNKNOWN_METHOD),
+    (lambda nb: hgjax.soft_score(nb, "nope"), UNKNOWN_METHOD),
+    (lambda nb: hgjax.neighbourhoods(nb.points, "nope"), UNKNOWN_METHOD),
+    (lambda nb: hgjax.keep(np.zeros(3), 0.5, method="nope"), UNKNOWN_METHOD),
+    (lambda nb: hgjax.soft_weights(nb, 0.5, method="nope"), UNKNOWN_METHOD),
+    (lambda nb: hgjax.score(nb, "fps"), (ValueError, "'fps' is a sampler")),
+    (lambda nb: hgjax.score(nb, "ea", bogus=1), UNKNOWN_PARAMETER),
+    (lambda nb: hgjax.soft_score(nb, "ea", bogus=1), UNKNOWN_PARAMETER),
+    (lambda nb: hgjax.neighbourhoods(nb.points, "ea", bogus=1), UNKNOWN_PARAMETER),
+    (lambda nb: hgjax.soft_weights(nb, 0.5, method="ea", bogus=1), UNKNOWN_PARAMETER),
+    (lambda nb: hgjax.resample(nb.points, 0.5, method="ea", bogus=1), UNKNOWN_PARAMETER),
 ])
-def test_unknown_method_raises_value_error_naming_it(call):
+def test_unknown_methods_and_parameters_raise_naming_them(call, error):
     nb = hgjax.neighbourhoods(cloud(n=40), "ea")
-    with pytest.raises(ValueError, match="unknown method 'nope'"):
-        call(nb)
-
-
-def test_sampler_method_has_no_scores():
-    nb = hgjax.neighbourhoods(cloud(n=40), "ea")
-    with pytest.raises(ValueError, match="'fps' is a sampler"):
-        hgjax.score(nb, "fps")
-
-
-@pytest.mark.parametrize("call", [
-    lambda nb: hgjax.score(nb, "ea", bogus=1),
-    lambda nb: hgjax.soft_score(nb, "ea", bogus=1),
-    lambda nb: hgjax.neighbourhoods(nb.points, "ea", bogus=1),
-    lambda nb: hgjax.soft_weights(nb, 0.5, method="ea", bogus=1),
-    lambda nb: hgjax.resample(nb.points, 0.5, method="ea", bogus=1),
-])
-def test_unknown_parameter_raises_type_error_naming_it(call):
-    nb = hgjax.neighbourhoods(cloud(n=40), "ea")
-    with pytest.raises(TypeError, match="bogus"):
+    with pytest.raises(error[0], match=error[1]):
         call(nb)
 
 
