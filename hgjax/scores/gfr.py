@@ -54,6 +54,7 @@ MAX_NN = 100
 RADIUS_FACTOR = 10.0
 SKIP_SQ_DIST = 1e-10  # reference: points with a neighbour this close (squared) do not set minNN
 PAIR_BUDGET = 1 << 22  # candidate pairs examined per chunk of rows (bounds the host memory)
+SCORE_ROWS = 1 << 16  # rows per host block of the streamed score (bounds its (R, K, 3) flows)
 
 
 def _edge_weight(q, two_var):
@@ -406,20 +407,41 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     points, idx = np.asarray(nb.points), np.asarray(nb.idx)
     _validate.check_graph(points, idx, wdtype)
     n = points.shape[0]
-    wdtype = points.dtype if wdtype is None else wdtype
-    cast = spatial.Neighbourhoods(points.astype(wdtype), idx)
-    q = np.asarray(_stream.map_neighbourhoods(_sq_length, cast, chunk_size=chunk_size), dtype=np.float64)
-    valid = idx < n
-    count = int(valid.sum())
-    mean_q = q.sum() / count if count else 0.0
-    z = q[valid] / mean_q if mean_q > 0 else np.zeros(count)
-    two_var = 2 * float(np.mean((z - z.mean()) ** 2)) if count else 0.0
+    wdtype = np.dtype(points.dtype if wdtype is None else wdtype)
+    chunk = _stream.chunk_rows(chunk_size)
+    blocks = [slice(start, min(start + SCORE_ROWS, n)) for start in range(0, n, SCORE_ROWS)]
+
+    def run(fn, pts, rows, row_args=(), args=()):
+        return _stream._stream(fn, pts, np.arange(rows.start, rows.stop), idx[rows], row_args, args, chunk, False)
+
+    # Pass 1: q of every stored pair (from the points cast to wdtype, as the authors' code).
+    cast = points.astype(wdtype)
+    q = np.empty(idx.shape, wdtype)
+    for rows in blocks:
+        q[rows] = run(_sq_length, cast, rows)
+    valid_count = int(np.count_nonzero(idx < n))
+    mean_q = float(np.sum(q, dtype=np.float64)) / valid_count if valid_count else 0.0
+    z_sum = z_sq = 0.0
+    for rows in blocks:
+        z = q[rows][idx[rows] < n].astype(np.float64) / mean_q if mean_q > 0 else np.zeros(0)
+        z_sum, z_sq = z_sum + z.sum(), z_sq + np.sum(z * z)
+    mean_z = z_sum / valid_count if valid_count else 0.0
+    two_var = 2 * max(z_sq / valid_count - mean_z * mean_z, 0.0) if valid_count else 0.0
+    # Pass 2: the pair flows W0_ij (p_i - p_j), reduced block by block: the row sums (W0) and
+    # the scatter-add onto the partners (W0^T), never the whole (N, K, 3) array.
     acc = np.promote_types(points.dtype, wdtype)
-    c = np.asarray(_stream.map_neighbourhoods(_flow_kernel(np.dtype(wdtype)), nb, row_args=(q.astype(wdtype),), args=(np.asarray(mean_q, acc), np.asarray(two_var, acc)),
-                                              chunk_size=chunk_size, progress=progress))  # (N, K, 3)
-    flat = idx.ravel()
-    scattered = np.stack([np.bincount(flat, c[..., k].ravel(), minlength=n + 1)[:n] for k in range(3)], axis=1)
-    lp = c.sum(axis=1) - scattered
+    args = (jax.device_put(np.asarray(mean_q, acc)), jax.device_put(np.asarray(two_var, acc)))
+    lp = np.zeros((n, 3))
+    bar = _stream._progress(n, progress and len(blocks) > 4)
+    for rows in blocks:
+        c = run(_flow_kernel(wdtype), points, rows, (q[rows],), args)  # (R, K, 3)
+        flat = idx[rows].ravel()
+        lp[rows] += c.sum(axis=1)
+        lp -= np.stack([np.bincount(flat, c[..., k].ravel(), minlength=n + 1)[:n] for k in range(3)], axis=1)
+        if bar is not None:
+            bar.update(rows.stop - rows.start)
+    if bar is not None:
+        bar.close()
     return jax.device_put(np.sqrt(np.sum(lp * lp, axis=1)).astype(points.dtype))
 
 
