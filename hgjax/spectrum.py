@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "band_energies",
@@ -21,6 +22,7 @@ __all__ = [
     "correlation",
     "estimate_spectrum",
     "hgft",
+    "host_eigh",
     "ihgft",
     "normalise_eigenvalues",
 ]
@@ -75,11 +77,42 @@ def estimate_spectrum(x: jax.Array, *, axis: str = "row") -> tuple[jax.Array, ja
 
     Returns:
       (lam, V): lam (n,) ascending in [0, 1]; V (n, n) with eigenvectors as columns, computed
-      in at least float32 by ``jnp.linalg.eigh`` (inside degenerate eigenspaces the basis is
-      whatever the eigensolver returns).
+      by NumPy's ``eigh`` (:func:`host_eigh`; inside degenerate eigenspaces the basis is
+      whatever that eigensolver returns, as REFERENCE.md's reference code).
     """
-    lam, v = jnp.linalg.eigh(correlation(x, axis=axis))
+    lam, v = host_eigh(correlation(x, axis=axis))
     return normalise_eigenvalues(lam), v
+
+
+def host_eigh(r: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``numpy.linalg.eigh`` of symmetric matrices (..., n, n) through a host callback.
+
+    jaxlib 0.10's CPU LAPACK eigh can hang when two batched calls share one XLA program
+    (bench/eigh_deadlock.py); NumPy's, called from the host, cannot. Works under jit and
+    vmap (one batched call per vmapped block); not differentiable, which the eigh-based
+    scores (LHF reference, the proof solver) do not need.
+
+    Args:
+      r: (..., n, n) symmetric matrices.
+
+    Returns:
+      (lam, V): (..., n) ascending eigenvalues and (..., n, n) eigenvectors as columns, in
+      the dtype of ``r``.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.spectrum import host_eigh
+      >>> lam, v = host_eigh(jnp.diag(jnp.array([3.0, 1.0])))
+      >>> lam.tolist()
+      [1.0, 3.0]
+    """
+    shapes = (jax.ShapeDtypeStruct(r.shape[:-1], r.dtype), jax.ShapeDtypeStruct(r.shape, r.dtype))
+
+    def host(m):
+        lam, v = np.linalg.eigh(np.asarray(m))
+        return lam.astype(m.dtype), v.astype(m.dtype)
+
+    return jax.pure_callback(host, shapes, jax.lax.stop_gradient(r), vmap_method="broadcast_all")
 
 
 def hgft(v: jax.Array, s: jax.Array) -> jax.Array:
