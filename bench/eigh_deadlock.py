@@ -1,13 +1,14 @@
 """Reproducer for the jaxlib CPU eigh deadlock (jax 0.10.2, no XLA_FLAGS).
 
-LHF with ``variant="reference"`` computes an n x n LAPACK ``eigh`` per point for each of its
-two lengths. Three kernel layouts: both lengths in one compiled kernel, serialised by an
-``optimization_barrier`` (hgjax's previous layout, which needed XLA_FLAGS); both lengths in
-one kernel without the barrier; one length per compiled kernel (hgjax's layout,
-:func:`hgjax.scores.lhf.single`). Each case runs in a subprocess with a time
+LHF with ``variant="reference"`` computes an n x n ``eigh`` per point for each of its two
+lengths. Three layouts, the first two with jaxlib's LAPACK ``jnp.linalg.eigh``: both lengths
+in one compiled kernel serialised by an ``optimization_barrier`` (hgjax's previous layout,
+which needed XLA_FLAGS); both lengths in one kernel traced under ``jit`` over the whole
+cloud; and hgjax's layout (:func:`hgjax.scores.lhf.single`: NumPy's eigh through a host
+callback, :func:`hgjax.spectrum.host_eigh`, one length per compiled kernel). Each case runs in a subprocess with a time
 limit and without XLA_FLAGS; a hang shows as a timeout.
 
-    python bench/eigh_deadlock.py [--n 200000] [--repeats 2] [--timeout 120]
+    python bench/eigh_deadlock.py [--n 200000] [--repeats 2] [--timeout 90]
 
 Writes bench/results/eigh_deadlock.md.
 """
@@ -35,23 +36,26 @@ def barrier(offsets, valid):
         signal = jax.lax.optimization_barrier((signal, out))[0] if out else signal
         out.append(lhf._reference(signal[:n]))
     return jax.numpy.stack(out)
+if sys.argv[3] != "split":
+    hgjax.spectrum.host_eigh = jax.numpy.linalg.eigh  # jaxlib's LAPACK eigh
 if sys.argv[3] == "barrier":
     g = _stream.map_neighbourhoods(barrier, nb)
 elif sys.argv[3] == "joint":
-    g = _stream.map_neighbourhoods(lhf._kernel(LENGTHS, "reference", "gram"), nb)
+    g = jax.jit(lambda nb: lhf.single(nb, lengths=LENGTHS, variant="reference"))(nb)
 else:
     g = lhf.single(nb, lengths=LENGTHS, variant="reference")
 print(float(np.asarray(g).sum()))
 """
-LAYOUTS = {"split": "one length per kernel (hgjax)", "joint": "both lengths in one kernel",
-           "barrier": "both lengths in one kernel, optimization_barrier between them (previous)"}
+LAYOUTS = {"split": "hgjax: NumPy eigh by host callback, one length per kernel",
+           "joint": "jaxlib eigh, both lengths in one program (jit over the whole cloud)",
+           "barrier": "jaxlib eigh, both lengths in one kernel with an optimization_barrier (previous)"}
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=200_000)
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--timeout", type=int, default=120)
+    parser.add_argument("--timeout", type=int, default=90)
     args = parser.parse_args()
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     rows = []
