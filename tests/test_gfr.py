@@ -119,11 +119,15 @@ def test_invariant_matches_naive(name, max_nn):
 
 def test_resolution_ignores_duplicates_and_outliers():
     p = box_surface(1000, 1)
-    tree = gfr_module.cKDTree
-    res = gfr_module._resolution(tree(p))
-    assert gfr_module._resolution(tree(np.concatenate([p, p, p]))) == res
-    assert abs(gfr_module._resolution(tree(np.concatenate([p, [[1e6, 0, 0]]]))) / res - 1) < 0.01
-    assert gfr_module._resolution(tree(np.ones((5, 3)))) == 0.0
+
+    def resolution(q):
+        _, _, inverse, tree = gfr_module._locations(q)
+        return gfr_module._resolution(tree, inverse)
+
+    res = resolution(p)
+    assert resolution(np.concatenate([p, p, p])) == res
+    assert abs(resolution(np.concatenate([p, [[1e6, 0, 0]]])) / res - 1) < 0.01
+    assert resolution(np.ones((5, 3))) == 0.0
 
 
 @pytest.mark.parametrize("scale", [1e-3, 1e3])

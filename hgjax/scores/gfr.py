@@ -68,27 +68,22 @@ def _sq_dist(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
 
 
-def _resolution(tree: cKDTree) -> float:
+def _locations(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree]:
+    """Distinct locations of ``p``: (u (U, 3), first (U,) smallest index at each, inverse (N,), tree over u)."""
+    u, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
+    return u, first, inverse.ravel(), cKDTree(u)
+
+
+def _resolution(tree: cKDTree, inverse: np.ndarray) -> float:
     """Median over points of the Euclidean distance to the nearest distinct point (0 if none has one).
 
-    Points with exact duplicates query more neighbours (k doubling) until a distinct one shows.
+    ``tree`` holds the distinct locations and ``inverse`` (N,) maps each point to its own, so a
+    point's nearest distinct point is its location's nearest other location.
     """
-    n = tree.n
-    nearest = np.full(n, np.inf)
-    todo, k = np.arange(n), 2
-    while todo.size and n > 1:
-        k = min(k, n)
-        d, _ = tree.query(tree.data[todo], k=k, workers=-1)
-        d = d.reshape(todo.size, k)
-        distinct = d > 0
-        found = distinct.any(axis=1)
-        first = np.argmax(distinct[found], axis=1)
-        nearest[todo[found]] = d[found, first]
-        if k == n:
-            break
-        todo, k = todo[~found], 2 * k
-    finite = nearest[np.isfinite(nearest)]
-    return float(np.median(finite)) if finite.size else 0.0
+    if tree.n < 2:
+        return 0.0
+    nearest = tree.query(tree.data, k=2, workers=-1)[0][:, 1]
+    return float(np.median(nearest[inverse]))
 
 
 def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
@@ -167,16 +162,16 @@ def _expand(a: np.ndarray, b: np.ndarray, inverse: np.ndarray):
     return _split_keys(np.minimum(x, y).astype(np.int64) * n + np.maximum(x, y), n)
 
 
-def _location_pairs(u: np.ndarray, r: float, max_nn: int, tie: np.ndarray):
-    """Undirected pairs (a, b), a < b, of distinct locations ``u`` (U, 3) float64.
+def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
+    """Undirected pairs (a, b), a < b, of the distinct locations u (U, 3) float64 in ``tree``.
 
     Each location keeps its ``max_nn`` nearest other locations at squared distance q < r,
     ranked by (q, tie); a pair is stored when either end keeps the other. One bounded
     k-nearest query per location, asked again with more columns only for the rows whose
     query came back full while ties with the cap (or too few points) may lie beyond it.
     """
+    u = tree.data
     m = u.shape[0]
-    tree = cKDTree(u)
     bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
     rows, cols = [], []
     todo, k = np.arange(m), min(max_nn + 9, m)
@@ -257,10 +252,9 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         r = _reference_radius(p, tree)
         rows, cols = _pairs(p, tree, r, max_nn) if r > 0 else empty
     else:
-        p = pts.astype(np.float64)
-        r = (radius_factor * _resolution(cKDTree(p))) ** 2
-        u, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
-        rows, cols = _expand(*_location_pairs(u, r, max_nn, first), inverse.ravel()) if r > 0 else empty
+        u, first, inverse, tree = _locations(pts.astype(np.float64))
+        r = (radius_factor * _resolution(tree, inverse)) ** 2
+        rows, cols = _expand(*_location_pairs(tree, r, max_nn, first), inverse) if r > 0 else empty
     counts = np.bincount(rows, minlength=n)
     idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
     idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
