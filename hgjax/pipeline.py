@@ -326,8 +326,7 @@ def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -
     if entry.kind is None:
         return entry.select(pts, ratio, **({"key": key} if entry.needs_key else {}), **params)
     nb = neighbourhoods(pts, method, **params)
-    scores = score(nb, method, **{k: v for k, v in params.items() if k != "ratio"},
-                   **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
+    scores = score(nb, method, **params, **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
     return keep(scores, ratio, method=method, key=key, **params)
 
 
