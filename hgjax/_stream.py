@@ -106,14 +106,12 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
         cost = [np.count_nonzero(count <= w) * w + np.count_nonzero(count > w) * idx.shape[1] for w in widths]
         width = widths[int(np.argmin(cost))] if widths else idx.shape[1]
         if width < idx.shape[1]:
-            small = count <= width
-            parts = [(rows, _stream(fn, points, np.flatnonzero(rows), idx[rows][:, :k], tuple(a[rows] for a in row_args),
-                                    args, chunk, progress))
-                     for rows, k in ((small, width), (~small, idx.shape[1])) if rows.any()]
-            out = jax.tree.map(lambda x: np.empty((n,) + x.shape[1:], x.dtype), parts[0][1])
-            for rows, part in parts:
-                jax.tree.map(lambda o, x: o.__setitem__(rows, x), out, part)
-            return jax.tree.map(jax.device_put, out)
+            groups = [(np.flatnonzero(count <= width), width), (np.flatnonzero(count > width), idx.shape[1])]
+            groups = [(own, k) for own, k in groups if own.size]
+            parts = [_stream(fn, points, own, idx[own, :k], tuple(a[own] for a in row_args), args, chunk, progress)
+                     for own, k in groups]
+            back = np.argsort(np.concatenate([own for own, _ in groups]))  # rows back in order
+            return jax.tree.map(lambda *xs: jax.device_put(np.concatenate(xs)[back]), *parts)
     return jax.tree.map(jax.device_put, _stream(fn, points, np.arange(n), idx, row_args, args, chunk, progress))
 
 
