@@ -213,29 +213,38 @@ def _segment_sums_f32(v: np.ndarray, starts: np.ndarray, sizes: np.ndarray) -> n
     return total
 
 
-def _kd_order(q: np.ndarray) -> np.ndarray:
-    """(U,) order in which fpsample's QuickFPS kd-tree leaves (U, 3) float32 points ``q``.
+def _kd_layout(q: np.ndarray) -> np.ndarray:
+    """(U,) rows of (U, 3) float32 points ``q`` after fpsample's QuickFPS tree build.
 
-    fpsample 1.0 builds its tree by partitioning the points in place (each node splits its
-    widest axis at the float32 mean, smaller values first, down to single points) and then
-    reads the start point at ``start_idx`` of the partitioned array. Points handed over in
-    this order are already partitioned, so the build moves none of them and ``start_idx``
-    is a row of the array as given (which a build that does not move rows also honours).
+    fpsample 1.0 builds its kd-tree by partitioning the points in place: each node splits
+    its widest axis (the first on ties) at the float32 mean of the node's points, summed in
+    their current order, by a Hoare scan (the i-th point at or above the mean among the
+    node's first ``k`` rows trades places with the i-th point below it counted from the
+    node's end, ``k`` the count below), down to single points. ``start_idx`` then reads a
+    row of that partitioned array. Every node of a level is replayed at once.
+
+    Returns:
+      (U,) int64 ``layout``: ``layout[r]`` is the input row that the build leaves in row ``r``.
     """
     n = q.shape[0]
-    order = np.arange(n)
+    layout = np.arange(n)
     starts = np.zeros(1, dtype=np.int64)
     while True:
         sizes = np.diff(np.append(starts, n))
         if sizes.max() == 1:
-            return order
-        x = q[order]
+            return layout
+        x = q[layout]
         span = np.maximum.reduceat(x, starts) - np.minimum.reduceat(x, starts)
         seg = np.repeat(np.arange(starts.size), sizes)
         v = x[np.arange(n), np.argmax(span, axis=1)[seg]]
         right = v >= (_segment_sums_f32(v, starts, sizes) / sizes.astype(np.float32))[seg]
-        n_left = np.clip(sizes - np.add.reduceat(right.astype(np.int64), starts), 1, np.maximum(sizes - 1, 1))
-        order = order[np.argsort(2 * seg + right, kind="stable")]
+        below = sizes - np.add.reduceat(right.astype(np.int64), starts)
+        head = np.arange(n) - starts[seg] < below[seg]
+        up = np.flatnonzero(head & right)
+        down = np.flatnonzero(~head & ~right)
+        down = down[np.lexsort((-down, seg[down]))]
+        layout[up], layout[down] = layout[down], layout[up]
+        n_left = np.clip(below, 1, np.maximum(sizes - 1, 1))
         starts = np.sort(np.concatenate([starts, (starts + n_left)[sizes > 1]]))
 
 
@@ -244,9 +253,10 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
 
     Duplicates are resolved first: each distinct position is represented by its lowest
     index (``start`` for its own), and once all M' <= M distinct positions are taken the
-    other points follow in index order, as on the JAX path. Should the start row not come
-    back first (a future fpsample partitioning differently), fpsample's plain O(N M) FPS,
-    which takes ``start_idx`` as given, serves instead.
+    other points follow in index order, as on the JAX path. ``start_idx`` is the row that
+    the tree build moves ``start`` to (``_kd_layout``). Should the start not come back
+    first (a future fpsample building differently), fpsample's plain O(N M) FPS, which
+    takes ``start_idx`` as given, serves instead.
     """
     import fpsample
 
@@ -256,11 +266,11 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
     rep = first.copy()
     rep[group[start]] = start
     k = min(m, rep.size)
-    order = _kd_order(q[rep])
-    row = int(np.flatnonzero(order == group[start])[0])
-    picked = order[fpsample.bucket_fps_kdtree_sampling(q[rep][order], k, start_idx=row).astype(np.int64)]
+    distinct = q[rep]
+    row = int(np.flatnonzero(_kd_layout(distinct) == group[start])[0])
+    picked = fpsample.bucket_fps_kdtree_sampling(distinct, k, start_idx=row).astype(np.int64)
     if picked[0] != group[start]:
-        picked = fpsample.fps_sampling(q[rep], k, start_idx=int(group[start])).astype(np.int64)
+        picked = fpsample.fps_sampling(distinct, k, start_idx=int(group[start])).astype(np.int64)
     chosen = rep[picked]
     if m == k:
         return chosen

@@ -52,10 +52,34 @@ def test_fps_backends_agree_with_duplicates():
 
 
 @needs_fpsample
+def test_fps_layout_replays_the_tree_build():
+    # 1e5 points: summation order moves the float32 node means across points, so only a
+    # replay of the build's own swaps finds where each row lands.
+    import fpsample
+
+    d = np.unique(cloud(100_000, seed=8).astype(np.float32), axis=0)
+    layout = samplers._kd_layout(d)
+    rows = np.linspace(0, len(d) - 1, 40).astype(np.int64)
+    landed = [fpsample.bucket_fps_kdtree_sampling(d, 1, start_idx=int(r))[0] for r in rows]
+    np.testing.assert_array_equal(landed, layout[rows])
+
+
+@needs_fpsample
+def test_fps_fast_path_honours_the_start_on_large_clouds(monkeypatch):
+    import fpsample
+
+    p = cloud(50_000, seed=8)
+    monkeypatch.setattr(fpsample, "fps_sampling", None)  # the O(N M) fallback must not run
+    for start in (0, 3750, 48750):
+        fast = hgjax.farthest_point_sample(p, 0.002, start=start, backend="fpsample")
+        np.testing.assert_array_equal(fast, hgjax.farthest_point_sample(p, 0.002, start=start, backend="jax"))
+
+
+@needs_fpsample
 def test_fps_fallback_when_the_start_is_not_honoured(monkeypatch):
     p = cloud(300, seed=3)
     want = hgjax.farthest_point_sample(p, 0.2, start=11, backend="jax")
-    monkeypatch.setattr(samplers, "_kd_order", lambda q: np.arange(q.shape[0])[::-1])
+    monkeypatch.setattr(samplers, "_kd_layout", lambda q: np.arange(q.shape[0])[::-1])
     np.testing.assert_array_equal(hgjax.farthest_point_sample(p, 0.2, start=11, backend="fpsample"), want)
 
 
