@@ -217,7 +217,7 @@ class SpatialIndex:
         self.order = order[first]  # sorted row -> caller index of its first copy
         self.row = np.empty(self.n_caller, dtype=np.int64)  # caller index -> sorted row
         self.row[order] = row
-        self.tree = cKDTree(self.points, leafsize=16, balanced_tree=False, compact_nodes=False)
+        self.tree = cKDTree(self.points, leafsize=16, balanced_tree=False)
 
     def to_caller(self, values: np.ndarray) -> np.ndarray:
         """Per-row ``values`` (n, ...) of the sorted frame as (N, ...) in the caller's order."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.cluster.hierarchy import fcluster, linkage
@@ -15,6 +16,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 import hgjax
 from conftest import TOL
 
+ea_module = importlib.import_module("hgjax.scores.ea")
 pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")
 assert pca_ac_module is hgjax.scores.pca_ac  # the module, not a function of the same name
 
@@ -80,6 +82,37 @@ def test_ea_matches_naive(dtype, k):
     got = scores_of(p.astype(dtype), "ea", k=k)
     assert got.dtype == dtype
     np.testing.assert_allclose(got, want, rtol=tol(dtype), atol=tol(dtype) * want.max())
+
+
+def hard_symmetric_3x3(seed=0):
+    """(M, 3, 3) symmetric matrices that stress an eigensolver: random spectra over 12
+    decades, exact and near-double or triple eigenvalues, planar and linear (rank 2, 1) and
+    zero matrices, each in a random rotation."""
+    rng = np.random.default_rng(seed)
+    spectra = [rng.random(3) * 10.0 ** rng.uniform(-6, 6) for _ in range(200)]
+    spectra += [[1, 1, 2], [1, 2, 2], [3, 3, 3], [1, 1 + 1e-9, 5], [0, 1, 1], [0, 0, 1], [0, 0, 0], [1e-12, 1, 1]]
+    rot = np.linalg.qr(rng.normal(size=(len(spectra), 3, 3)))[0]
+    return np.einsum("mij,mj,mkj->mik", rot, np.asarray(spectra, dtype=float), rot)
+
+
+def test_smallest_eigenvalue_matches_lapack(dtype):
+    m = hard_symmetric_3x3()
+    ref = np.linalg.eigvalsh(m)
+    got = np.asarray(jax.vmap(ea_module.smallest_eigenvalue)(jnp.asarray(m.astype(dtype))))
+    assert got.dtype == dtype
+    scale = np.abs(ref).max(axis=1)  # the error bound of any backward-stable solver
+    assert np.all(np.abs(got - ref[:, 0]) <= 16 * np.finfo(dtype).eps * scale + 1e-300)
+
+
+def test_smallest_eigenvalue_gradient(dtype):
+    m = hard_symmetric_3x3(seed=1).astype(dtype)
+    ref = np.linalg.eigh(m.astype(np.float64))
+    grad = np.asarray(jax.vmap(jax.grad(ea_module.smallest_eigenvalue))(jnp.asarray(m)))
+    assert np.all(np.isfinite(grad))
+    gap = ref.eigenvalues[:, 1] - ref.eigenvalues[:, 0]
+    simple = gap > 1e-3 * np.abs(ref.eigenvalues).max(axis=1)
+    v0 = ref.eigenvectors[:, :, 0]
+    np.testing.assert_allclose(grad[simple], np.einsum("mi,mj->mij", v0, v0)[simple], atol=100 * TOL[dtype])
 
 
 def test_ea_with_duplicates_matches_naive_on_the_distinct_points():
