@@ -36,9 +36,9 @@ def top(scores, m):
 
 
 def gfr_scores(points, variant, factor):
-    idx = gfr.graph(points, variant=variant, radius_factor=factor)
+    idx, first = gfr.graph(points, variant=variant, radius_factor=factor)
     weights = np.float32 if variant == "reference" else None
-    return gfr._high_pass(jnp.asarray(points), jnp.asarray(idx), weights_dtype=weights)
+    return gfr.high_pass(jnp.asarray(points), jnp.asarray(idx), first=first, weights_dtype=weights)
 
 
 def f1(cloud, variant, factor):

@@ -81,9 +81,8 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       progress: tqdm bar on stderr for long streamed runs.
       narrow: the rows list their neighbours first and padding after, and ``fn`` gives the
         same result whatever the number of padding columns (e.g. exact counts). The
-        streamed path then runs the rows holding at most w points through a second kernel
-        of w columns, w the power of two that minimises rows x columns over both kernels:
-        far less work when a few rows set K.
+        streamed path then runs the rows in up to three kernels of fewer columns
+        (:func:`narrow_groups`): far less work when a few rows set K.
 
     Returns:
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
@@ -99,20 +98,34 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
         return jax.tree.map(lambda x: x[:n], out)
     points, idx, row_args = np.asarray(points), np.asarray(idx), tuple(np.asarray(a) for a in row_args)
     args, chunk = tuple(jax.device_put(np.asarray(a)) for a in args), chunk_rows(chunk_size)
-    if narrow and n:
-        count = (idx < n).sum(axis=1)
-        widths = [w for w in (8 << i for i in range(20)) if w < idx.shape[1]]
-        # The narrow width with the least work: rows x columns over both kernels.
-        cost = [np.count_nonzero(count <= w) * w + np.count_nonzero(count > w) * idx.shape[1] for w in widths]
-        width = widths[int(np.argmin(cost))] if widths else idx.shape[1]
-        if width < idx.shape[1]:
-            groups = [(np.flatnonzero(count <= width), width), (np.flatnonzero(count > width), idx.shape[1])]
-            groups = [(own, k) for own, k in groups if own.size]
-            parts = [_stream(fn, points, own, idx[own, :k], tuple(a[own] for a in row_args), args, chunk, progress)
-                     for own, k in groups]
-            back = np.argsort(np.concatenate([own for own, _ in groups]))  # rows back in order
-            return jax.tree.map(lambda *xs: jax.device_put(np.concatenate(xs)[back]), *parts)
+    groups = narrow_groups(idx, n) if narrow else [(np.arange(n), idx.shape[1])]
+    if len(groups) > 1:
+        parts = [_stream(fn, points, own, idx[own, :k], tuple(a[own] for a in row_args), args, chunk, progress)
+                 for own, k in groups]
+        back = np.argsort(np.concatenate([own for own, _ in groups]))  # rows back in order
+        return jax.tree.map(lambda *xs: jax.device_put(np.concatenate(xs)[back]), *parts)
     return jax.tree.map(jax.device_put, _stream(fn, points, np.arange(n), idx, row_args, args, chunk, progress))
+
+
+def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
+    """Rows of ``idx`` (R, K) (neighbours first, padding N after) as (rows, columns) groups.
+
+    At most three groups (kernels): the widths are K and up to two powers of two below it,
+    chosen to minimise rows x columns, fewer groups on ties (each row goes to the narrowest
+    group that holds its neighbours). Groups without rows are left out.
+    """
+    count = (idx < n).sum(axis=1)
+    k = idx.shape[1]
+    widths = [w for w in (8 << i for i in range(20)) if w < k] + [k]
+    need = np.searchsorted(np.asarray(widths), count)  # the narrowest width that holds each row
+    hist = np.bincount(need, minlength=len(widths))
+
+    def cost(chosen):
+        return sum(int(hist[i]) * next(w for w in chosen if w >= widths[i]) for i in range(len(widths)))
+
+    bounds = np.asarray(min((sorted({a, b, k}) for a in widths for b in widths), key=lambda c: (cost(c), len(c))))
+    group = np.searchsorted(bounds, count)
+    return [(np.flatnonzero(group == g), int(w)) for g, w in enumerate(bounds) if np.any(group == g)]
 
 
 def _stream(fn, points, own, idx, row_args, args, chunk, progress):

@@ -107,7 +107,7 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
     return p - origin, origin
 
 
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale"], meta_fields=[])
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first"], meta_fields=[])
 @dataclasses.dataclass(frozen=True)
 class Neighbourhoods:
     """Padded neighbourhoods of a cloud: the one currency between host and kernels.
@@ -122,6 +122,10 @@ class Neighbourhoods:
       idx: (N, K) int32 neighbour indices into ``points``, padded with the sentinel N.
         K is static: a new K compiles a new kernel.
       scale: (N,) per-point length of the method (the voxel spacing d of HKC/HKF), or None.
+      first: (N,) int32 index of the first point at each point's location, or None (every
+        point its own location). Set by GFR's invariant graph, which links distinct
+        locations once (the rows of later copies are empty) and weighs each by its number
+        of points.
 
     Examples:
       >>> import numpy as np, hgjax
@@ -133,6 +137,7 @@ class Neighbourhoods:
     points: np.ndarray
     idx: np.ndarray
     scale: np.ndarray | None = None
+    first: np.ndarray | None = None
 
     @property
     def mask(self):

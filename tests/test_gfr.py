@@ -20,10 +20,16 @@ from naive import gfr_naive, gfr_pairs
 graph, high_pass = gfr_module.graph, gfr_module.high_pass
 
 
-def pairs_of(idx):
-    """Sorted (row, partner) pairs of a padded (N, K) graph."""
+def pairs_of(g):
+    """Sorted point pairs (i, j), i < j, of graph()'s (idx, first): the stored pairs, each
+    location pair expanded to every copy of its two locations."""
+    idx, first = g
     t, c = np.nonzero(idx < idx.shape[0])
-    return sorted(zip(t.tolist(), idx[t, c].tolist()))
+    stored = zip(t.tolist(), idx[t, c].tolist())
+    if first is None:
+        return sorted(stored)
+    copies = {i: np.flatnonzero(first == i).tolist() for i in np.unique(first).tolist()}
+    return sorted({(min(x, y), max(x, y)) for a, b in stored for x in copies[a] for y in copies[b]})
 
 
 def lattice(m, spacing, seed):
@@ -68,9 +74,9 @@ def overlap(a, b):
 
 
 def scores(points, variant="invariant", **kw):
-    idx = graph(points, variant=variant, **kw)
+    idx, first = graph(points, variant=variant, **kw)
     weights = np.float32 if variant == "reference" else None
-    return np.asarray(high_pass(jnp.asarray(points), jnp.asarray(idx), weights_dtype=weights))
+    return np.asarray(high_pass(jnp.asarray(points), jnp.asarray(idx), first=first, weights_dtype=weights))
 
 
 # ------------------------------------------------------------------ reference vs naive
@@ -78,9 +84,10 @@ def scores(points, variant="invariant", **kw):
 def test_reference_graph_is_the_authors_rule(name):
     p = clouds()[name]
     want, _ = gfr_pairs(p)
-    idx = graph(p, variant="reference")
+    idx, first = graph(p, variant="reference")
+    assert first is None  # the authors' graph keeps every copy as its own point
     assert idx.dtype == np.int32 and idx.shape[1] == max(Counter(t for t, _ in want).values(), default=1)
-    assert pairs_of(idx) == want
+    assert pairs_of((idx, first)) == want
 
 
 @pytest.mark.parametrize("name", sorted(clouds()))
@@ -95,7 +102,7 @@ def test_reference_matches_naive(name, dtype):
 
 def test_capped_grid_rows_hit_the_cap():
     p = clouds()["capped_grid"]
-    idx = graph(p, variant="reference")
+    idx, _ = graph(p, variant="reference")
     assert idx.shape[1] == 100 and ((idx < len(p)).sum(axis=1) == 100).sum() > 300
     assert pairs_of(graph(p, variant="reference", max_nn=7)) == gfr_pairs(p, max_nn=7)[0]
 
@@ -182,10 +189,10 @@ def degenerate():
 @pytest.mark.parametrize("name", sorted(degenerate()))
 def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
     p = degenerate()[name].astype(dtype)
-    idx = jnp.asarray(graph(p, variant=variant))
+    idx, first = graph(p, variant=variant)
     weights = np.float32 if variant == "reference" else None
-    s = high_pass(jnp.asarray(p), idx, weights_dtype=weights)
-    g = jax.grad(lambda x: jnp.sum(high_pass(x, idx, weights_dtype=weights)))(jnp.asarray(p))
+    s = high_pass(jnp.asarray(p), idx, first=first, weights_dtype=weights)
+    g = jax.grad(lambda x: jnp.sum(high_pass(x, idx, first=first, weights_dtype=weights)))(jnp.asarray(p))
     assert s.dtype == dtype and np.isfinite(s).all() and (s >= 0).all() and np.isfinite(g).all()
     if name == "all_equal":
         assert not s.any() and not g.any()
@@ -193,7 +200,7 @@ def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
 
 def test_gradient_finite_when_a_graph_collapses():
     p = box_surface(100, 9)
-    idx = jnp.asarray(graph(p))
+    idx, _ = graph(p)
     for x in (np.ones_like(p), 1e-30 * p, np.float32(1e-6) * p.astype(np.float32)):
         g = jax.grad(lambda y: jnp.sum(high_pass(y, idx)))(jnp.asarray(x))
         assert np.isfinite(g).all()
@@ -201,13 +208,13 @@ def test_gradient_finite_when_a_graph_collapses():
 
 def test_gradient_matches_finite_differences():
     p = box_surface(60, 10)
-    idx = jnp.asarray(graph(p))
+    idx, _ = graph(p)
     check_grads(lambda x: high_pass(x, idx), (jnp.asarray(p),), order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
 
 
 def test_jit_and_vmap_match_single_calls():
     batch = [box_surface(300, s) for s in range(3)]
-    idx = [graph(p) for p in batch]
+    idx = [graph(p)[0] for p in batch]
     k = max(i.shape[1] for i in idx)
     idx = np.stack([np.pad(i, ((0, 0), (0, k - i.shape[1])), constant_values=300) for i in idx])  # (B, N, K)
     single = np.stack([scores(p) for p in batch])
@@ -219,7 +226,7 @@ def test_jit_and_vmap_match_single_calls():
 
 def test_float32_matches_float64():
     p = box_surface(500, 11)
-    idx = jnp.asarray(graph(p))
+    idx, _ = graph(p)
     want = high_pass(jnp.asarray(p), idx)
     got = high_pass(jnp.asarray(p, dtype=jnp.float32), idx)
     assert got.dtype == jnp.float32
@@ -246,12 +253,28 @@ def test_public_path_is_graph_plus_high_pass_and_keeps_inputs():
     for variant, rtol in (("invariant", 1e-12), ("reference", 1e-6)):  # jit may round float32 weights otherwise
         want = scores(p, variant)
         np.testing.assert_allclose(_public(p, variant=variant), want, rtol=rtol, atol=rtol * want.max())
-    np.testing.assert_array_equal(graph(p), graph(p))
+    np.testing.assert_array_equal(graph(p)[0], graph(p)[0])
+
+
+def test_duplicates_cost_the_distinct_locations_and_match_naive():
+    base = box_surface(300, 15)
+    rng = np.random.default_rng(15)
+    p = np.concatenate([base, base[rng.choice(300, 120)], base[:7]])[rng.permutation(427)]
+    nb, clean = hgjax.neighbourhoods(p, "gfr"), hgjax.neighbourhoods(base, "gfr")
+    copies = np.asarray(nb.first) != np.arange(len(p))
+    assert copies.sum() == 127 and not (np.asarray(nb.idx)[copies] < len(p)).any()  # later copies: empty rows
+    # One stored pair per location pair (the radius moves a little: copies weigh in the median).
+    assert (nb.idx < len(p)).sum() <= 1.05 * (clean.idx < len(base)).sum()
+    want = gfr_naive(p, 100, gfr_module.RADIUS_FACTOR)  # every copy linked to every copy
+    for got in (_public(p), np.asarray(jax.jit(lambda nb: hgjax.score(nb, "gfr"))(nb))):
+        np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * want.max())
+    soft = np.asarray(hgjax.soft_score(nb, "gfr"))
+    np.testing.assert_allclose(soft / soft.max(), want / want.max(), rtol=1e-10, atol=1e-10)  # want / RMS pair length
 
 
 def test_argument_errors():
     p = box_surface(50, 14)
-    idx = graph(p)
+    idx, _ = graph(p)
     cases = [
         (lambda: graph(p, variant="invarient"), ValueError, "variant"),
         (lambda: graph(p, radius_factor=-1.0), ValueError, "radius_factor"),
@@ -262,6 +285,8 @@ def test_argument_errors():
         (lambda: high_pass(p[:, :2], idx), ValueError, "points"),
         (lambda: high_pass(p, idx.astype(np.float64)), TypeError, "idx"),
         (lambda: high_pass(p, idx, weights_dtype=np.int32), TypeError, "weights_dtype"),
+        (lambda: high_pass(p, idx, first=np.zeros(49, np.int32)), ValueError, "first"),
+        (lambda: high_pass(p, idx, first=np.zeros(50)), ValueError, "first"),
         (lambda: gfr_module.neighbourhoods(p.astype(np.int64)), TypeError, "points"),
     ]
     for call, error, name in cases:

@@ -19,17 +19,24 @@ the points. Two graphs:
 
 * ``"invariant"`` (default), scale-invariant: radius R = ``radius_factor`` x resolution,
   Euclidean, with the resolution the median over points of the distance to the nearest
-  DISTINCT point (exact duplicates and far outliers do not move it). Each point links to
-  the points at its at most ``max_nn`` nearest distinct locations with
-  0 < ||p_i - p_j|| < R (equal distances: smaller index first; exact duplicates are one
-  location, so duplicating the cloud doubles every score); a pair is stored once, in the
-  row of its smaller index, when either end links to the other. Scaling, translating or reordering the cloud leaves the
-  graph's shape unchanged, so the scores scale with the cloud and the ranking does not move.
+  DISTINCT point (exact duplicates and far outliers do not move it). Each distinct location
+  links to its at most ``max_nn`` nearest other locations with 0 < ||u_a - u_b|| < R
+  (equal distances: smaller first index first); a pair is stored once, between the first
+  points of its two locations, in the row of the smaller index, when either end links to
+  the other. Scaling, translating or reordering the cloud leaves the graph's shape
+  unchanged, so the scores scale with the cloud and the ranking does not move.
+
+Exact duplicates (invariant graph): every copy of location a is linked to every copy of a
+linked location b, so a stored pair stands for c_a c_b point pairs (c the number of points
+at a location) and is counted that often in v below; a location's first point sums its
+partners' flows weighted by their counts, and every copy scores as its first point
+(``Neighbourhoods.first``). Duplicating the whole cloud doubles every score. The work is
+that of the distinct locations, however many copies there are.
 
 Weights, both graphs: w_ij = exp(-q_ij^2 / (2 v)), v the population variance of q over the
 stored pairs; W = W0 + W0^T (W0 the stored pairs), and
-(L P)_i = sum_j W_ij (p_i - p_j) = (row sum of W0) + (W0^T as a scatter-add onto the partners).
-No N x N matrix is formed.
+(L P)_i = sum_j W_ij c_j (p_i - p_j) = (row sum of W0) + (W0^T as a scatter-add onto the
+partners), c = 1 without duplicates. No N x N matrix is formed.
 
 Degenerate clouds: with no stored pair (N = 1, all points equal) or v = 0 (every stored pair
 the same length) every weight is exp(-inf) = 0, the limit of the formula, and every score 0.
@@ -145,23 +152,6 @@ def _split_keys(key: np.ndarray, n: int):
     return key // n, key % n
 
 
-def _expand(a: np.ndarray, b: np.ndarray, inverse: np.ndarray):
-    """Caller pairs (row, col), row < col, sorted: every copy of location a with every copy of b.
-
-    ``inverse`` (N,) maps each point to its location.
-    """
-    n = inverse.size
-    members = np.argsort(inverse, kind="stable")  # points grouped by location, by index
-    count = np.bincount(inverse, minlength=int(inverse.max(initial=-1)) + 1)
-    start = np.cumsum(count) - count
-    size = count[a] * count[b]
-    pair = np.repeat(np.arange(a.size), size)
-    within = np.arange(pair.size) - np.repeat(np.cumsum(size) - size, size)
-    x = members[start[a][pair] + within // count[b][pair]]
-    y = members[start[b][pair] + within % count[b][pair]]
-    return _split_keys(np.minimum(x, y).astype(np.int64) * n + np.maximum(x, y), n)
-
-
 def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
     """Undirected pairs (a, b), a < b, of the distinct locations u (U, 3) float64 in ``tree``.
 
@@ -202,7 +192,7 @@ def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
 
 
 def graph(points, *, variant: str = "invariant", radius_factor: float | None = None,
-          max_nn: int = MAX_NN) -> np.ndarray:
+          max_nn: int = MAX_NN) -> tuple[np.ndarray, np.ndarray | None]:
     """The GFR graph W0 as padded neighbour rows (host, SciPy; not jittable).
 
     Args:
@@ -221,7 +211,9 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     Returns:
       idx: (N, K) int32, caller's order. Row i lists the partners j > i of its stored
       pairs (i, j), ascending, padded with the sentinel N; K is the largest row count (at
-      least 1).
+      least 1). Invariant graph: only the first point of each location has pairs.
+      first: (N,) int32 index of the first point at each point's location (invariant graph
+      of a cloud with exact duplicates), else None.
 
     Raises:
       TypeError, ValueError: unknown variant, invalid radius_factor or max_nn, or
@@ -231,8 +223,9 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
       >>> import numpy as np
       >>> from hgjax.scores.gfr import graph
       >>> pts = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [10, 0, 0]])
-      >>> graph(pts, radius_factor=2.5).tolist()  # resolution 1 (median of 1, 1, 1, 8): radius 2.5
-      [[1, 2], [2, 4], [4, 4], [4, 4]]
+      >>> idx, first = graph(pts, radius_factor=2.5)  # resolution 1 (median of 1, 1, 1, 8): radius 2.5
+      >>> idx.tolist(), first
+      ([[1, 2], [2, 4], [4, 4], [4, 4]], None)
     """
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
     max_nn = _validate.check_int(max_nn, "max_nn", minimum=1)
@@ -246,35 +239,43 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     pts = np.asarray(points)
     n = pts.shape[0]
     empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    first = None
     if variant == "reference":
         p = pts.astype(np.float32)
         tree = cKDTree(p.astype(np.float64))
         r = _reference_radius(p, tree)
         rows, cols = _pairs(p, tree, r, max_nn) if r > 0 else empty
     else:
-        u, first, inverse, tree = _locations(pts.astype(np.float64))
+        u, lowest, inverse, tree = _locations(pts.astype(np.float64))
         r = (radius_factor * _resolution(tree, inverse)) ** 2
-        rows, cols = _expand(*_location_pairs(tree, r, max_nn, first), inverse) if r > 0 else empty
+        a, b = _location_pairs(tree, r, max_nn, lowest) if r > 0 else empty
+        i, j = lowest[a], lowest[b]
+        rows, cols = _split_keys(np.minimum(i, j) * n + np.maximum(i, j), n)
+        if u.shape[0] < n:
+            first = lowest[inverse].astype(np.int32)
     counts = np.bincount(rows, minlength=n)
     idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
     idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
-    return idx
+    return idx, first
 
 
-def high_pass(points, idx, *, weights_dtype=None) -> jax.Array:
+def high_pass(points, idx, *, first=None, weights_dtype=None) -> jax.Array:
     """GFR score ||(L P)_i||_2 on a fixed graph (pure JAX: jit, vmap and grad work).
 
     q_ij = ||p_i - p_j||^2 and w_ij = exp(-q_ij^2 / (2 v)) over the stored pairs (idx < N),
-    evaluated as exp(-z^2 / (2 var(z))) with z = q / mean(q), the same value free of the
-    cloud's units (so gradients stay finite at any scale); v and mean(q) are accumulated in
-    the wider of the points' and the weights' dtype. Then with W = W0 + W0^T,
-    (L P)_i = sum_j W0_ij (p_i - p_j) - sum_j W0_ji (p_j - p_i): a row sum plus a
-    scatter-add, no N x N matrix.
+    each pair counted c_i c_j times, evaluated as exp(-z^2 / (2 var(z))) with z = q / mean(q),
+    the same value free of the cloud's units (so gradients stay finite at any scale); v and
+    mean(q) are accumulated in the wider of the points' and the weights' dtype. Then with
+    W = W0 + W0^T, (L P)_i = sum_j W0_ij c_j (p_i - p_j) - sum_j W0_ji c_j (p_j - p_i): a row
+    sum plus a scatter-add, no N x N matrix. Every point takes the score of ``first[i]``.
 
     Args:
       points: (N, 3) float array.
       idx: (N, K) integer partners of each row's stored pairs, padded with N (as
         :func:`graph` returns them).
+      first: (N,) integer index of the first point at each point's location (as
+        :func:`graph` returns it); c_i = the number of points with first == i. None: every
+        point is its own location (c = 1).
       weights_dtype: dtype of q and w (default: the points' dtype); float32 for the
         reference variant, as the authors' code keeps them.
 
@@ -293,21 +294,33 @@ def high_pass(points, idx, *, weights_dtype=None) -> jax.Array:
       >>> [round(s, 4) for s in high_pass(pts, idx).tolist()]
       [1.0279, 0.0042, 1.0321]
     """
-    _validate.check_graph(points, idx, weights_dtype)
+    _validate.check_graph(points, idx, first, weights_dtype)
     points, idx = jnp.asarray(points), jnp.asarray(idx)
+    n = points.shape[0]
     wdtype = points.dtype if weights_dtype is None else jnp.dtype(weights_dtype)
     offsets, valid = _stream.offsets_of(points, idx)  # (N, K, 3) p_j - p_i
     # q from the points cast to wdtype first, as the authors' float32 code computes it.
     q = jax.vmap(_sq_length)(*_stream.offsets_of(points.astype(wdtype), idx))
     acc = jnp.promote_types(points.dtype, wdtype)
-    count = jnp.sum(valid).astype(acc)
-    mean_q = _common.safe_div(jnp.sum(q.astype(acc)), count, 0.0)
+    own, partner = _multiplicities(first, idx, n, acc)
+    pair = jnp.where(valid, own[:, None] * partner, 0)  # point pairs each stored pair stands for
+    count = jnp.sum(pair)
+    mean_q = _common.safe_div(jnp.sum(pair * q.astype(acc)), count, 0.0)
     z = _common.safe_div(q.astype(acc), mean_q, 0.0)
-    mean_z = _common.safe_div(jnp.sum(z), count, 0.0)
-    two_var = 2 * _common.safe_div(jnp.sum(jnp.where(valid, (z - mean_z) ** 2, 0)), count, 0.0)
+    mean_z = _common.safe_div(jnp.sum(pair * z), count, 0.0)
+    two_var = 2 * _common.safe_div(jnp.sum(pair * (z - mean_z) ** 2), count, 0.0)
     c = jax.vmap(_flow, in_axes=(0, 0, 0, None, None, None))(offsets, valid, q, mean_q, two_var, wdtype)
-    lp = jnp.sum(c, axis=1) - jnp.zeros_like(points).at[idx].add(c, mode="drop")
-    return _common.safe_sqrt(jnp.sum(lp * lp, axis=1))
+    lp = (jnp.sum(partner.astype(c.dtype)[..., None] * c, axis=1)
+          - jnp.zeros_like(points).at[idx].add(own.astype(c.dtype)[:, None, None] * c, mode="drop"))
+    score = _common.safe_sqrt(jnp.sum(lp * lp, axis=1))
+    return score if first is None else score[jnp.asarray(first)]
+
+
+def _multiplicities(first, idx, n, dtype):
+    """(c_i (N,), c_j (N, K)): the points at each row's location and at each partner's (0 for
+    padding); ones without ``first``."""
+    own = jnp.ones(n, dtype) if first is None else jnp.zeros(n, dtype).at[jnp.asarray(first)].add(1)
+    return own, jnp.concatenate([own, jnp.zeros(1, dtype)])[idx]
 
 
 def _sq_length(offsets, valid):
@@ -346,8 +359,8 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
         row rounded up to a power of two.
 
     Returns:
-      Neighbourhoods whose row i lists the partners j > i of its stored pairs, padded with N;
-      points in a local frame and the working dtype.
+      Neighbourhoods whose row i lists the partners j > i of its stored pairs, padded with N,
+      and ``first`` (see :func:`graph`); points in a local frame and the working dtype.
 
     Raises:
       TypeError, ValueError: invalid arguments, or a fixed capacity too small.
@@ -361,13 +374,13 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
     """
     pts = _validate.check_points(points)
     local = spatial.local_frame(pts)[0]
-    idx = graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
+    idx, first = graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
     width = int((idx < pts.shape[0]).sum(axis=1).max(initial=0))
     if capacity is not None:
         _validate.check_capacity(_validate.check_int(capacity, "capacity", minimum=1), width, "GFR row")
     cols = spatial.bucket(width) if capacity is None else capacity
     idx = np.pad(idx[:, :cols], ((0, 0), (0, cols - min(cols, idx.shape[1]))), constant_values=pts.shape[0])
-    return spatial.Neighbourhoods(local.astype(spatial.working_dtype(pts.dtype)), idx.astype(np.int32))
+    return spatial.Neighbourhoods(local.astype(spatial.working_dtype(pts.dtype)), idx.astype(np.int32), first=first)
 
 
 def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, progress: bool = False):
@@ -397,46 +410,55 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
     wdtype = _weights_dtype(variant)
     if _stream.is_traced(nb):
-        return high_pass(nb.points, nb.idx, weights_dtype=wdtype)
+        return high_pass(nb.points, nb.idx, first=nb.first, weights_dtype=wdtype)
     points, idx = np.asarray(nb.points), np.asarray(nb.idx)
-    _validate.check_graph(points, idx, wdtype)
+    first = None if nb.first is None else np.asarray(nb.first)
+    _validate.check_graph(points, idx, first, wdtype)
     n = points.shape[0]
     wdtype = np.dtype(points.dtype if wdtype is None else wdtype)
     chunk = _stream.chunk_rows(chunk_size)
-    blocks = [slice(start, min(start + SCORE_ROWS, n)) for start in range(0, n, SCORE_ROWS)]
+    # Blocks of at most SCORE_ROWS rows, each with the columns its rows need (rows holding
+    # few pairs, such as the empty rows of later copies, in a narrow group).
+    blocks = [(rows[start:start + SCORE_ROWS], k) for rows, k in _stream.narrow_groups(idx, n)
+              for start in range(0, rows.size, SCORE_ROWS)]
+    own = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
+    partner = np.append(own, 0.0)  # c_j by partner index, 0 for the padding N
 
-    def run(fn, pts, rows, row_args=(), args=()):
-        return _stream._stream(fn, pts, np.arange(rows.start, rows.stop), idx[rows], row_args, args, chunk, False)
+    def run(fn, pts, rows, k, row_args=(), args=()):
+        return _stream._stream(fn, pts, rows, idx[rows, :k], row_args, args, chunk, False)
 
-    # Pass 1: q of every stored pair (from the points cast to wdtype, as the authors' code).
+    # Pass 1: q of every stored pair (from the points cast to wdtype, as the authors' code),
+    # and its weight c_i c_j (the point pairs it stands for).
     cast = points.astype(wdtype)
-    q = np.empty(idx.shape, wdtype)
-    for rows in blocks:
-        q[rows] = run(_sq_length, cast, rows)
-    valid_count = int(np.count_nonzero(idx < n))
-    mean_q = float(np.sum(q, dtype=np.float64)) / valid_count if valid_count else 0.0
-    z_sum = z_sq = 0.0
-    for rows in blocks:
-        z = q[rows][idx[rows] < n].astype(np.float64) / mean_q if mean_q > 0 else np.zeros(0)
-        z_sum, z_sq = z_sum + z.sum(), z_sq + np.sum(z * z)
-    mean_z = z_sum / valid_count if valid_count else 0.0
-    two_var = 2 * max(z_sq / valid_count - mean_z * mean_z, 0.0) if valid_count else 0.0
-    # Pass 2: the pair flows W0_ij (p_i - p_j), reduced block by block: the row sums (W0) and
-    # the scatter-add onto the partners (W0^T), never the whole (N, K, 3) array.
+    qs = [run(_sq_length, cast, rows, k) for rows, k in blocks]
+    sums = np.zeros(3)  # sum of weights, of weight x q, of weight x q^2
+    for (rows, k), q in zip(blocks, qs):
+        pair = own[rows, None] * partner[idx[rows, :k]]
+        q = q.astype(np.float64)
+        sums += [pair.sum(), np.sum(pair * q), np.sum(pair * q * q)]
+    count, mean_q = sums[0], (sums[1] / sums[0] if sums[0] else 0.0)
+    mean_z = sums[1] / count / mean_q if mean_q > 0 else 0.0
+    z_sq = sums[2] / count / mean_q**2 if mean_q > 0 else 0.0
+    two_var = 2 * max(z_sq - mean_z * mean_z, 0.0)
+    # Pass 2: the pair flows W0_ij (p_i - p_j), reduced block by block: the row sums (W0,
+    # weighted by c_j) and the scatter-add onto the partners (W0^T, weighted by c_i), never
+    # the whole (N, K, 3) array.
     acc = np.promote_types(points.dtype, wdtype)
     args = (jax.device_put(np.asarray(mean_q, acc)), jax.device_put(np.asarray(two_var, acc)))
     lp = np.zeros((n, 3))
     bar = _stream._progress(n, progress and len(blocks) > 4)
-    for rows in blocks:
-        c = run(_flow_kernel(wdtype), points, rows, (q[rows],), args)  # (R, K, 3)
-        flat = idx[rows].ravel()
-        lp[rows] += c.sum(axis=1)
-        lp -= np.stack([np.bincount(flat, c[..., k].ravel(), minlength=n + 1)[:n] for k in range(3)], axis=1)
+    for (rows, k), q in zip(blocks, qs):
+        c = run(_flow_kernel(wdtype), points, rows, k, (q,), args)  # (R, k, 3)
+        lp[rows] += np.einsum("rk,rkd->rd", partner[idx[rows, :k]], c)
+        back = own[rows, None, None] * c  # x c_i
+        flat = idx[rows, :k].ravel()
+        lp -= np.stack([np.bincount(flat, back[..., d].ravel(), minlength=n + 1)[:n] for d in range(3)], axis=1)
         if bar is not None:
-            bar.update(rows.stop - rows.start)
+            bar.update(rows.size)
     if bar is not None:
         bar.close()
-    return jax.device_put(np.sqrt(np.sum(lp * lp, axis=1)).astype(points.dtype))
+    score = np.sqrt(np.sum(lp * lp, axis=1))
+    return jax.device_put((score if first is None else score[first]).astype(points.dtype))
 
 
 def soft_score(nb, *, variant: str = "invariant"):
@@ -461,7 +483,9 @@ def soft_score(nb, *, variant: str = "invariant"):
     """
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
     points, idx = jnp.asarray(nb.points), jnp.asarray(nb.idx)
-    q = jax.vmap(_sq_length)(*_stream.offsets_of(points, idx))
-    count = jnp.sum(idx < points.shape[0]).astype(points.dtype)
-    unit = _common.safe_sqrt(_common.safe_div(jnp.sum(q), count, 0.0))  # the RMS pair length
-    return _common.safe_div(high_pass(points, idx, weights_dtype=_weights_dtype(variant)), unit, 0.0)
+    offsets, valid = _stream.offsets_of(points, idx)
+    own, partner = _multiplicities(nb.first, idx, points.shape[0], points.dtype)
+    pair = jnp.where(valid, own[:, None] * partner, 0)
+    mean_q = _common.safe_div(jnp.sum(pair * jax.vmap(_sq_length)(offsets, valid)), jnp.sum(pair), 0.0)
+    unit = _common.safe_sqrt(mean_q)  # the RMS pair length
+    return _common.safe_div(high_pass(points, idx, first=nb.first, weights_dtype=_weights_dtype(variant)), unit, 0.0)
