@@ -310,7 +310,7 @@ def main(argv=None) -> None:
     sizes = [int(float(s)) for s in args.sizes.split(",")]
     if args.scale:
         sizes.append(10**7)
-    rows, results = [], {}
+    results = {}
     for n in sizes:
         reps = max(args.repeats, SMALL_REPEATS) if n <= 10**4 else args.repeats
         knn = _spawn("knn", n, reps if n < 10**7 else 1)
