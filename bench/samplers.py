@@ -7,7 +7,8 @@ Usage:
 Each case is timed as the median of ``--repeats`` calls after one warm-up call (hgjax's
 JAX path would compile there; the default CPU path is fpsample). Open3D is a benchmark-only
 requirement (``pip install open3d``), not a dependency of hgjax. Open3D gets a
-``PointCloud`` built beforehand (not timed); hgjax gets the NumPy array.
+``PointCloud`` built beforehand (not timed); hgjax gets the NumPy array. One voxel row times
+both from the NumPy array to NumPy points, Open3D's conversions included.
 """
 
 from __future__ import annotations
@@ -64,6 +65,10 @@ def cases(mug_path: Path):
         (f"voxel, mug scan, voxel size {size}",
          lambda: hgjax.voxel_sample(mug, voxel_size=size),
          lambda: o3d_mug.voxel_down_sample(size), len(hgjax.voxel_sample(mug, voxel_size=size)), n_voxels),
+        (f"voxel, mug scan, voxel size {size}, NumPy (N, 3) in, NumPy points out (Open3D's conversions timed)",
+         lambda: mug[hgjax.voxel_sample(mug, voxel_size=size)],
+         lambda: np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(mug)).voxel_down_sample(size).points),
+         len(hgjax.voxel_sample(mug, voxel_size=size)), n_voxels),
         (f"voxel, mug scan, target count {n_voxels:,} (hgjax searches the size)",
          lambda: hgjax.voxel_sample(mug, ratio),
          lambda: o3d_mug.voxel_down_sample(size), len(hgjax.voxel_sample(mug, ratio)), n_voxels),
@@ -92,7 +97,7 @@ def main(argv=None) -> None:
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()},"
         f" NumPy {np.__version__}, JAX {jax.__version__} ({jax.default_backend()}), Open3D {o3d.__version__},"
-        f" hgjax FPS backend `{hgjax.samplers.fps_backend()}`.",
+        f" hgjax FPS backend `{hgjax.samplers.fps_backend('auto')}`.",
         "",
         f"Median wall time in seconds of {args.repeats} calls after one warm-up, both libraries in one process;"
         " ratio = hgjax / Open3D (below 1: hgjax faster). hgjax returns indices (exactly the count asked for);"
