@@ -31,7 +31,6 @@ import ast
 import contextlib
 import csv
 import os
-import signal
 import sys
 import time
 import warnings
@@ -263,35 +262,6 @@ def _session(dtype: str):
         compilation_cache.reset_cache()
 
 
-_SIGINTS: list[int] = []  # Ctrl-C presses seen in this run
-
-
-@contextlib.contextmanager
-def _remember_sigint():
-    """Ctrl-C raises KeyboardInterrupt as usual and is also remembered, so a batch stops at
-    its next input even when code it was running swallowed the exception (seen in CI)."""
-
-    def handler(signum, frame):
-        _SIGINTS.append(signum)
-        raise KeyboardInterrupt
-
-    _SIGINTS.clear()
-    try:
-        previous = signal.signal(signal.SIGINT, handler)
-    except ValueError:  # not the main thread: signals stay as they are
-        previous = None
-    try:
-        yield
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-
-
-def _stop_if_interrupted() -> None:
-    if _SIGINTS:
-        raise KeyboardInterrupt
-
-
 def _expand(paths: list[str]) -> list[str]:
     """Input files: each path, or the supported files of a directory (sorted)."""
     files = []
@@ -475,7 +445,6 @@ def cmd_resample(args) -> None:
     inputs, targets = _prepare(args)
     key, progress = _key(args), _progress(args)
     for path, target in zip(inputs, targets):
-        _stop_if_interrupted()
         data = _load(path, args)
         n = len(data)
         if args.count is not None and args.count > n:
@@ -504,7 +473,6 @@ def cmd_score(args) -> None:
     inputs, targets = _prepare(args)
     progress = _progress(args)
     for path, target in zip(inputs, targets):
-        _stop_if_interrupted()
         data = _load(path, args)
         start = time.perf_counter()
         scores = _score(entry, data.points, args.ratio, params, progress)
@@ -612,7 +580,7 @@ def main(argv=None) -> int:
         except SystemExit as exc:  # argparse exits 2 on bad arguments, 0 after --help/--version
             return int(exc.code or 0)
         try:
-            with _remember_sigint(), _session(args.dtype):
+            with _session(args.dtype):
                 COMMANDS[args.command](args)
         except (UsageError, ValueError, TypeError, ImportError) as err:  # includes hgjax's validation
             print(f"hgjax {args.command}: error: {err}", file=sys.stderr)
