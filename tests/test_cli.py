@@ -315,8 +315,11 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path):
     for i in range(200):
         io.write_points(scans / f"s{i:03d}.npy", points)
     args = ["resample", scans, "-o", tmp_path / "out", "--method", "lhf"]
+    # As from a terminal: a runner that starts tests in the background passes SIGINT on as
+    # ignored, and a process started that way rightly keeps ignoring it.
     proc = subprocess.Popen([sys.executable, "-m", "hgjax", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     first = proc.stderr.readline()
     assert first.startswith("lhf: kept 4000 of 20000 points"), first + proc.stderr.read()
     proc.send_signal(signal.SIGINT)
