@@ -317,9 +317,10 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path):
     args = ["resample", scans, "-o", tmp_path / "out", "--method", "lhf"]
     # As from a terminal: a runner that starts tests in the background passes SIGINT on as
     # ignored, and a process started that way rightly keeps ignoring it.
-    proc = subprocess.Popen([sys.executable, "-m", "hgjax", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    as_from_a_terminal = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler);"
+                          " runpy.run_module('hgjax', run_name='__main__')")
+    proc = subprocess.Popen([sys.executable, "-c", as_from_a_terminal, *map(str, args)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = proc.stderr.readline()
     assert first.startswith("lhf: kept 4000 of 20000 points"), first + proc.stderr.read()
     proc.send_signal(signal.SIGINT)
