@@ -251,9 +251,9 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       TypeError, ValueError: invalid method or parameters.
 
     Examples:
-      >>> import jax, numpy as np, hgjax
+      >>> import dataclasses, jax, numpy as np, hgjax
       >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((200, 3)), "ea")
-      >>> g = jax.grad(lambda p: hgjax.soft_score(nb.__class__(p, nb.idx, nb.scale), "ea").sum())(nb.points)
+      >>> g = jax.grad(lambda p: hgjax.soft_score(dataclasses.replace(nb, points=p), "ea").sum())(nb.points)
       >>> bool(np.isfinite(g).all())
       True
     """
