@@ -264,7 +264,7 @@ def table(args, out, command):
         plot(out / f"edge_noise{'_rotated' if rotate else ''}.png", noises,
              {label: [res[rotate, p, label]["f1_over_best"] for p in noises] for label, _, _ in runs},
              "noise p (std / resolution)", f"F1 / best ({'rotated' if rotate else 'axis-aligned'})")
-    lines += [f"Figures: `edge_noise.png`, `edge_noise_rotated.png` (F1/best against noise per method).", ""]
+    lines += ["Figures: `edge_noise.png`, `edge_noise_rotated.png` (F1/best against noise per method).", ""]
     lines += real_clouds(runs) if not args.quick else []
     lines += ratio_sweep(args, runs, out)
     lines += [f"Total time: {time.time() - t0:.0f} s on this machine.", ""]

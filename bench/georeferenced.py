@@ -26,6 +26,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
+import _report  # noqa: E402
 import hgjax  # noqa: E402
 
 SCAN = HERE.parent.parent / "shared" / "data" / "scans" / "scan_table_mug.ply"
@@ -69,25 +70,14 @@ def main(argv=None) -> None:
             on_cli = overlap(cli(tmp / "local.npy", m, tmp / "a.npy"), cli(tmp / "utm.npy", m, tmp / "b.npy"))
             rows.append(f"| {m} | {lib[0]:.4f} | {lib[1]:.4f} | {on_cli:.4f} |")
             print(rows[-1], flush=True)
-    command = "python bench/georeferenced.py" + "".join(f" {a}" for a in (argv if argv is not None else sys.argv[1:]))
-    lines = [
-        "# Georeferenced coordinates: kept sets in local and UTM-like frames",
-        "",
-        f"Command: `{command}` (jax {jax.__version__})",
-        "",
-        f"{args.points:,} points of the table-and-mug scan (seeded subset), minimum at the origin, against the same"
-        f" points + ({OFFSET[0]}, {OFFSET[1]}, {OFFSET[2]}); ratio 0.2; overlap = |A & B| / |A| of the kept"
-        " indices (target >= 0.99). Random methods use key 0 (library) and the CLI's default seed.",
-        "",
-        "| method | library, x64 on | library, x64 off (float32) | CLI (float32) |",
-        "| --- | ---: | ---: | ---: |",
-        *rows,
-        "",
-    ]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines))
-    print(f"wrote {args.out}")
-
+    _report.write(args.out, "georeferenced.py", argv, title="Georeferenced coordinates: kept sets in local and"
+                  " UTM-like frames", paragraphs=[
+                      f"jax {jax.__version__}. {args.points:,} points of the table-and-mug scan (seeded subset), minimum"
+                      f" at the origin, against the same points + ({OFFSET[0]}, {OFFSET[1]}, {OFFSET[2]}); ratio 0.2;"
+                      " overlap = |A & B| / |A| of the kept indices (target >= 0.99). Random methods use key 0"
+                      " (library) and the CLI's default seed."],
+                  table=["| method | library, x64 on | library, x64 off (float32) | CLI (float32) |",
+                         "| --- | ---: | ---: | ---: |", *rows])
 
 if __name__ == "__main__":
     main()

@@ -26,6 +26,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # run from a checkout without installing
 
+import _report  # noqa: E402
 import hgjax  # noqa: E402
 from hgjax.eval import box_union_cloud  # noqa: E402
 from hgjax.io import read_points  # noqa: E402
@@ -89,30 +90,16 @@ def main(argv=None) -> None:
         t_ours, t_theirs = median_time(ours, args.repeats), median_time(theirs, args.repeats)
         rows.append(f"| {name} | {t_ours:.4f} | {t_theirs:.4f} | {t_ours / t_theirs:.2f} | {n_ours:,} | {n_theirs:,} |")
         print(rows[-1], flush=True)
-    command = "python bench/samplers.py" + "".join(f" {a}" for a in (argv if argv is not None else sys.argv[1:]))
-    lines = [
-        "# Samplers: hgjax against Open3D",
-        "",
-        f"Command: `{command}`",
-        "",
+    _report.write(args.out, "samplers.py", argv, title="Samplers: hgjax against Open3D", paragraphs=[
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()},"
         f" NumPy {np.__version__}, JAX {jax.__version__} ({jax.default_backend()}), Open3D {o3d.__version__},"
         f" hgjax FPS backend `{hgjax.samplers.fps_backend('auto')}`.",
-        "",
         f"Median wall time in seconds of {args.repeats} calls after one warm-up, both libraries in one process;"
         " ratio = hgjax / Open3D (below 1: hgjax faster). hgjax returns indices (exactly the count asked for);"
         " Open3D returns a new cloud (voxel: the centroid of each voxel, grid origin half a voxel below the"
-        " minimum, so its count differs slightly).",
-        "",
-        "| case | hgjax s | Open3D s | ratio | hgjax kept | Open3D kept |",
-        "| --- | ---: | ---: | ---: | ---: | ---: |",
-        *rows,
-        "",
-    ]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines))
-    print(f"wrote {args.out}")
-
+        " minimum, so its count differs slightly)."],
+        table=["| case | hgjax s | Open3D s | ratio | hgjax kept | Open3D kept |",
+               "| --- | ---: | ---: | ---: | ---: | ---: |", *rows])
 
 if __name__ == "__main__":
     main()
