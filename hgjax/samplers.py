@@ -24,6 +24,7 @@ VOXEL_PROBE_POINTS = 2**13  # points of the strided subsample that estimates the
 VOXEL_COUNT_PASSES = 3  # full-cloud counting passes of the count-targeted voxel search
 VOXEL_SLACK = 1 / 64  # a grid with M to M (1 + slack) voxels ends the search
 FPS_BACKENDS = ("auto", "fpsample", "jax")
+_GOLDEN = np.uint64(11400714819323198485)  # 2^64 / golden ratio: Fibonacci hashing keeps the top bits
 
 
 def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
@@ -58,20 +59,106 @@ def _voxel_codes(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarra
     return (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
 
 
-def _count_voxels(cols: np.ndarray, origin: np.ndarray, size: float) -> int:
-    """Number of occupied voxels of edge ``size`` (one sort of the codes)."""
+def _voxel_table(cols, origin, size, cells, count_only):
+    """Occupied voxels by an open-addressing table of voxel codes, in passes over the points.
+
+    A code per point (``cells`` per axis, at least the grid's largest index plus one; the
+    codes differ from _voxel_codes' but name the same voxels), then each point's voxel
+    from the table (2N slots, Fibonacci hashing, linear probing), then populations and
+    centroids, then each voxel's point nearest its centroid (ties: lowest index). Arrays of
+    N entries are int32 or int64 and per-voxel arrays are sized V, which keeps the memory
+    touched small. Returns (reps (V,), counts (V,)) in order of first appearance; with
+    ``count_only``, reps is empty. Compiled by numba (:func:`_voxel_kernel`); the same
+    voxels, populations and representatives as the sort of :func:`_voxel_representatives`.
+    """
+    n = cols.shape[1]
+    codes = np.empty(n, np.int64)
+    for i in range(n):
+        code = np.int64(0)
+        for k in range(3):
+            code = code * cells + np.int64((cols[k, i] - origin[k]) / size)
+        codes[i] = code
+    bits = 1
+    while (1 << bits) < 2 * n:
+        bits += 1
+    mask = (1 << bits) - 1
+    keys = np.full(1 << bits, -1, np.int64)
+    slot_voxel = np.empty(1 << bits, np.int32)
+    voxel = np.empty(n, np.int32)
+    v = 0
+    for i in range(n):
+        code = codes[i]
+        s = np.int64((np.uint64(code) * _GOLDEN) >> np.uint64(64 - bits))
+        while keys[s] != code and keys[s] != -1:
+            s = (s + 1) & mask
+        if keys[s] == -1:
+            keys[s] = code
+            slot_voxel[s] = v
+            v += 1
+        voxel[i] = slot_voxel[s]
+    counts = np.zeros(v, np.int64)
+    for i in range(n):
+        counts[voxel[i]] += 1
+    if count_only:
+        return np.empty(0, np.int64), counts
+    centre = np.zeros((v, 3))
+    for i in range(n):
+        for k in range(3):
+            centre[voxel[i], k] += cols[k, i]
+    for g in range(v):
+        for k in range(3):
+            centre[g, k] /= counts[g]
+    best = np.full(v, np.inf)
+    reps = np.zeros(v, np.int64)
+    for i in range(n):
+        g = voxel[i]
+        dist = 0.0
+        for k in range(3):
+            d = cols[k, i] - centre[g, k]
+            dist += d * d
+        if dist < best[g]:
+            best[g] = dist
+            reps[g] = i
+    return reps, counts
+
+
+@functools.cache
+def _voxel_kernel():
+    """:func:`_voxel_table` compiled by numba (the ``voxel`` extra), or None without numba."""
+    if importlib.util.find_spec("numba") is None:
+        return None
+    import numba
+
+    return numba.njit(cache=True, nogil=True)(_voxel_table)
+
+
+def _axis_bounds(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) minima and maxima of (3, N) ``cols``, one axis at a time (fast on a transposed view)."""
+    return np.array([c.min() for c in cols]), np.array([c.max() for c in cols])
+
+
+def _count_voxels(cols: np.ndarray, origin: np.ndarray, extent: float, size: float) -> int:
+    """Number of occupied voxels of edge ``size`` (one table pass, or one sort of the codes)."""
+    kernel = _voxel_kernel()
+    if kernel is not None:
+        return int(kernel(cols, origin, float(size), int(extent / size) + 1, True)[1].size)
     code = np.sort(_voxel_codes(cols, origin, size))
     return int(np.count_nonzero(code[1:] != code[:-1])) + 1
 
 
-def _voxel_representatives(cols: np.ndarray, origin: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+def _voxel_representatives(cols: np.ndarray, origin: np.ndarray, extent: float,
+                           size: float) -> tuple[np.ndarray, np.ndarray]:
     """(reps (V,), counts (V,)): each occupied voxel's point nearest its centroid, and its population.
 
-    One argsort of the voxel codes; ties in distance go to the lowest index.
+    With numba, one table pass (:func:`_voxel_table`); else one argsort of the voxel codes.
+    Ties in distance go to the lowest index; the voxels' order is left to the caller.
     """
+    kernel = _voxel_kernel()
+    if kernel is not None:
+        return kernel(cols, origin, float(size), int(extent / size) + 1, False)
     n = cols.shape[1]
     code = _voxel_codes(cols, origin, size)
-    order = np.argsort(code)
+    order = np.argsort(code, kind="stable")  # each voxel in index order: sums as the table adds them
     code = code[order]
     starts = np.flatnonzero(np.concatenate([[True], code[1:] != code[:-1]]))
     counts = np.diff(np.append(starts, n))
@@ -100,7 +187,7 @@ def _voxel_size_for(cols: np.ndarray, origin: np.ndarray, extent: float, m: int)
     sub = cols[:, :: max(1, cols.shape[1] // VOXEL_PROBE_POINTS)]
     h, count = coarsest, 1
     while True:
-        finer = _count_voxels(sub, origin, h / 2)
+        finer = _count_voxels(sub, origin, extent, h / 2)
         if 8 * finer > sub.shape[1] or finer >= m or h / 2 < finest:
             break
         h, count = h / 2, finer
@@ -109,7 +196,7 @@ def _voxel_size_for(cols: np.ndarray, origin: np.ndarray, extent: float, m: int)
     guess = float(np.clip(h * (count / aim) ** (1 / slope), finest, coarsest))
     tried: list[tuple[float, int]] = []
     for _ in range(VOXEL_COUNT_PASSES):
-        tried.append((guess, _count_voxels(cols, origin, guess)))
+        tried.append((guess, _count_voxels(cols, origin, extent, guess)))
         if m <= tried[-1][1] <= m * (1 + VOXEL_SLACK):
             break
         if len(tried) > 1 and tried[-1][1] != tried[-2][1]:
@@ -128,10 +215,13 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     to what ``voxel_down_sample`` outputs; ties: lowest index). Representatives are ranked
     by voxel population, largest first (ties: lowest index).
 
-    With ``voxel_size`` the grid is given: one pass (an argsort of N voxel codes). With
-    ``ratio`` alone the edge is searched for (see below) so that the grid has at least
-    M = ceil(ratio N) voxels; the search counts voxels on a subsample and on the full cloud
-    at most three times (a sort each, about half a pass), so it costs under three passes. The count is then made
+    With ``voxel_size`` the grid is given: one pass, a hash table of voxel codes compiled
+    by numba (the ``voxel`` extra), else an argsort of N voxel codes. Where two points are
+    equally near a centroid up to rounding (locations duplicated alike), the two may pick
+    different ones. With ``ratio`` alone the edge is searched for (see below) so that the
+    grid has at least M = ceil(ratio N) voxels; the search counts voxels on a subsample and
+    on the full cloud at most three times (about half a pass each), so it costs under three
+    passes. The count is then made
     exact: the first M ranked representatives are returned, which drops the least populated
     voxels when the grid has more than M; when it has fewer (a cloud with many duplicate
     points, or a ``voxel_size`` too coarse), the remaining points follow in index order.
@@ -164,9 +254,10 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     if ratio is None and voxel_size is None:
         raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
     m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
-    cols = np.array(pts.T, dtype=np.float64, order="C")
-    origin = cols.min(axis=1)
-    extent = float((cols.max(axis=1) - origin).max()) or 1.0
+    # (3, N): the compiled table reads the caller's rows in place, the sort wants each axis contiguous.
+    cols = np.asarray(pts, dtype=np.float64).T if _voxel_kernel() else np.array(pts.T, dtype=np.float64, order="C")
+    origin, top = _axis_bounds(cols)
+    extent = float((top - origin).max()) or 1.0
     if voxel_size is None:
         size = _voxel_size_for(cols, origin, extent, m)
     else:
@@ -174,8 +265,8 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
         if extent / size > VOXEL_LEVELS:
             raise ValueError(f"voxel_size must be at least the cloud's extent / 2**20 = {extent / VOXEL_LEVELS:.3g}"
                              f" (at most 2**20 voxels along an axis); got {voxel_size!r}")
-    reps, counts = _voxel_representatives(cols, origin, size)
-    ranked = reps[np.lexsort((reps, -counts))]
+    reps, counts = _voxel_representatives(cols, origin, extent, size)
+    ranked = reps[np.argsort((counts.max() - counts) * (n + 1) + reps)]  # population desc, then index (one key)
     if m is None or m <= ranked.size:
         return ranked[:m].astype(np.int64)
     return np.concatenate([ranked, np.setdiff1d(np.arange(n), reps)])[:m].astype(np.int64)

@@ -11,6 +11,7 @@ import hgjax
 from hgjax import samplers
 
 needs_fpsample = pytest.mark.skipif(importlib.util.find_spec("fpsample") is None, reason="fpsample not installed")
+needs_numba = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba not installed")
 
 
 def cloud(n, seed=0):
@@ -106,6 +107,42 @@ def test_voxel_size_matches_naive(dtype):
     assert got.dtype == np.int64
 
 
+@needs_numba
+@pytest.mark.parametrize("name", ["normal", "grid", "one_voxel"])
+def test_voxel_table_matches_the_sort(name, dtype, monkeypatch):
+    base = cloud(3000, seed=6)
+    p = {"normal": base, "grid": np.stack(np.meshgrid(*[np.arange(12.0)] * 3), -1).reshape(-1, 3) * 0.25,
+         "one_voxel": 1e-3 * base}[name].astype(dtype)  # grid: points on voxel faces
+    calls = [lambda: hgjax.voxel_sample(p, voxel_size=0.7), lambda: hgjax.voxel_sample(p, 0.1),
+             lambda: hgjax.voxel_sample(p, 0.1, voxel_size=2.0)]
+    assert samplers._voxel_kernel() is not None
+    table = [call() for call in calls]
+    monkeypatch.setattr(samplers, "_voxel_kernel", lambda: None)
+    for got, want in zip(table, [call() for call in calls]):
+        np.testing.assert_array_equal(got, want)
+
+
+@needs_numba
+def test_voxel_table_ties_between_duplicated_locations(monkeypatch):
+    # Two locations duplicated alike are equally near their voxel's centroid: the two paths
+    # sum the centroid in another order, so rounding may pick either. Same voxels, each
+    # represented by a point at the nearest distance.
+    base = cloud(3000, seed=6)
+    p = np.concatenate([base, base[::3], base[:5]])
+    got = hgjax.voxel_sample(p, voxel_size=0.7)
+    monkeypatch.setattr(samplers, "_voxel_kernel", lambda: None)
+    want = hgjax.voxel_sample(p, voxel_size=0.7)
+    _, voxel = np.unique(np.floor((p - p.min(axis=0)) / 0.7), axis=0, return_inverse=True)
+    voxel = voxel.ravel()
+    counts = np.bincount(voxel)
+    centre = np.stack([np.bincount(voxel, p[:, k]) for k in range(3)], axis=1) / counts[:, None]
+    dist = ((p - centre[voxel]) ** 2).sum(axis=1)
+    got, want = got[np.argsort(voxel[got])], want[np.argsort(voxel[want])]
+    np.testing.assert_array_equal(voxel[got], voxel[want])
+    np.testing.assert_allclose(dist[got], dist[want], rtol=1e-12)
+    assert np.all(dist[got] <= np.minimum.reduceat(dist[np.argsort(voxel)], np.cumsum(counts) - counts) * (1 + 1e-12))
+
+
 def test_voxel_size_with_ratio_truncates_or_fills():
     p = cloud(500, seed=5)
     ranked = hgjax.voxel_sample(p, voxel_size=1.5)
@@ -123,8 +160,9 @@ def test_voxel_search_reaches_the_count(ratio):
     cols = np.array(p.T, order="C")
     origin = cols.min(axis=1)
     m = int(np.ceil(ratio * len(p)))
-    size = samplers._voxel_size_for(cols, origin, float(np.ptp(p, axis=0).max()), m)
-    assert m <= samplers._count_voxels(cols, origin, size) <= 1.1 * m
+    extent = float(np.ptp(p, axis=0).max())
+    size = samplers._voxel_size_for(cols, origin, extent, m)
+    assert m <= samplers._count_voxels(cols, origin, extent, size) <= 1.1 * m
     idx = hgjax.voxel_sample(p, ratio)
     np.testing.assert_array_equal(idx, hgjax.voxel_sample(p, voxel_size=size)[:m])
 
