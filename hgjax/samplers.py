@@ -67,8 +67,8 @@ def _voxel_table(cols, origin, size, cells, count_only):
     from the table (2N slots, Fibonacci hashing, linear probing), then populations and
     centroids, then each voxel's point nearest its centroid (ties: lowest index). Arrays of
     N entries are int32 or int64 and per-voxel arrays are sized V, which keeps the memory
-    touched small. Returns (reps (V,), counts (V,)) in order of first appearance; with
-    ``count_only``, reps is empty. Compiled by numba (:func:`_voxel_kernel`); the same
+    touched small. Returns (reps (V,), counts (V,), V) in order of first appearance; with
+    ``count_only``, just V (reps and counts empty). Compiled by numba (:func:`_voxel_kernel`); the same
     voxels, populations and representatives as the sort of :func:`_voxel_representatives`.
     """
     n = cols.shape[1]
@@ -84,7 +84,7 @@ def _voxel_table(cols, origin, size, cells, count_only):
     mask = (1 << bits) - 1
     keys = np.full(1 << bits, -1, np.int64)
     slot_voxel = np.empty(1 << bits, np.int32)
-    voxel = np.empty(n, np.int32)
+    voxel = np.empty(0 if count_only else n, np.int32)
     v = 0
     for i in range(n):
         code = codes[i]
@@ -95,12 +95,13 @@ def _voxel_table(cols, origin, size, cells, count_only):
             keys[s] = code
             slot_voxel[s] = v
             v += 1
-        voxel[i] = slot_voxel[s]
+        if not count_only:
+            voxel[i] = slot_voxel[s]
+    if count_only:
+        return np.empty(0, np.int64), np.empty(0, np.int64), v
     counts = np.zeros(v, np.int64)
     for i in range(n):
         counts[voxel[i]] += 1
-    if count_only:
-        return np.empty(0, np.int64), counts
     centre = np.zeros((v, 3))
     for i in range(n):
         for k in range(3):
@@ -119,7 +120,7 @@ def _voxel_table(cols, origin, size, cells, count_only):
         if dist < best[g]:
             best[g] = dist
             reps[g] = i
-    return reps, counts
+    return reps, counts, v
 
 
 @functools.cache
@@ -141,7 +142,7 @@ def _count_voxels(cols: np.ndarray, origin: np.ndarray, extent: float, size: flo
     """Number of occupied voxels of edge ``size`` (one table pass, or one sort of the codes)."""
     kernel = _voxel_kernel()
     if kernel is not None:
-        return int(kernel(cols, origin, float(size), int(extent / size) + 1, True)[1].size)
+        return int(kernel(cols, origin, float(size), int(extent / size) + 1, True)[2])
     code = np.sort(_voxel_codes(cols, origin, size))
     return int(np.count_nonzero(code[1:] != code[:-1])) + 1
 
@@ -155,7 +156,7 @@ def _voxel_representatives(cols: np.ndarray, origin: np.ndarray, extent: float,
     """
     kernel = _voxel_kernel()
     if kernel is not None:
-        return kernel(cols, origin, float(size), int(extent / size) + 1, False)
+        return kernel(cols, origin, float(size), int(extent / size) + 1, False)[:2]
     n = cols.shape[1]
     code = _voxel_codes(cols, origin, size)
     order = np.argsort(code, kind="stable")  # each voxel in index order: sums as the table adds them
