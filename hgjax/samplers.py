@@ -62,9 +62,8 @@ def _voxel_codes(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarra
 def _voxel_table(cols, origin, size, cells, count_only):
     """Occupied voxels by an open-addressing table of voxel codes, in passes over the points.
 
-    A code per point (``cells`` per axis, at least the grid's largest index plus one; the
-    codes differ from _voxel_codes' but name the same voxels), then each point's voxel
-    from the table (2N slots, Fibonacci hashing, linear probing), then populations and
+    Each point's code (``cells`` per axis, at least the grid's largest index plus one; the
+    codes differ from _voxel_codes' but name the same voxels) and its voxel from the table (2N slots, Fibonacci hashing, linear probing), then populations and
     centroids, then each voxel's point nearest its centroid (ties: lowest index). Arrays of
     N entries are int32 or int64 and per-voxel arrays are sized V, which keeps the memory
     touched small. Returns (reps (V,), counts (V,), V) in order of first appearance; with
@@ -72,12 +71,6 @@ def _voxel_table(cols, origin, size, cells, count_only):
     voxels, populations and representatives as the sort of :func:`_voxel_representatives`.
     """
     n = cols.shape[1]
-    codes = np.empty(n, np.int64)
-    for i in range(n):
-        code = np.int64(0)
-        for k in range(3):
-            code = code * cells + np.int64((cols[k, i] - origin[k]) / size)
-        codes[i] = code
     bits = 1
     while (1 << bits) < 2 * n:
         bits += 1
@@ -87,7 +80,9 @@ def _voxel_table(cols, origin, size, cells, count_only):
     voxel = np.empty(0 if count_only else n, np.int32)
     v = 0
     for i in range(n):
-        code = codes[i]
+        code = np.int64(0)
+        for k in range(3):
+            code = code * cells + np.int64((cols[k, i] - origin[k]) / size)
         s = np.int64((np.uint64(code) * _GOLDEN) >> np.uint64(64 - bits))
         while keys[s] != code and keys[s] != -1:
             s = (s + 1) & mask
