@@ -63,12 +63,13 @@ def _voxel_table(cols, origin, size, cells, count_only):
     """Occupied voxels by an open-addressing table of voxel codes, in passes over the points.
 
     Each point's code (``cells`` per axis, at least the grid's largest index plus one; the
-    codes differ from _voxel_codes' but name the same voxels) and its voxel from the table (2N slots, Fibonacci hashing, linear probing), then populations and
-    centroids, then each voxel's point nearest its centroid (ties: lowest index). Arrays of
-    N entries are int32 or int64 and per-voxel arrays are sized V, which keeps the memory
-    touched small. Returns (reps (V,), counts (V,), V) in order of first appearance; with
-    ``count_only``, just V (reps and counts empty). Compiled by numba (:func:`_voxel_kernel`); the same
-    voxels, populations and representatives as the sort of :func:`_voxel_representatives`.
+    codes differ from _voxel_codes' but name the same voxels) and its voxel from the table
+    (2N slots, Fibonacci hashing, linear probing), then populations and centroids, then
+    each voxel's point nearest its centroid (ties: lowest index). Per-voxel arrays are
+    sized V, which keeps the memory touched small. Returns (reps (V,), counts (V,), V) in
+    order of first appearance; with ``count_only``, just V (reps and counts empty).
+    Compiled by numba (:func:`_voxel_kernel`); the same voxels, populations and
+    representatives as the sort of :func:`_voxel_representatives`.
     """
     n = cols.shape[1]
     bits = 1

@@ -419,22 +419,23 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     chunk = _stream.chunk_rows(chunk_size)
     # Blocks of at most SCORE_ROWS rows, each with the columns its rows need (rows holding
     # few pairs, such as the empty rows of later copies, in a narrow group).
-    blocks = [(rows[start:start + SCORE_ROWS], k) for rows, k in _stream.narrow_groups(idx, n)
-              for start in range(0, rows.size, SCORE_ROWS)]
+    blocks = [(part, idx[part, :k]) for rows, k in _stream.narrow_groups(idx, n)
+              for part in (rows[start:start + SCORE_ROWS] for start in range(0, rows.size, SCORE_ROWS))]
     own = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
     partner = np.append(own, 0.0)  # c_j by partner index, 0 for the padding N
 
-    def run(fn, pts, rows, k, row_args=(), args=()):
-        return _stream._stream(fn, pts, rows, idx[rows, :k], row_args, args, chunk, False)
+    def run(fn, pts, rows, nbr, row_args=(), args=()):
+        return _stream._stream(fn, pts, rows, nbr, row_args, args, chunk, False)
 
     # Pass 1: q of every stored pair (from the points cast to wdtype, as the authors' code),
     # and its weight c_i c_j (the point pairs it stands for).
     cast = points.astype(wdtype)
-    qs = [run(_sq_length, cast, rows, k) for rows, k in blocks]
+    qs = []
     sums = np.zeros(3)  # sum of weights, of weight x q, of weight x q^2
-    for (rows, k), q in zip(blocks, qs):
-        pair = own[rows, None] * partner[idx[rows, :k]]
-        q = q.astype(np.float64)
+    for rows, nbr in blocks:
+        qs.append(run(_sq_length, cast, rows, nbr))
+        pair = own[rows, None] * partner[nbr]
+        q = qs[-1].astype(np.float64)
         sums += [pair.sum(), np.sum(pair * q), np.sum(pair * q * q)]
     count, mean_q = sums[0], (sums[1] / sums[0] if sums[0] else 0.0)
     mean_z = sums[1] / count / mean_q if mean_q > 0 else 0.0
@@ -447,12 +448,11 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     args = (jax.device_put(np.asarray(mean_q, acc)), jax.device_put(np.asarray(two_var, acc)))
     lp = np.zeros((n, 3))
     bar = _stream._progress(n, progress and len(blocks) > 4)
-    for (rows, k), q in zip(blocks, qs):
-        c = run(_flow_kernel(wdtype), points, rows, k, (q,), args)  # (R, k, 3)
-        lp[rows] += np.einsum("rk,rkd->rd", partner[idx[rows, :k]], c)
+    for (rows, nbr), q in zip(blocks, qs):
+        c = run(_flow_kernel(wdtype), points, rows, nbr, (q,), args)  # (R, k, 3)
+        lp[rows] += np.einsum("rk,rkd->rd", partner[nbr], c)
         back = own[rows, None, None] * c  # x c_i
-        flat = idx[rows, :k].ravel()
-        lp -= np.stack([np.bincount(flat, back[..., d].ravel(), minlength=n + 1)[:n] for d in range(3)], axis=1)
+        lp -= np.stack([np.bincount(nbr.ravel(), back[..., d].ravel(), minlength=n + 1)[:n] for d in range(3)], axis=1)
         if bar is not None:
             bar.update(rows.size)
     if bar is not None:
