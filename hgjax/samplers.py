@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import types
 
 import jax
 import jax.numpy as jnp
@@ -21,8 +22,8 @@ __all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_samp
 
 VOXEL_LEVELS = 2**20  # the finest voxel grid has at most this many cells along each axis
 VOXEL_PROBE_POINTS = 2**13  # points of the strided subsample that estimates the voxel size
-VOXEL_COUNT_PASSES = 3  # full-cloud counting passes of the count-targeted voxel search
-VOXEL_SLACK = 1 / 64  # a grid with M to M (1 + slack) voxels ends the search
+VOXEL_ASSIGN_PASSES = 2  # full-cloud passes that assign voxels in the count-targeted search, after one counting pass
+VOXEL_SLACK = 1 / 32  # a grid with M to M (1 + slack) voxels ends the search
 FPS_BACKENDS = ("auto", "fpsample", "jax")
 _GOLDEN = np.uint64(11400714819323198485)  # 2^64 / golden ratio: Fibonacci hashing keeps the top bits
 
@@ -52,24 +53,37 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     return weighted_sample(_validate.check_key(key, "uniform"), np.ones(pts.shape[0]), m)
 
 
-def _voxel_codes(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:
-    """(N,) int64 code of each point's voxel of edge ``size``; ``cols`` is the (3, N) cloud."""
-    cell = ((cols - origin[:, None]) / size).astype(np.int64)  # >= 0, so truncation is floor
-    dims = cell.max(axis=1) + 1  # at most VOXEL_LEVELS + 1 each, so the code fits in int64
-    return (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
+def _voxel_cells(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:
+    """(3, N) int64 cell of each point in the grid of edge ``size``; ``cols`` is the (3, N) cloud."""
+    return ((cols - origin[:, None]) / size).astype(np.int64)  # >= 0, so truncation is floor
 
 
-def _voxel_table(cols, origin, size, cells, count_only):
-    """Occupied voxels by an open-addressing table of voxel codes, in passes over the points.
+def _voxel_slot(code, bits):
+    """Slot of ``code`` in a table of 2^bits: MurmurHash3's 64-bit finalizer, top bits.
 
-    Each point's code (``cells`` per axis, at least the grid's largest index plus one; the
-    codes differ from _voxel_codes' but name the same voxels) and its voxel from the table
-    (2N slots, Fibonacci hashing, linear probing), then populations and centroids, then
-    each voxel's point nearest its centroid (ties: lowest index). Per-voxel arrays are
-    sized V, which keeps the memory touched small. Returns (reps (V,), counts (V,), V) in
-    order of first appearance; with ``count_only``, just V (reps and counts empty).
-    Compiled by numba (:func:`_voxel_kernel`); the same voxels, populations and
-    representatives as the sort of :func:`_voxel_representatives`.
+    A full mix, not one multiplication: the codes form lattices (cells^2, cells, 1), and a
+    multiplicative hash clusters them for some grid sizes, halving the table's speed.
+    """
+    x = np.uint64(code)
+    x ^= x >> np.uint64(33)
+    x *= np.uint64(0xFF51AFD7ED558CCD)
+    x ^= x >> np.uint64(33)
+    x *= np.uint64(0xC4CEB9FE1A85EC53)
+    x ^= x >> np.uint64(33)
+    return np.int64(x >> np.uint64(64 - bits))
+
+
+def _voxel_table(cols, origin, size, cells, assign, coarse):
+    """Occupied voxels of edge ``size`` (and 2 ``size``) by open-addressing tables of voxel codes.
+
+    One pass over the points: each point's cell (``cells`` per axis, at least the largest
+    index plus one), its code looked up in a table of 2N slots (:func:`_voxel_slot`, linear
+    probing). With ``coarse`` the cell shifted right by one, which is the cell in the grid
+    of edge 2 ``size`` (the grids nest: doubling the edge scales exactly), goes in a second
+    table. Returns (V, V2, voxel (N,) int32): the occupied voxels, those of the coarse grid
+    (-1 without ``coarse``) and, with ``assign``, each point's voxel numbered in order of
+    first appearance (else empty). Compiled by numba (:func:`_voxel_kernels`); the same
+    counts and voxels as the sorts of :func:`_count_voxels` and :func:`_voxel_grid`.
     """
     n = cols.shape[1]
     bits = 1
@@ -77,29 +91,48 @@ def _voxel_table(cols, origin, size, cells, count_only):
         bits += 1
     mask = (1 << bits) - 1
     keys = np.full(1 << bits, -1, np.int64)
-    slot_voxel = np.empty(1 << bits, np.int32)
-    voxel = np.empty(0 if count_only else n, np.int32)
-    v = 0
+    keys2 = np.full(1 << bits if coarse else 0, -1, np.int64)
+    slot_voxel = np.empty(1 << bits if assign else 0, np.int32)
+    voxel = np.empty(n if assign else 0, np.int32)
+    dim2 = ((cells - 1) >> 1) + 1
+    v = v2 = 0
     for i in range(n):
-        code = np.int64(0)
-        for k in range(3):
-            code = code * cells + np.int64((cols[k, i] - origin[k]) / size)
-        s = np.int64((np.uint64(code) * _GOLDEN) >> np.uint64(64 - bits))
+        c0 = np.int64((cols[0, i] - origin[0]) / size)
+        c1 = np.int64((cols[1, i] - origin[1]) / size)
+        c2 = np.int64((cols[2, i] - origin[2]) / size)
+        code = (c0 * cells + c1) * cells + c2
+        s = _voxel_slot(code, bits)
         while keys[s] != code and keys[s] != -1:
             s = (s + 1) & mask
         if keys[s] == -1:
             keys[s] = code
-            slot_voxel[s] = v
+            if assign:
+                slot_voxel[s] = v
             v += 1
-        if not count_only:
+        if assign:
             voxel[i] = slot_voxel[s]
-    if count_only:
-        return np.empty(0, np.int64), np.empty(0, np.int64), v
+        if coarse:
+            code = ((c0 >> 1) * dim2 + (c1 >> 1)) * dim2 + (c2 >> 1)
+            s = _voxel_slot(code, bits)
+            while keys2[s] != code and keys2[s] != -1:
+                s = (s + 1) & mask
+            if keys2[s] == -1:
+                keys2[s] = code
+                v2 += 1
+    return v, v2 if coarse else -1, voxel
+
+
+def _voxel_nearest(cols, voxel, v):
+    """(reps (V,), counts (V,)): each voxel's point nearest its centroid (ties: lowest index), and its population.
+
+    Populations, centroids (summed in index order), then distances, each a pass over the
+    points into arrays of V. Compiled by numba (:func:`_voxel_kernels`).
+    """
+    n = cols.shape[1]
     counts = np.zeros(v, np.int64)
-    for i in range(n):
-        counts[voxel[i]] += 1
     centre = np.zeros((v, 3))
     for i in range(n):
+        counts[voxel[i]] += 1
         for k in range(3):
             centre[voxel[i], k] += cols[k, i]
     for g in range(v):
@@ -116,17 +149,19 @@ def _voxel_table(cols, origin, size, cells, count_only):
         if dist < best[g]:
             best[g] = dist
             reps[g] = i
-    return reps, counts, v
+    return reps, counts
 
 
 @functools.cache
-def _voxel_kernel():
-    """:func:`_voxel_table` compiled by numba (the ``voxel`` extra), or None without numba."""
+def _voxel_kernels():
+    """(:func:`_voxel_table`, :func:`_voxel_nearest`) compiled by numba (the ``voxel`` extra), or None."""
     if importlib.util.find_spec("numba") is None:
         return None
     import numba
 
-    return numba.njit(cache=True, nogil=True)(_voxel_table)
+    jit = numba.njit(cache=True, nogil=True)
+    scope = {**globals(), "_voxel_slot": numba.njit(inline="always")(_voxel_slot)}  # compiled callee
+    return jit(types.FunctionType(_voxel_table.__code__, scope)), jit(_voxel_nearest)
 
 
 def _axis_bounds(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,74 +169,112 @@ def _axis_bounds(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([c.min() for c in cols]), np.array([c.max() for c in cols])
 
 
-def _count_voxels(cols: np.ndarray, origin: np.ndarray, extent: float, size: float) -> int:
-    """Number of occupied voxels of edge ``size`` (one table pass, or one sort of the codes)."""
-    kernel = _voxel_kernel()
-    if kernel is not None:
-        return int(kernel(cols, origin, float(size), int(extent / size) + 1, True)[2])
-    code = np.sort(_voxel_codes(cols, origin, size))
-    return int(np.count_nonzero(code[1:] != code[:-1])) + 1
+def _count_voxels(cols: np.ndarray, origin: np.ndarray, extent: float, size: float,
+                  coarse: bool = False) -> tuple[int, int]:
+    """(V, V2): occupied voxels of edge ``size`` and, with ``coarse``, of edge 2 ``size`` (else -1).
 
-
-def _voxel_representatives(cols: np.ndarray, origin: np.ndarray, extent: float,
-                           size: float) -> tuple[np.ndarray, np.ndarray]:
-    """(reps (V,), counts (V,)): each occupied voxel's point nearest its centroid, and its population.
-
-    With numba, one table pass (:func:`_voxel_table`); else one argsort of the voxel codes.
-    Ties in distance go to the lowest index; the voxels' order is left to the caller.
+    One table pass (:func:`_voxel_table`), or one sort of the voxel codes per grid.
     """
-    kernel = _voxel_kernel()
-    if kernel is not None:
-        return kernel(cols, origin, float(size), int(extent / size) + 1, False)[:2]
-    n = cols.shape[1]
-    code = _voxel_codes(cols, origin, size)
-    order = np.argsort(code, kind="stable")  # each voxel in index order: sums as the table adds them
-    code = code[order]
-    starts = np.flatnonzero(np.concatenate([[True], code[1:] != code[:-1]]))
-    counts = np.diff(np.append(starts, n))
-    dist = np.zeros(n)
-    for c in cols:  # row by row: contiguous gathers and reductions
-        x = c[order]
-        x -= np.repeat(np.add.reduceat(x, starts) / counts, counts)
-        dist += x * x
-    nearest = dist == np.repeat(np.minimum.reduceat(dist, starts), counts)
-    return np.minimum.reduceat(np.where(nearest, order, n), starts), counts
+    kernels = _voxel_kernels()
+    if kernels is not None:
+        v, v2, _ = kernels[0](cols, origin, float(size), int(extent / size) + 1, False, coarse)
+        return int(v), int(v2)
+    cell = _voxel_cells(cols, origin, size)
+    return np.unique(_pack(cell)).size, np.unique(_pack(cell >> 1)).size if coarse else -1
 
 
-def _voxel_size_for(cols: np.ndarray, origin: np.ndarray, extent: float, m: int) -> float:
-    """A voxel edge whose grid has at least ``m`` occupied voxels, and not many more.
+def _pack(cell: np.ndarray) -> np.ndarray:
+    """(N,) int64 code of each (3, N) cell, distinct for distinct cells."""
+    dims = cell.max(axis=1) + 1  # at most VOXEL_LEVELS + 1 each, so the code fits in int64
+    return (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
 
-    Occupied-voxel counts follow count ~ h^-D (D about 2 on surfaces). A strided subsample
-    of about VOXEL_PROBE_POINTS points is counted at extent / 2^k, k = 0, 1, ..., while it
-    still has at least 8 points per voxel (so its count is close to the full cloud's) and
-    fewer than ``m`` voxels; the last two counts give D and a first guess of h. At most
-    VOXEL_COUNT_PASSES counts of the full cloud then refine h by secant steps on log count
-    against log h, aiming at m (1 + VOXEL_SLACK / 2) and stopping once a count lies in
-    [m, m (1 + VOXEL_SLACK)]. The largest counted h with at least ``m`` voxels is returned;
-    if none reached ``m``, the next secant guess is.
+
+def _voxel_grid(cols: np.ndarray, origin: np.ndarray, extent: float, size: float) -> tuple[np.ndarray, int]:
+    """(voxel (N,), V): each point's voxel of edge ``size``, numbered 0..V-1 (one table pass, or one sort)."""
+    kernels = _voxel_kernels()
+    if kernels is not None:
+        v, _, voxel = kernels[0](cols, origin, float(size), int(extent / size) + 1, True, False)
+        return voxel, int(v)
+    codes, voxel = np.unique(_pack(_voxel_cells(cols, origin, size)), return_inverse=True)
+    return voxel, codes.size
+
+
+def _voxel_representatives(cols: np.ndarray, voxel: np.ndarray, v: int) -> tuple[np.ndarray, np.ndarray]:
+    """(reps (V,), counts (V,)): each voxel's point nearest its centroid (ties: lowest index), and its population."""
+    kernels = _voxel_kernels()
+    if kernels is not None:
+        return kernels[1](cols, voxel, v)
+    counts = np.bincount(voxel, minlength=v)
+    dist = np.zeros(cols.shape[1])
+    for c in cols:  # bincount adds in index order, as the compiled loop does
+        d = c - (np.bincount(voxel, c, minlength=v) / counts)[voxel]
+        dist += d * d
+    order = np.lexsort((dist, voxel))  # stable: equal distances keep index order
+    return order[np.cumsum(counts) - counts], counts
+
+
+def _next_size(tried: dict[float, int], aim: float, n: int, finest: float, coarsest: float, slope: float) -> float:
+    """Edge expected to give ``aim`` voxels, from counted (edge: count) pairs.
+
+    The model: 1/count - 1/N ~ h^slope (count ~ h^-slope on coarse grids, saturating at N
+    points on fine ones). Interpolates it, in logs, between the counted edges bracketing
+    ``aim``, or extrapolates from the two nearest (with ``slope`` if only one was counted).
+    """
+    y = {x: np.log(max(1 / c - 1 / n, 1e-300)) for x, c in tried.items()}
+    target = np.log(max(1 / aim - 1 / n, 1e-300))
+    h = sorted(tried)  # counts fall, y grows, as h grows
+    above = [x for x in h if tried[x] >= aim]
+    a = above[-1] if above else h[0]
+    b = next((x for x in h if x > a), None) if above else (h[1] if len(h) > 1 else None)
+    if b is None and len(h) > 1:
+        a, b = h[-2], h[-1]
+    if b is not None and y[a] != y[b]:
+        slope = float(np.clip((y[b] - y[a]) / np.log(b / a), 0.5, 4.0))
+    near = min((a, b) if b is not None else (a,), key=lambda x: abs(y[x] - target))
+    return float(np.clip(near * np.exp((target - y[near]) / slope), finest, coarsest))
+
+
+def _voxel_search(cols: np.ndarray, origin: np.ndarray, extent: float, m: int) -> tuple[float, np.ndarray, int]:
+    """(h, voxel (N,), V): a voxel edge whose grid has at least ``m`` occupied voxels, not many more.
+
+    Occupied-voxel counts follow count ~ h^-D on coarse grids (D about 2 on surfaces) and
+    saturate at N points on fine ones (:func:`_next_size`). A strided subsample of about
+    VOXEL_PROBE_POINTS points is counted at extent / 2^k, k = 0, 1, ..., while it still has
+    at least 8 points per voxel and fewer than ``m`` voxels; the last two counts give D and
+    a first guess g of h. One pass over the full cloud then counts the nested grids g and
+    2g: a subsample misses the sparse voxels of a real scan, so g tends to be fine and the
+    two bracket the target. Up to VOXEL_ASSIGN_PASSES passes then assign the points to the
+    voxels of the edge interpolated from all counts so far, aiming at m (1 + VOXEL_SLACK / 2)
+    and stopping once a grid has m to m (1 + VOXEL_SLACK) voxels. The assigned grid with the
+    fewest voxels, at least ``m``, is returned; if none has ``m``, one more pass assigns the
+    coarsest counted edge that has, or failing that the next guess.
     """
     finest, coarsest = extent / VOXEL_LEVELS, 2 * extent
-    sub = cols[:, :: max(1, cols.shape[1] // VOXEL_PROBE_POINTS)]
+    sub = np.ascontiguousarray(cols[:, :: max(1, cols.shape[1] // VOXEL_PROBE_POINTS)])
     h, count = coarsest, 1
     while True:
-        finer = _count_voxels(sub, origin, extent, h / 2)
+        finer = _count_voxels(sub, origin, extent, h / 2)[0]
         if 8 * finer > sub.shape[1] or finer >= m or h / 2 < finest:
             break
         h, count = h / 2, finer
     slope = float(np.clip(np.log2(max(finer, 1) / count), 1.0, 3.0))
     aim = m * (1 + VOXEL_SLACK / 2)
-    guess = float(np.clip(h * (count / aim) ** (1 / slope), finest, coarsest))
-    tried: list[tuple[float, int]] = []
-    for _ in range(VOXEL_COUNT_PASSES):
-        tried.append((guess, _count_voxels(cols, origin, extent, guess)))
-        if m <= tried[-1][1] <= m * (1 + VOXEL_SLACK):
+    guess = max(h * (count / aim) ** (1 / slope), finest)
+    tried = dict(zip((guess, 2 * guess), _count_voxels(cols, origin, extent, guess, coarse=True)))
+    best = None
+    for _ in range(VOXEL_ASSIGN_PASSES):
+        guess = _next_size(tried, aim, cols.shape[1], finest, coarsest, slope)
+        voxel, v = _voxel_grid(cols, origin, extent, guess)
+        tried[guess] = v
+        if v >= m and (best is None or v < best[2]):
+            best = guess, voxel, v
+        if m <= v <= m * (1 + VOXEL_SLACK):
             break
-        if len(tried) > 1 and tried[-1][1] != tried[-2][1]:
-            (h0, c0), (h1, c1) = tried[-2:]
-            slope = float(np.clip(np.log(c1 / c0) / np.log(h0 / h1), 0.5, 3.0))
-        guess = float(np.clip(guess * (tried[-1][1] / aim) ** (1 / slope), finest, coarsest))
-    enough = [h for h, c in tried if c >= m]
-    return max(enough) if enough else guess
+    if best is None:
+        enough = [x for x, c in tried.items() if c >= m]
+        guess = max(enough) if enough else _next_size(tried, aim, cols.shape[1], finest, coarsest, slope)
+        best = guess, *_voxel_grid(cols, origin, extent, guess)
+    return best
 
 
 def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None = None) -> np.ndarray:
@@ -212,14 +285,12 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     to what ``voxel_down_sample`` outputs; ties: lowest index). Representatives are ranked
     by voxel population, largest first (ties: lowest index).
 
-    With ``voxel_size`` the grid is given: one pass, a hash table of voxel codes compiled
-    by numba (the ``voxel`` extra), else an argsort of N voxel codes. Where two points are
-    equally near a centroid up to rounding (locations duplicated alike), the two may pick
-    different ones. With ``ratio`` alone the edge is searched for (see below) so that the
-    grid has at least M = ceil(ratio N) voxels; the search counts voxels on a subsample and
-    on the full cloud at most three times (about half a pass each), so it costs under three
-    passes. The count is then made
-    exact: the first M ranked representatives are returned, which drops the least populated
+    With ``voxel_size`` the grid is given: one pass assigns the points to voxels by a hash
+    table of voxel codes compiled by numba (the ``voxel`` extra), else by a sort of N voxel
+    codes (the same voxels and representatives), and one finds the representatives. With
+    ``ratio`` alone the edge is searched for (:func:`_voxel_search`) so that the grid has at
+    least M = ceil(ratio N) voxels: a subsample, one pass counting four nested grids, then
+    usually one assigning pass, whose voxels are kept. The count is then made exact: the first M ranked representatives are returned, which drops the least populated
     voxels when the grid has more than M; when it has fewer (a cloud with many duplicate
     points, or a ``voxel_size`` too coarse), the remaining points follow in index order.
     ``ratio`` and ``voxel_size`` together give exactly M points from the given grid.
@@ -251,18 +322,18 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     if ratio is None and voxel_size is None:
         raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
     m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
-    # (3, N): the compiled table reads the caller's rows in place, the sort wants each axis contiguous.
-    cols = np.asarray(pts, dtype=np.float64).T if _voxel_kernel() else np.array(pts.T, dtype=np.float64, order="C")
+    cols = np.asarray(pts, dtype=np.float64).T  # (3, N): the compiled passes read the caller's rows in place
     origin, top = _axis_bounds(cols)
     extent = float((top - origin).max()) or 1.0
     if voxel_size is None:
-        size = _voxel_size_for(cols, origin, extent, m)
+        _, voxel, v = _voxel_search(cols, origin, extent, m)
     else:
         size = _validate.check_positive(voxel_size, "voxel_size")
         if extent / size > VOXEL_LEVELS:
             raise ValueError(f"voxel_size must be at least the cloud's extent / 2**20 = {extent / VOXEL_LEVELS:.3g}"
                              f" (at most 2**20 voxels along an axis); got {voxel_size!r}")
-    reps, counts = _voxel_representatives(cols, origin, extent, size)
+        voxel, v = _voxel_grid(cols, origin, extent, size)
+    reps, counts = _voxel_representatives(cols, voxel, v)
     ranked = reps[np.argsort((counts.max() - counts) * (n + 1) + reps)]  # population desc, then index (one key)
     if m is None or m <= ranked.size:
         return ranked[:m].astype(np.int64)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,9 @@ from hgjax import samplers
 
 needs_fpsample = pytest.mark.skipif(importlib.util.find_spec("fpsample") is None, reason="fpsample not installed")
 needs_numba = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba not installed")
+
+
+MUG = Path(__file__).resolve().parents[2] / "shared" / "data" / "scans" / "scan_table_mug.ply"
 
 
 def cloud(n, seed=0):
@@ -115,32 +119,26 @@ def test_voxel_table_matches_the_sort(name, dtype, monkeypatch):
          "one_voxel": 1e-3 * base}[name].astype(dtype)  # grid: points on voxel faces
     calls = [lambda: hgjax.voxel_sample(p, voxel_size=0.7), lambda: hgjax.voxel_sample(p, 0.1),
              lambda: hgjax.voxel_sample(p, 0.1, voxel_size=2.0)]
-    assert samplers._voxel_kernel() is not None
+    assert samplers._voxel_kernels() is not None
     table = [call() for call in calls]
-    monkeypatch.setattr(samplers, "_voxel_kernel", lambda: None)
+    monkeypatch.setattr(samplers, "_voxel_kernels", lambda: None)
     for got, want in zip(table, [call() for call in calls]):
         np.testing.assert_array_equal(got, want)
 
 
 @needs_numba
-def test_voxel_table_ties_between_duplicated_locations(monkeypatch):
-    # Two locations duplicated alike are equally near their voxel's centroid: the two paths
-    # sum the centroid in another order, so rounding may pick either. Same voxels, each
-    # represented by a point at the nearest distance.
-    base = cloud(3000, seed=6)
-    p = np.concatenate([base, base[::3], base[:5]])
-    got = hgjax.voxel_sample(p, voxel_size=0.7)
-    monkeypatch.setattr(samplers, "_voxel_kernel", lambda: None)
-    want = hgjax.voxel_sample(p, voxel_size=0.7)
-    _, voxel = np.unique(np.floor((p - p.min(axis=0)) / 0.7), axis=0, return_inverse=True)
-    voxel = voxel.ravel()
-    counts = np.bincount(voxel)
-    centre = np.stack([np.bincount(voxel, p[:, k]) for k in range(3)], axis=1) / counts[:, None]
-    dist = ((p - centre[voxel]) ** 2).sum(axis=1)
-    got, want = got[np.argsort(voxel[got])], want[np.argsort(voxel[want])]
-    np.testing.assert_array_equal(voxel[got], voxel[want])
-    np.testing.assert_allclose(dist[got], dist[want], rtol=1e-12)
-    assert np.all(dist[got] <= np.minimum.reduceat(dist[np.argsort(voxel)], np.cumsum(counts) - counts) * (1 + 1e-12))
+@pytest.mark.parametrize("seed", range(4))
+def test_voxel_table_ties_between_duplicated_locations(seed, dtype, monkeypatch):
+    # Locations duplicated alike are equally near their voxel's centroid: both paths sum
+    # each centroid in index order, so they round alike and give the tie to the lowest index.
+    rng = np.random.default_rng(seed)
+    base = cloud(3000, seed=6) * rng.uniform(0.01, 100)
+    p = np.concatenate([base, base[::3], base[:5]])[rng.permutation(4005)].astype(dtype)
+    calls = [lambda: hgjax.voxel_sample(p, voxel_size=float(np.ptp(p)) / 9), lambda: hgjax.voxel_sample(p, 0.1)]
+    table = [call() for call in calls]
+    monkeypatch.setattr(samplers, "_voxel_kernels", lambda: None)
+    for got, want in zip(table, [call() for call in calls]):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_voxel_size_with_ratio_truncates_or_fills():
@@ -161,10 +159,46 @@ def test_voxel_search_reaches_the_count(ratio):
     origin = cols.min(axis=1)
     m = int(np.ceil(ratio * len(p)))
     extent = float(np.ptp(p, axis=0).max())
-    size = samplers._voxel_size_for(cols, origin, extent, m)
-    assert m <= samplers._count_voxels(cols, origin, extent, size) <= 1.1 * m
+    size, voxel, v = samplers._voxel_search(cols, origin, extent, m)
+    assert m <= v <= 1.1 * m and v == samplers._count_voxels(cols, origin, extent, size)[0]
+    assert voxel.shape == (len(p),) and np.array_equal(np.unique(voxel), np.arange(v))
     idx = hgjax.voxel_sample(p, ratio)
     np.testing.assert_array_equal(idx, hgjax.voxel_sample(p, voxel_size=size)[:m])
+
+
+@needs_numba
+def test_voxel_counts_match_the_sort_on_many_grids(monkeypatch):
+    # The table counts a grid and the nested grid of twice the edge in one pass; sizes
+    # sweep many grid dimensions (a multiplicative hash clusters on some of them).
+    p = np.concatenate([cloud(4000, seed=8), 0.01 * cloud(2000, seed=9), cloud(500, seed=10)[:, :1] * [1, 0, 0]])
+    cols = np.asarray(p).T
+    origin, top = samplers._axis_bounds(cols)
+    extent = float((top - origin).max())
+    sizes = extent / np.geomspace(3, 3000, 25)
+    table = [samplers._count_voxels(cols, origin, extent, h, coarse=True) for h in sizes]
+    monkeypatch.setattr(samplers, "_voxel_kernels", lambda: None)
+    sort = [samplers._count_voxels(cols, origin, extent, h, coarse=True) for h in sizes]
+    assert table == sort
+    assert all(c2 == samplers._count_voxels(cols, origin, extent, 2 * h)[0] for h, (_, c2) in zip(sizes, sort))
+
+
+@pytest.mark.skipif(not MUG.exists(), reason="shared data not present")
+@pytest.mark.parametrize("duplicated", [False, True])
+def test_voxel_search_lands_on_a_real_scan_in_one_assigning_pass(duplicated, monkeypatch):
+    # Uneven density: a subsample misses sparse voxels; the full-cloud count of two nested
+    # grids and the saturating model still bring the first assigned grid into range.
+    scan = hgjax.io.read_points(MUG).points
+    if duplicated:
+        rng = np.random.default_rng(0)
+        scan = np.concatenate([scan, scan[rng.choice(len(scan), len(scan) // 3, replace=False)]])
+        scan = scan[rng.permutation(len(scan))]
+    passes = []
+    grid = samplers._voxel_grid
+    monkeypatch.setattr(samplers, "_voxel_grid", lambda *a: passes.append(a[3]) or grid(*a))
+    for ratio in (0.05, 0.2, 0.4):
+        passes.clear()
+        idx = hgjax.voxel_sample(scan, ratio)
+        assert len(passes) == 1 and len(idx) == int(np.ceil(ratio * len(scan)))
 
 
 def test_voxel_float32_and_float64_and_inputs_untouched(dtype):
