@@ -25,7 +25,6 @@ VOXEL_PROBE_POINTS = 2**13  # points of the strided subsample that estimates the
 VOXEL_ASSIGN_PASSES = 2  # full-cloud passes that assign voxels in the count-targeted search, after one counting pass
 VOXEL_SLACK = 1 / 32  # a grid with M to M (1 + slack) voxels ends the search
 FPS_BACKENDS = ("auto", "fpsample", "jax")
-_GOLDEN = np.uint64(11400714819323198485)  # 2^64 / golden ratio: Fibonacci hashing keeps the top bits
 
 
 def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
@@ -58,11 +57,12 @@ def _voxel_cells(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarra
     return ((cols - origin[:, None]) / size).astype(np.int64)  # >= 0, so truncation is floor
 
 
-def _voxel_slot(code, bits):
-    """Slot of ``code`` in a table of 2^bits: MurmurHash3's 64-bit finalizer, top bits.
+def _voxel_probe(keys, code, bits):
+    """Slot of ``code`` in the table ``keys`` (2^bits slots, -1 empty): its own, or the empty one to fill.
 
-    A full mix, not one multiplication: the codes form lattices (cells^2, cells, 1), and a
-    multiplicative hash clusters them for some grid sizes, halving the table's speed.
+    The start is the top bits of MurmurHash3's 64-bit finalizer, a full mix rather than one
+    multiplication: the codes form lattices (cells^2, cells, 1), and a multiplicative hash
+    clusters them for some grid sizes, halving the table's speed. Then linear probing.
     """
     x = np.uint64(code)
     x ^= x >> np.uint64(33)
@@ -70,26 +70,28 @@ def _voxel_slot(code, bits):
     x ^= x >> np.uint64(33)
     x *= np.uint64(0xC4CEB9FE1A85EC53)
     x ^= x >> np.uint64(33)
-    return np.int64(x >> np.uint64(64 - bits))
+    s = np.int64(x >> np.uint64(64 - bits))
+    while keys[s] != code and keys[s] != -1:
+        s = (s + 1) & (keys.size - 1)
+    return s
 
 
 def _voxel_table(cols, origin, size, cells, assign, coarse):
     """Occupied voxels of edge ``size`` (and 2 ``size``) by open-addressing tables of voxel codes.
 
     One pass over the points: each point's cell (``cells`` per axis, at least the largest
-    index plus one), its code looked up in a table of 2N slots (:func:`_voxel_slot`, linear
-    probing). With ``coarse`` the cell shifted right by one, which is the cell in the grid
-    of edge 2 ``size`` (the grids nest: doubling the edge scales exactly), goes in a second
-    table. Returns (V, V2, voxel (N,) int32): the occupied voxels, those of the coarse grid
-    (-1 without ``coarse``) and, with ``assign``, each point's voxel numbered in order of
-    first appearance (else empty). Compiled by numba (:func:`_voxel_kernels`); the same
+    index plus one), its code looked up in a table of 2N slots (:func:`_voxel_probe`).
+    With ``coarse`` the cell shifted right by one, which is the cell in the grid of edge
+    2 ``size`` (the grids nest: doubling the edge scales exactly), goes in a second table.
+    Returns (V, V2, voxel (N,) int32): the occupied voxels, those of the coarse grid (-1
+    without ``coarse``) and, with ``assign``, each point's voxel numbered in order of first
+    appearance (else empty). Compiled by numba (:func:`_voxel_kernels`); the same
     counts and voxels as the sorts of :func:`_count_voxels` and :func:`_voxel_grid`.
     """
     n = cols.shape[1]
     bits = 1
     while (1 << bits) < 2 * n:
         bits += 1
-    mask = (1 << bits) - 1
     keys = np.full(1 << bits, -1, np.int64)
     keys2 = np.full(1 << bits if coarse else 0, -1, np.int64)
     slot_voxel = np.empty(1 << bits if assign else 0, np.int32)
@@ -101,9 +103,7 @@ def _voxel_table(cols, origin, size, cells, assign, coarse):
         c1 = np.int64((cols[1, i] - origin[1]) / size)
         c2 = np.int64((cols[2, i] - origin[2]) / size)
         code = (c0 * cells + c1) * cells + c2
-        s = _voxel_slot(code, bits)
-        while keys[s] != code and keys[s] != -1:
-            s = (s + 1) & mask
+        s = _voxel_probe(keys, code, bits)
         if keys[s] == -1:
             keys[s] = code
             if assign:
@@ -113,9 +113,7 @@ def _voxel_table(cols, origin, size, cells, assign, coarse):
             voxel[i] = slot_voxel[s]
         if coarse:
             code = ((c0 >> 1) * dim2 + (c1 >> 1)) * dim2 + (c2 >> 1)
-            s = _voxel_slot(code, bits)
-            while keys2[s] != code and keys2[s] != -1:
-                s = (s + 1) & mask
+            s = _voxel_probe(keys2, code, bits)
             if keys2[s] == -1:
                 keys2[s] = code
                 v2 += 1
@@ -160,7 +158,7 @@ def _voxel_kernels():
     import numba
 
     jit = numba.njit(cache=True, nogil=True)
-    scope = {**globals(), "_voxel_slot": numba.njit(inline="always")(_voxel_slot)}  # compiled callee
+    scope = {**globals(), "_voxel_probe": numba.njit(inline="always")(_voxel_probe)}  # compiled callee
     return jit(types.FunctionType(_voxel_table.__code__, scope)), jit(_voxel_nearest)
 
 
@@ -289,11 +287,12 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     table of voxel codes compiled by numba (the ``voxel`` extra), else by a sort of N voxel
     codes (the same voxels and representatives), and one finds the representatives. With
     ``ratio`` alone the edge is searched for (:func:`_voxel_search`) so that the grid has at
-    least M = ceil(ratio N) voxels: a subsample, one pass counting four nested grids, then
-    usually one assigning pass, whose voxels are kept. The count is then made exact: the first M ranked representatives are returned, which drops the least populated
-    voxels when the grid has more than M; when it has fewer (a cloud with many duplicate
-    points, or a ``voxel_size`` too coarse), the remaining points follow in index order.
-    ``ratio`` and ``voxel_size`` together give exactly M points from the given grid.
+    least M = ceil(ratio N) voxels: a subsample, one pass counting two nested grids, then
+    usually one assigning pass, whose voxels are kept. The count is then made exact: the
+    first M ranked representatives are returned, which drops the least populated voxels when
+    the grid has more than M; when it has fewer (a cloud with many duplicate points, or a
+    ``voxel_size`` too coarse), the remaining points follow in index order. ``ratio`` and
+    ``voxel_size`` together give exactly M points from the given grid.
 
     Args:
       points: (N, 3) float32 or float64; never modified.
