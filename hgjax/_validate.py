@@ -207,9 +207,11 @@ def check_lengths(lengths) -> tuple[int, ...]:
 def check_graph(points, idx, first, weights_dtype) -> None:
     """Shapes and dtypes of high_pass's arguments (static, so also valid under jit and vmap)."""
     shape, idx_shape = np.shape(points), np.shape(idx)
-    if first is not None and (np.shape(first) != shape[:1] or not np.issubdtype(first.dtype, np.integer)):
+    first_dtype = getattr(first, "dtype", None)  # arrays and tracers only
+    if first is not None and (np.shape(first) != shape[:1] or first_dtype is None
+                              or not np.issubdtype(first_dtype, np.integer)):
         raise ValueError(f"first must be None or an integer array of shape ({shape[0] if shape else 'N'},);"
-                         f" got {getattr(first, 'dtype', type(first))} {np.shape(first)}")
+                         f" got {first_dtype or type(first).__name__} {np.shape(first)}")
     if len(shape) != 2 or shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3); got {shape}")
     if len(idx_shape) != 2 or idx_shape[0] != shape[0]:

@@ -287,6 +287,7 @@ def test_argument_errors():
         (lambda: high_pass(p, idx, weights_dtype=np.int32), TypeError, "weights_dtype"),
         (lambda: high_pass(p, idx, first=np.zeros(49, np.int32)), ValueError, "first"),
         (lambda: high_pass(p, idx, first=np.zeros(50)), ValueError, "first"),
+        (lambda: high_pass(p, idx, first=[0] * 50), ValueError, "first"),
         (lambda: gfr_module.neighbourhoods(p.astype(np.int64)), TypeError, "points"),
     ]
     for call, error, name in cases:
