@@ -96,15 +96,41 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
         padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
         out = _blocks(fn, padded(offsets), padded(valid), tuple(padded(jnp.asarray(a)) for a in row_args), args)
         return jax.tree.map(lambda x: x[:n], out)
-    points, idx, row_args = np.asarray(points), np.asarray(idx), tuple(np.asarray(a) for a in row_args)
+    points = np.asarray(points)
+    return jax.tree.map(jax.device_put, map_rows(fn, points, np.arange(n), np.asarray(idx), row_args=row_args,
+                                                 args=args, dtype=points.dtype, chunk_size=chunk_size,
+                                                 progress=progress, narrow=narrow))
+
+
+def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray, *, row_args=(), args=(), dtype,
+             chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
+    """Host engine of :func:`map_neighbourhoods`: ``fn`` on the rows ``own`` of ``points``.
+
+    Offsets (C, K, 3) are built on the host in the dtype of ``points`` (float64 coordinates
+    give each neighbourhood's offsets exactly rounded to ``dtype``, whatever the frame's
+    origin) and streamed in fixed-size chunks through one compiled kernel per (fn, K).
+
+    Args:
+      fn, row_args, args, chunk_size, progress, narrow: as :func:`map_neighbourhoods`;
+        ``row_args`` are (R, ...) arrays aligned with ``own``.
+      points: (n, 3) coordinates; ``idx`` indexes them, padding n.
+      own: (R,) the row of each neighbourhood's own point.
+      idx: (R, K) neighbour rows.
+      dtype: the kernel's float dtype.
+
+    Returns:
+      ``fn``'s outputs stacked over the rows, as NumPy arrays (R, ...).
+    """
+    n = points.shape[0]
+    row_args = tuple(np.asarray(a) for a in row_args)
     args, chunk = tuple(jax.device_put(np.asarray(a)) for a in args), chunk_rows(chunk_size)
-    groups = narrow_groups(idx, n) if narrow else [(np.arange(n), idx.shape[1])]
+    groups = narrow_groups(idx, n) if narrow else [(np.arange(idx.shape[0]), idx.shape[1])]
     if len(groups) > 1:
-        parts = [_stream(fn, points, own, idx[own, :k], tuple(a[own] for a in row_args), args, chunk, progress)
-                 for own, k in groups]
-        back = np.argsort(np.concatenate([own for own, _ in groups]))  # rows back in order
-        return jax.tree.map(lambda *xs: jax.device_put(np.concatenate(xs)[back]), *parts)
-    return jax.tree.map(jax.device_put, _stream(fn, points, np.arange(n), idx, row_args, args, chunk, progress))
+        parts = [_stream(fn, points, own[rows], idx[rows, :k], tuple(a[rows] for a in row_args), args, chunk,
+                         progress, dtype) for rows, k in groups]
+        back = np.argsort(np.concatenate([rows for rows, _ in groups]))  # rows back in order
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
+    return _stream(fn, points, own, idx, row_args, args, chunk, progress, dtype)
 
 
 def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
@@ -128,8 +154,8 @@ def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
     return [(np.flatnonzero(group == g), int(w)) for g, w in enumerate(bounds) if np.any(group == g)]
 
 
-def _stream(fn, points, own, idx, row_args, args, chunk, progress):
-    """Host path of :func:`map_neighbourhoods`: fixed (C, K, 3) chunks through one kernel.
+def _stream(fn, points, own, idx, row_args, args, chunk, progress, dtype):
+    """Fixed (C, K, 3) chunks of offsets in ``dtype`` through one kernel.
 
     Streams the points ``own`` (R,) with their neighbours ``idx`` (R, K); returns NumPy
     outputs (R, ...).
@@ -143,7 +169,7 @@ def _stream(fn, points, own, idx, row_args, args, chunk, progress):
         rows = slice(start, min(start + chunk, r))
         nbr = idx[rows]
         valid = nbr < n
-        offsets = np.where(valid[..., None], ext[nbr] - ext[own[rows], None, :], 0).astype(points.dtype)
+        offsets = np.where(valid[..., None], ext[nbr] - ext[own[rows], None, :], 0).astype(dtype)
         pad = chunk - offsets.shape[0]
         fill = lambda x: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
         if outputs:

@@ -19,7 +19,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from hgjax import _validate, samplers, spatial
+from hgjax import _validate, samplers, spatial, tiles
 from hgjax.scores import ea, gfr, hkc, hkf, lhf, pca_ac, voxel
 from hgjax.select import soft_select, top_k, weighted_sample
 
@@ -198,7 +198,32 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
       ((500, 16), dtype('int32'))
     """
     entry = _scoring(method)
-    return entry.build(points, **_split(entry, "build", params))
+    nb = entry.build(points, **_split(entry, "build", params))
+    return dataclasses.replace(nb, method=method)
+
+
+def _matching(nb, entry: Method, stage: str, params: dict) -> dict:
+    """``params`` of ``stage`` with the build parameters ``nb`` records filled in; a mismatch raises.
+
+    Neighbourhoods built for another method (other than one sharing its builder, such as
+    HKC and HKF), or with a different value of a parameter that the stage also takes (LHF's
+    ``lengths``, HKC's ``kernel_size``), are refused instead of silently mis-scored.
+    """
+    if not isinstance(nb, spatial.Neighbourhoods):
+        raise TypeError(f"nb must be hgjax.Neighbourhoods (from hgjax.neighbourhoods); got {type(nb).__name__}")
+    if nb.method is not None and METHODS[nb.method].build is not entry.build:
+        raise ValueError(f"nb was built for method {nb.method!r}; method {entry.name!r} needs its own"
+                         f" neighbourhoods: hgjax.neighbourhoods(points, {entry.name!r})")
+    built = dict(nb.params)
+    out = dict(params)
+    for name in entry.params[stage] & entry.params["build"]:
+        if name not in built or built[name] is None:
+            continue
+        given = out.setdefault(name, built[name])
+        if (tuple(given) if isinstance(given, list) else given) != built[name]:
+            raise ValueError(f"{name}={given!r} disagrees with the neighbourhoods, built with {name}={built[name]!r};"
+                             f" rebuild them with hgjax.neighbourhoods(points, {entry.name!r}, {name}={given!r})")
+    return out
 
 
 def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
@@ -229,7 +254,7 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       (500,)
     """
     entry = _scoring(method)
-    return entry.score(nb, **_split(entry, "score", params))
+    return entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params)))
 
 
 def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
@@ -258,7 +283,7 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       True
     """
     entry = _scoring(method)
-    return entry.soft_score(nb, **_split(entry, "soft_score", params))
+    return entry.soft_score(nb, **_matching(nb, entry, "soft_score", _split(entry, "soft_score", params)))
 
 
 def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray:
@@ -320,14 +345,18 @@ def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -
       >>> idx.shape, len(set(idx.tolist()))
       ((400,), 400)
     """
+    return tiles.resample(points, ratio, method=method, key=key, **params)
+
+
+def _whole(points, ratio, entry: Method, key, params: dict) -> np.ndarray:
+    """The methods that run on the whole cloud at once (samplers, PCA-AC): their own selection."""
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
-    entry = _entry(method)
     if entry.kind is None:
         return entry.select(pts, ratio, **({"key": key} if entry.needs_key else {}), **params)
-    nb = neighbourhoods(pts, method, **params)
-    scores = score(nb, method, **params, **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
-    return keep(scores, ratio, method=method, key=key, **params)
+    nb = neighbourhoods(pts, entry.name, **params)
+    scores = score(nb, entry.name, **params, **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
+    return keep(scores, ratio, method=entry.name, key=key, **params)
 
 
 def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=0.05, **params) -> jax.Array:

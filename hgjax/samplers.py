@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate, spatial
-from hgjax.select import weighted_sample
+from hgjax.select import keyed_top
 
 __all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"]
 
@@ -36,7 +36,9 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
       key: ``jax.random`` key; the same key gives the same subset.
 
     Returns:
-      (M,) int64 unique indices in draw order, M = ceil(ratio N).
+      (M,) int64 unique indices in draw order, M = ceil(ratio N): the points with the
+      largest draws, each point's draw made from the key and its index alone
+      (:func:`hgjax.select.point_bits`), so a point's fate does not depend on N or on tiles.
 
     Raises:
       TypeError, ValueError: invalid points, ratio or key (a missing key is an error).
@@ -49,7 +51,7 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     """
     pts = _validate.check_points(points)
     m = _validate.n_keep(pts.shape[0], _validate.check_ratio(ratio))
-    return weighted_sample(_validate.check_key(key, "uniform"), np.ones(pts.shape[0]), m)
+    return keyed_top(_validate.check_key(key, "uniform"), pts.shape[0], m)
 
 
 def _voxel_cells(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:

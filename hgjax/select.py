@@ -9,6 +9,8 @@ pure JAX, returning per-point keep weights.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -16,9 +18,12 @@ import numpy as np
 from hgjax import _validate
 from hgjax.scores import _common
 
-__all__ = ["soft_select", "top_k", "weighted_sample"]
+__all__ = ["key_value", "keyed_top", "kth_pair", "order_keys", "point_bits", "soft_select", "top_k", "top_pairs", "weighted_sample"]
 
 BISECTION_STEPS = 64
+DRAW_CHUNK = 1 << 16  # ids per compiled draw: a new cloud size compiles nothing
+DRAW_PART = 1 << 20  # ids per part of :func:`keyed_top`
+RADIX_BITS = 16  # bits of the key resolved per histogram round of :func:`kth_pair`
 
 
 def top_k(scores, m: int, *, largest: bool = True) -> np.ndarray:
@@ -56,12 +61,175 @@ def top_k(scores, m: int, *, largest: bool = True) -> np.ndarray:
     return chosen[np.lexsort((chosen, key[chosen]))].astype(np.int64)
 
 
+def order_keys(scores, *, largest: bool) -> np.ndarray:
+    """Order-preserving uint64 keys of float scores: the smaller the key, the higher the priority.
+
+    The float64 bit pattern is mapped to an unsigned integer in the order of the values
+    (-0.0 and 0.0 are the same key; -inf and +inf are ordinary values), then reversed when
+    the largest scores are kept. Integer keys sum and compare exactly, so a global ranking
+    built from per-tile histograms of them never depends on how the cloud was cut.
+
+    Args:
+      scores: (N,) float scores without NaN.
+      largest: the largest scores have the highest priority.
+
+    Returns:
+      (N,) uint64 keys.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.select import order_keys
+      >>> np.argsort(order_keys(np.array([0.5, -1.0, 2.0]), largest=True)).tolist()
+      [2, 0, 1]
+    """
+    bits = (np.asarray(scores, dtype=np.float64) + 0.0).view(np.uint64)
+    sign = bits >> np.uint64(63)
+    ascending = np.where(sign == 1, ~bits, bits | np.uint64(1 << 63))
+    return ~ascending if largest else ascending
+
+
+def key_value(key: int, *, largest: bool) -> float:
+    """The float64 score whose :func:`order_keys` key is ``key`` (the inverse map)."""
+    ascending = np.uint64(key)
+    if largest:
+        ascending = ~ascending
+    top = np.uint64(1 << 63)
+    bits = ascending & ~top if ascending & top else ~ascending
+    return float(np.array([bits], dtype=np.uint64).view(np.float64)[0])
+
+
+def _radix_histogram(keys: np.ndarray, prefix: int, level: int) -> np.ndarray:
+    """Counts (2^RADIX_BITS,) of the next digit of the keys whose first ``level`` digits are ``prefix``."""
+    shift = np.uint64(64 - RADIX_BITS * (level + 1))
+    if level:
+        keys = keys[(keys >> np.uint64(64 - RADIX_BITS * level)) == np.uint64(prefix)]
+    digit = ((keys >> shift) & np.uint64((1 << RADIX_BITS) - 1)).astype(np.int64)
+    return np.bincount(digit, minlength=1 << RADIX_BITS)
+
+
+def kth_pair(parts, m: int) -> tuple[int, int]:
+    """The m-th smallest (key, global id) pair over several parts, exactly, from summaries.
+
+    Four rounds of per-part histograms of the next 16 bits of the keys (integer counts, whose
+    sums do not depend on the order of the parts) find the m-th key; then the ids holding
+    exactly that key are gathered and the remaining rank is taken among them. Only
+    histograms and the ids of one key leave a part, never its scores.
+
+    Args:
+      parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
+      m: rank, 1 <= m <= sum n_i.
+
+    Returns:
+      (key, gid) of the m-th smallest pair in (key, gid) order.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.select import kth_pair
+      >>> parts = [(np.array([5, 1], np.uint64), np.array([0, 1])), (np.array([1, 9], np.uint64), np.array([2, 3]))]
+      >>> kth_pair(parts, 2)
+      (1, 2)
+    """
+    prefix, need = 0, m
+    for level in range(64 // RADIX_BITS):
+        hist = sum(_radix_histogram(keys, prefix, level) for keys, _ in parts)
+        cum = np.cumsum(hist)
+        digit = int(np.searchsorted(cum, need))
+        need -= int(cum[digit - 1]) if digit else 0
+        prefix = (prefix << RADIX_BITS) | digit
+    ids = np.sort(np.concatenate([gids[keys == np.uint64(prefix)] for keys, gids in parts]))
+    return prefix, int(ids[need - 1])
+
+
+def top_pairs(parts, m: int) -> np.ndarray:
+    """Global ids of the m smallest (key, global id) pairs over several parts, in that order.
+
+    Exact: the threshold is :func:`kth_pair`'s, and each part contributes the ids at or
+    before it, so the result is the same whatever the parts (tiles) are.
+
+    Args:
+      parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
+      m: number kept, 1 <= m <= sum n_i.
+
+    Returns:
+      (m,) int64 ids, highest priority (smallest key) first, equal keys by id.
+    """
+    key, gid = kth_pair(parts, m)
+    kept = [(keys[sel], gids[sel]) for keys, gids in parts
+            for sel in [(keys < np.uint64(key)) | ((keys == np.uint64(key)) & (gids <= gid))]]
+    keys = np.concatenate([k for k, _ in kept])
+    gids = np.concatenate([g for _, g in kept]).astype(np.int64)
+    return gids[np.lexsort((gids, keys))]
+
+
+@functools.lru_cache(maxsize=None)
+def _bits_kernel():
+    def one(key, hi, lo):
+        return jax.random.bits(jax.random.fold_in(jax.random.fold_in(key, hi), lo), (), jnp.uint32)
+
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0)))
+
+
+def point_bits(key, gids) -> np.ndarray:
+    """32 random bits per point from ``key`` and the point's global id alone.
+
+    Each point's bits are ``jax.random.bits`` of ``fold_in(fold_in(key, gid >> 32), gid &
+    0xFFFFFFFF)``, so a point draws the same number whatever the cloud's size, the tiling or
+    the order in which points are visited. Ids are drawn in fixed chunks of 65,536 through
+    one compiled kernel: a new cloud size compiles nothing.
+
+    Args:
+      key: a ``jax.random`` key.
+      gids: (N,) non-negative integer global ids.
+
+    Returns:
+      (N,) uint32.
+
+    Examples:
+      >>> import jax, numpy as np
+      >>> from hgjax.select import point_bits
+      >>> a = point_bits(jax.random.key(0), np.array([7, 3]))
+      >>> b = point_bits(jax.random.key(0), np.array([3]))
+      >>> bool(a[1] == b[0])
+      True
+    """
+    gids = np.asarray(gids, dtype=np.int64)
+    hi, lo = (gids >> 32).astype(np.uint32), (gids & 0xFFFFFFFF).astype(np.uint32)
+    out = np.empty(gids.size, dtype=np.uint32)
+    kernel = _bits_kernel()
+    for start in range(0, gids.size, DRAW_CHUNK):
+        stop = min(start + DRAW_CHUNK, gids.size)
+        pad = DRAW_CHUNK - (stop - start)
+        bits = kernel(key, np.pad(hi[start:stop], (0, pad)), np.pad(lo[start:stop], (0, pad)))
+        out[start:stop] = np.asarray(bits)[: stop - start]
+    return out
+
+
+def keyed_top(key, n: int, m: int) -> np.ndarray:
+    """The m of ids 0..n-1 with the largest :func:`point_bits` (ties by id), largest first.
+
+    A uniformly random subset without replacement in draw order (the Gumbel-top-k order
+    of equal weights); each id's draw depends on the key and the id only.
+    """
+    parts = []
+    for start in range(0, n, DRAW_PART):
+        gids = np.arange(start, min(start + DRAW_PART, n), dtype=np.int64)
+        parts.append((np.uint64(0xFFFFFFFF) - point_bits(key, gids).astype(np.uint64), gids))
+    return top_pairs(parts, m)
+
+
+def point_gumbel(key, gids) -> np.ndarray:
+    """(N,) float64 standard Gumbel noise per point from :func:`point_bits`: -log(-log(u)), u in (0, 1)."""
+    u = (point_bits(key, gids).astype(np.float64) + 0.5) / 2.0**32
+    return -np.log(-np.log(u))
+
+
 def weighted_sample(key: jax.Array, weights, m: int) -> np.ndarray:
     """Draw m distinct indices with probability proportional to ``weights``, in draw order.
 
     Sampling without replacement by the Gumbel-top-k trick: the order of log w + Gumbel
-    noise has exactly the law of sequential draws without replacement. Points with zero
-    weight are drawn only after every positive-weight point.
+    noise has exactly the law of sequential draws without replacement. Point i's noise
+    comes from the key and i alone (:func:`point_gumbel`), so the draw of a point does not
+    depend on N. Points with zero weight are drawn only after every positive-weight point.
 
     Args:
       key: a ``jax.random`` key (``jax.random.key(seed)``); the same key gives the same draw.
@@ -86,8 +254,7 @@ def weighted_sample(key: jax.Array, weights, m: int) -> np.ndarray:
         raise ValueError("weights must be finite, >= 0 and not all zero")
     if key is None:
         raise ValueError("key must be a jax.random key, e.g. jax.random.key(0); got None")
-    g = np.asarray(jax.random.gumbel(key, w.shape, dtype=np.float64 if jax.config.jax_enable_x64 else np.float32),
-                   dtype=np.float64)
+    g = point_gumbel(key, np.arange(w.shape[0]))
     with np.errstate(divide="ignore"):
         perturbed = np.where(w > 0, np.log(w.astype(np.float64)) + g, -np.inf)
     # Zero-weight points come last, in index order (stable).

@@ -26,8 +26,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import warnings
-from typing import Iterator
-
 import jax
 import numpy as np
 from scipy.spatial import cKDTree
@@ -107,7 +105,8 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
     return p - origin, origin
 
 
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first"], meta_fields=[])
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first"],
+                   meta_fields=["method", "params"])
 @dataclasses.dataclass(frozen=True)
 class Neighbourhoods:
     """Padded neighbourhoods of a cloud: the one currency between host and kernels.
@@ -126,6 +125,10 @@ class Neighbourhoods:
         point its own location). Set by GFR's invariant graph, which links distinct
         locations once (the rows of later copies are empty) and weighs each by its number
         of points.
+      method: the method whose builder made these neighbourhoods (static), or None for the
+        generic builders :func:`knn` and :func:`cube`.
+      params: the resolved build parameters as sorted ``(name, value)`` pairs (static):
+        :func:`hgjax.score` refuses a method or a parameter that disagrees with them.
 
     Examples:
       >>> import numpy as np, hgjax
@@ -138,6 +141,8 @@ class Neighbourhoods:
     idx: np.ndarray
     scale: np.ndarray | None = None
     first: np.ndarray | None = None
+    method: str | None = None
+    params: tuple = ()
 
     @property
     def mask(self):
@@ -203,7 +208,7 @@ class SpatialIndex:
         once (``n`` rows), and every copy maps to the row of its location.
     """
 
-    def __init__(self, points: np.ndarray, *, dedupe: bool = False):
+    def __init__(self, points: np.ndarray, *, dedupe: bool = False, gid: np.ndarray | None = None):
         self.n_caller = int(points.shape[0])
         order = spatial_order(points)
         sorted_points = np.ascontiguousarray(points[order])
@@ -222,6 +227,9 @@ class SpatialIndex:
         self.order = order[first]  # sorted row -> caller index of its first copy
         self.row = np.empty(self.n_caller, dtype=np.int64)  # caller index -> sorted row
         self.row[order] = row
+        gid = np.arange(self.n_caller, dtype=np.int64) if gid is None else np.asarray(gid, dtype=np.int64)
+        # global id of each sorted row (its first copy), and a last entry for the padding n
+        self.gid = np.append(gid[self.order], np.iinfo(np.int64).max)
         self.tree = cKDTree(self.points, leafsize=16, balanced_tree=False)
 
     def to_caller(self, values: np.ndarray) -> np.ndarray:
@@ -233,32 +241,56 @@ class SpatialIndex:
         ext = np.append(self.order, self.n_caller).astype(np.int32)
         return ext[np.where(idx_sorted < self.n, idx_sorted, self.n)][self.row]
 
-    def knn(self, k: int, rows: slice | np.ndarray = slice(None)) -> np.ndarray:
-        """The point itself and its k - 1 nearest neighbours, sorted frame.
+    def _ranked(self, row_ids: np.ndarray, dist: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each row's hits (R, q) by (distance, global id), the point itself first (distance -1)."""
+        dist = np.where(idx == row_ids[:, None], -1.0, dist)
+        order = np.lexsort((self.gid[np.minimum(idx, self.n)], dist), axis=1)
+        return np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
+
+    def knn(self, k: int, rows: slice | np.ndarray = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """The point itself and its k - 1 nearest neighbours by (distance, global id), sorted frame.
+
+        Equal distances are ordered by the neighbours' global ids (``gid``), including at the
+        k-th place (rows whose k-th and (k+1)-th distances tie are queried again until the
+        whole tie is seen), so the neighbourhood never depends on how the tree was built or
+        on which other points share the index.
 
         Args:
           k: neighbourhood size including the point itself.
           rows: which sorted-frame rows to query (default all).
 
         Returns:
-          (R, k) int32 indices (sorted frame), column 0 the point itself.
+          (idx, reach): idx (R, k) int32 indices (sorted frame), column 0 the point itself,
+          padded with n when the index holds fewer than k points; reach (R,) float64 the
+          distance of the k-th point (every point at most this far is in the index's reach).
         """
         row_ids = self.row_ids(rows)
+        r = len(row_ids)
         k_eff = min(k, self.n)
-        _, idx = self.tree.query(self.points[row_ids], k=k_eff, workers=-1)
-        idx = idx.reshape(len(row_ids), k_eff)
-        if k_eff < k:  # only reachable through validation-free internal calls
-            idx = np.concatenate([idx, np.full((len(row_ids), k - k_eff), self.n)], axis=1)
-        # Exact duplicates tie at distance 0; make sure the point itself comes first.
-        bad = np.flatnonzero(idx[:, 0] != row_ids)
-        if bad.size:  # only rows with exact duplicates
-            sub, me = idx[bad], row_ids[bad, None]
-            is_self = sub == me
-            sub = np.take_along_axis(sub, np.argsort(~is_self, axis=1, kind="stable"), axis=1)
-            missing = ~is_self.any(axis=1)  # more than k exact duplicates: self was cut off
-            sub[missing] = np.concatenate([me[missing], sub[missing, :-1]], axis=1)
-            idx[bad] = sub
-        return idx.astype(np.int32)
+        q = min(k_eff + 1, self.n)
+        dist, idx = self.tree.query(self.points[row_ids], k=q, workers=-1)
+        dist, idx = dist.reshape(r, q), idx.reshape(r, q)
+        has_self = (idx == row_ids[:, None]).any(axis=1)
+        dist = np.where(idx == row_ids[:, None], -1.0, dist)
+        # Rows whose order needs fixing: equal distances inside the first k_eff, or at the cut.
+        tied = (dist[:, 1:k_eff] == dist[:, :k_eff - 1]).any(axis=1) | (idx[:, 0] != row_ids)
+        cut = ~has_self | ((dist[:, k_eff - 1] == dist[:, k_eff]) if q > k_eff else np.zeros(r, bool))
+        fix = np.flatnonzero(tied & ~cut)
+        if fix.size:
+            dist[fix], idx[fix] = self._ranked(row_ids[fix], dist[fix], idx[fix])
+        todo, width = np.flatnonzero(cut), q
+        while todo.size:
+            width = min(2 * width, self.n)
+            d, i = self.tree.query(self.points[row_ids[todo]], k=width, workers=-1)
+            d, i = self._ranked(row_ids[todo], d.reshape(todo.size, width), i.reshape(todo.size, width))
+            done = (d[:, -1] > d[:, k_eff - 1]) | (width == self.n)
+            dist[todo[done], :k_eff], idx[todo[done], :k_eff] = d[done, :k_eff], i[done, :k_eff]
+            todo = todo[~done]
+        reach = np.maximum(dist[:, k_eff - 1], 0.0)
+        idx = idx[:, :k_eff]
+        if k_eff < k:
+            idx = np.concatenate([idx, np.full((r, k - k_eff), self.n)], axis=1)
+        return idx.astype(np.int32), reach
 
     def cube(self, half_width, rows: slice | np.ndarray = slice(None), *, capacity: int = 32,
              max_count: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -318,64 +350,11 @@ class SpatialIndex:
             dist[g], idx[g] = d.reshape(g.size, k), i.reshape(g.size, k)
         return dist, idx
 
-    def ball(self, radius: float, rows: slice | np.ndarray = slice(None), *, max_nn: int,
-             capacity: int = 16) -> tuple[np.ndarray, np.ndarray]:
-        """The at most ``max_nn`` nearest points at Euclidean distance in (0, radius].
-
-        The point itself and its exact duplicates (distance 0) are excluded. The query
-        capacity starts at ``capacity`` and doubles for the rows that fill it, until every
-        row holds all its points within ``radius`` or ``max_nn`` of them: rows with more
-        than ``max_nn`` keep the nearest (this cap is part of the GFR graph's definition;
-        equal distances at the cap are broken in the tree's order).
-
-        Args:
-          radius: inclusive Euclidean radius (``np.inf`` for no limit).
-          rows: which sorted-frame rows to query (default all).
-          max_nn: the most neighbours kept per row.
-          capacity: initial number of columns queried.
-
-        Returns:
-          (idx, dist): (R, K) int32 indices (sorted frame) padded with N, and (R, K) float64
-          distances padded with inf, both by increasing distance; K <= max_nn is the largest
-          row count.
-        """
-        queries = self.points[rows]
-        bound = np.nextafter(radius, np.inf)  # cKDTree's bound is strict; ours is inclusive
-        k = min(capacity, self.n)
-        dist = np.full((len(queries), min(k, max_nn)), np.inf)
-        idx = np.full(dist.shape, self.n, dtype=np.int32)
-        todo = np.arange(len(queries))
-        while todo.size:
-            d, i = self.tree.query(queries[todo], k=k, distance_upper_bound=bound, workers=-1)
-            d, i = d.reshape(todo.size, k), i.reshape(todo.size, k)
-            # Sorted by distance: the zero-distance points form a prefix, hits beyond the
-            # radius a suffix, so the kept columns of a row are one contiguous run.
-            zeros = (d == 0).sum(axis=1)
-            count = np.minimum((i < self.n).sum(axis=1) - zeros, max_nn)
-            done = (i[:, -1] == self.n) | (count == max_nn) | (k == self.n)
-            width = min(k, max_nn)
-            cols = np.minimum(zeros[done, None] + np.arange(width), k - 1)
-            take = np.arange(width) < count[done, None]
-            if width > dist.shape[1]:
-                grow = ((0, 0), (0, width - dist.shape[1]))
-                dist, idx = np.pad(dist, grow, constant_values=np.inf), np.pad(idx, grow, constant_values=self.n)
-            dist[todo[done], :width] = np.where(take, np.take_along_axis(d[done], cols, axis=1), np.inf)
-            idx[todo[done], :width] = np.where(take, np.take_along_axis(i[done], cols, axis=1), self.n)
-            todo = todo[~done]
-            k = min(2 * k, self.n)
-        width = int((idx < self.n).sum(axis=1).max(initial=0))
-        return idx[:, :width], dist[:, :width]
-
     def row_ids(self, rows: slice | np.ndarray) -> np.ndarray:
         """The sorted-frame row numbers that ``rows`` selects, as an int64 array."""
         if isinstance(rows, slice):
             return np.arange(*rows.indices(self.n))
         return np.asarray(rows, dtype=np.int64)
-
-    def chunks(self, chunk_size: int) -> Iterator[slice]:
-        """Consecutive sorted-frame row slices of at most ``chunk_size`` rows."""
-        for start in range(0, self.n, chunk_size):
-            yield slice(start, min(start + chunk_size, self.n))
 
 
 QUERY_ROWS = 1 << 14  # rows per host query batch: bounds the query's temporary memory
@@ -389,20 +368,21 @@ def bucket(width: int) -> int:
     return max(8, 1 << max(0, int(width) - 1).bit_length())
 
 
-def pad_queries(index: SpatialIndex, query, capacity, what: str) -> np.ndarray:
-    """Run ``query(rows)`` over all sorted rows in batches; pad to ``capacity`` or a bucket.
+def pad_queries(index: SpatialIndex, query, capacity, what: str, n_rows: int) -> np.ndarray:
+    """Run ``query(part)`` over slices of ``range(n_rows)`` in batches; pad to ``capacity`` or a bucket.
 
     Raises:
       ValueError: when a fixed ``capacity`` is smaller than the fullest row.
     """
-    parts = [query(rows) for rows in index.chunks(QUERY_ROWS)]
+    parts = [query(slice(start, min(start + QUERY_ROWS, n_rows))) for start in range(0, n_rows, QUERY_ROWS)]
     width = max(p.shape[1] for p in parts)
     _validate.check_capacity(capacity, width, what)
     cols = bucket(width) if capacity is None else capacity
     return np.concatenate([np.pad(p, ((0, 0), (0, cols - p.shape[1])), constant_values=index.n) for p in parts])
 
 
-def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, scale_sorted=None) -> Neighbourhoods:
+def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, scale_sorted=None, *,
+             params: dict | None = None) -> Neighbourhoods:
     """Neighbourhoods in the caller's order from sorted-frame query results.
 
     Args:
@@ -410,6 +390,7 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, sc
       index: the index the query ran on.
       idx_sorted: (n, K) sorted-frame neighbour rows, padded with n.
       scale_sorted: optional (n,) per-row length.
+      params: the resolved build parameters to record (see :attr:`Neighbourhoods.params`).
 
     Returns:
       :class:`Neighbourhoods` whose points are the caller's in a local frame, cast to the
@@ -418,7 +399,12 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, sc
     dtype = working_dtype(points.dtype)
     local = local_frame(points)[0].astype(dtype)
     scale = None if scale_sorted is None else index.to_caller(np.asarray(scale_sorted)).astype(dtype)
-    return Neighbourhoods(local, index.caller_idx(idx_sorted), scale)
+    return Neighbourhoods(local, index.caller_idx(idx_sorted), scale, params=record(params or {}))
+
+
+def record(params: dict) -> tuple:
+    """Build parameters as the sorted, hashable ``(name, value)`` pairs a Neighbourhoods keeps."""
+    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in params.items()))
 
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -450,7 +436,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) ->
     _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
-    return assemble(pts, index, pad_queries(index, lambda rows: index.knn(k, rows), cap, "k-nearest neighbourhood"))
+    idx = pad_queries(index, lambda part: index.knn(k, part)[0], cap, "k-nearest neighbourhood", index.n)
+    return assemble(pts, index, idx, params={"k": k, "dedupe": bool(dedupe)})
 
 
 def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -482,7 +469,7 @@ def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = Non
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
     half_sorted = np.broadcast_to(half, (pts.shape[0],))[index.order]
-    idx = pad_queries(index, lambda rows: index.cube(half_sorted[rows], rows)[0], cap, "cube")
+    idx = pad_queries(index, lambda part: index.cube(half_sorted[part], part)[0], cap, "cube", index.n)
     return assemble(pts, index, idx)
 
 
@@ -518,57 +505,121 @@ def intrinsic_resolution(points, *, robust: bool = False) -> float:
     return resolution(SpatialIndex(local_frame(pts)[0], dedupe=robust), robust=robust)
 
 
-def _nearest_sample(index: SpatialIndex) -> np.ndarray:
-    """Nearest-other-point distances of all rows (n <= 1000) or of 1000 seeded rows."""
-    if index.n <= RESOLUTION_SAMPLES:
-        rows = np.arange(index.n)
-    else:
-        rows = np.sort(np.random.default_rng(0).choice(index.n, RESOLUTION_SAMPLES, replace=False))
-    return index.tree.query(index.points[rows], k=2, workers=-1)[0][:, 1]
+def sample_ids(n: int) -> np.ndarray:
+    """The global ids whose nearest distances set a cloud's resolution and irregularity.
+
+    All ids when n <= 1000, else 1000 drawn without replacement with seed 0: a documented
+    seeded sample that depends on n only, so every tile of a tiled run agrees on it.
+    """
+    if n <= RESOLUTION_SAMPLES:
+        return np.arange(n, dtype=np.int64)
+    return np.sort(np.random.default_rng(0).choice(n, RESOLUTION_SAMPLES, replace=False)).astype(np.int64)
+
+
+def nearest_distances(index: SpatialIndex, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances from sorted ``rows`` (R,) to their nearest distinct point and nearest other point.
+
+    Returns:
+      (distinct, other): (R,) float64 each; ``other`` is 0 where the row's location holds
+      another point (an exact duplicate); inf where no such point exists.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    distinct, other = np.full(rows.size, np.inf), np.full(rows.size, np.inf)
+    todo, width = np.arange(rows.size), 1
+    while todo.size and width < index.n:
+        width = min(2 * width, index.n)
+        d = index.tree.query(index.points[rows[todo]], k=width, workers=-1)[0].reshape(todo.size, width)
+        if width == 2:
+            other[todo] = d[:, 1]
+        positive = np.isfinite(d) & (d > 0)
+        hit = positive.any(axis=1)
+        distinct[todo[hit]] = d[hit, positive[hit].argmax(axis=1)]
+        todo = todo[~hit]
+    if index.n < index.n_caller:  # deduplicated: a location with several points is at distance 0
+        other = np.where(np.bincount(index.row, minlength=index.n)[rows] > 1, 0.0, distinct)
+    return distinct, other
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleStats:
+    """Nearest distances of the sampled points (:func:`sample_ids`), in global-id order.
+
+    The only whole-cloud statistics the neighbourhood builders use: a tiled run gathers them
+    from the tiles that own the sampled points, so every tile resolves the same parameters.
+
+    Attributes:
+      distinct: (S,) distance to the nearest distinct point (inf where there is none).
+      other: (S,) distance to the nearest other point (0 for a duplicated location).
+    """
+
+    distinct: np.ndarray
+    other: np.ndarray
+
+    def resolution(self, *, robust: bool) -> float:
+        """Median nearest-distinct distance (``robust``) or mean nearest-other distance; 0.0 if none."""
+        values = self.distinct if robust else self.other
+        values = values[np.isfinite(values)]
+        if values.size == 0:
+            return 0.0
+        return float(np.median(values) if robust else np.mean(values))
+
+    def irregularity(self) -> float:
+        """std / mean of the nearest-distinct distances: 0 on a lattice, about 0.52 on random samples."""
+        values = self.distinct[np.isfinite(self.distinct)]
+        mean = float(np.mean(values)) if values.size else 0.0
+        return float(np.std(values) / mean) if mean > 0 else 0.0
+
+
+def sample_stats(index: SpatialIndex) -> SampleStats:
+    """:class:`SampleStats` of a whole cloud whose index rows were built from global ids 0..N-1."""
+    rows = index.row[sample_ids(index.n_caller)]
+    return SampleStats(*nearest_distances(index, rows))
 
 
 def resolution(index: SpatialIndex, *, robust: bool) -> float:
-    """:func:`intrinsic_resolution` of an already built index (deduplicated when ``robust``)."""
-    if index.n < 2:
-        return 0.0
-    nearest = _nearest_sample(index)
-    return float(np.median(nearest) if robust else np.mean(nearest))
+    """:func:`intrinsic_resolution` of an already built whole-cloud index."""
+    return sample_stats(index).resolution(robust=robust)
 
 
-def irregularity(index: SpatialIndex) -> float:
-    """Coefficient of variation std / mean of the nearest-neighbour distances (same sample).
-
-    0 for a lattice (grid-like CAD exports, structured scans), about 0.1 p for a lattice with
-    noise of p spacings, about 0.52 for uniformly random surface samples; 0.0 when undefined.
-    Meant for a deduplicated index.
-    """
-    if index.n < 2:
-        return 0.0
-    nearest = _nearest_sample(index)
-    mean = float(np.mean(nearest))
-    return float(np.std(nearest) / mean) if mean > 0 else 0.0
-
-
-def local_spacing(index: SpatialIndex, k: int = 16) -> np.ndarray:
-    """(n,) per-row surface sample spacing 1 / sqrt(areal density), from the k nearest points.
+def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row surface sample spacing 1 / sqrt(areal density), from the k nearest points.
 
     On a surface sampled with areal density rho, the disc holding a point's k nearest other
     points has area about pi r_k^2 = k / rho, so s = sqrt(pi r_k^2 / k) estimates the
     spacing 1 / sqrt(rho) whatever the sampling: it is the lattice spacing h of a grid-like
     cloud and 1 / sqrt(rho) of a random one (whose nearest-neighbour distance is only about
-    half of it). r_k^2 is averaged over the row's k nearest points to smooth the estimate.
-    Meant for a deduplicated index. Rows without k neighbours, or with r_k = 0, get the
-    median of the rest (1.0 if no row has a value).
+    half of it). r_k^2 is averaged over the row's k nearest points (ties by global id) to
+    smooth the estimate. Meant for a deduplicated index. Rows with r_k = 0 (fewer than k + 1
+    distinct points in all) get 1.0.
+
+    Args:
+      index: the (deduplicated) index.
+      rows: (R,) sorted-frame rows.
+      k: number of nearest other points.
+
+    Returns:
+      (spacing, reach): (R,) spacing, and (R,) the distance within which every point the
+      estimate used lies (the row's own k-th distance plus that of its farthest neighbour).
     """
+    rows = np.asarray(rows, dtype=np.int64)
     k = min(k, index.n - 1)
     if k < 1:
-        return np.ones(index.n)
-    rk2 = np.empty(index.n)
-    nbrs = np.empty((index.n, k + 1), dtype=np.int32)
-    for rows in index.chunks(QUERY_ROWS):
-        dist, nbrs[rows] = index.tree.query(index.points[rows], k=k + 1, workers=-1)
-        rk2[rows] = dist[:, -1] ** 2
-    spacing = np.sqrt(np.pi / k * rk2[nbrs].mean(axis=1))
-    ok = spacing > 0
-    fill = float(np.median(spacing[ok])) if ok.any() else 1.0
-    return np.where(ok, spacing, fill)
+        return np.ones(rows.size), np.zeros(rows.size)
+    nbrs, reach = _chunked_knn(index, k + 1, rows)
+    need = np.unique(nbrs)
+    extra = need[~np.isin(need, rows)]
+    rk = np.zeros(index.n)
+    rk[rows] = reach
+    if extra.size:
+        rk[extra] = _chunked_knn(index, k + 1, extra)[1]
+    spacing = np.sqrt(np.pi / k * (rk[nbrs] ** 2).mean(axis=1))
+    reach = reach + rk[nbrs].max(axis=1)
+    return np.where(spacing > 0, spacing, 1.0), reach
+
+
+def _chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SpatialIndex.knn` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
+    parts = [index.knn(k, rows[start:start + QUERY_ROWS]) for start in range(0, rows.size, QUERY_ROWS)]
+    if not parts:
+        return np.zeros((0, k), np.int32), np.zeros(0)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

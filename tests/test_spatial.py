@@ -148,26 +148,6 @@ def test_max_count_shrinks_cubes_without_dropping_points_inside():
     assert ((cheb[grow] <= h[grow, None]).sum(axis=1) >= 32).all()
 
 
-# ---------------------------------------------------------------- ball
-def test_ball_matches_brute_force():
-    p = np.concatenate([cloud(200, seed=14), cloud(10, seed=14)])  # 10 exact duplicates
-    index = SpatialIndex(p)
-    dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
-    radius = float(np.sort(dist, axis=1)[:, 6].mean())
-    for max_nn in (100, 4):
-        idx, d = index.ball(radius, max_nn=max_nn, capacity=2)
-        for i in range(len(p)):
-            inside = np.flatnonzero((dist[i] > 0) & (dist[i] <= radius))
-            want = inside[np.argsort(dist[i, inside], kind="stable")][:max_nn]
-            got = idx[i][idx[i] < len(p)]
-            if len(inside) <= max_nn:
-                np.testing.assert_array_equal(np.sort(got), np.sort(want))
-            else:  # truncated: the nearest kept (exact duplicates tie in the tree's order)
-                np.testing.assert_allclose(dist[i, got], dist[i, want], rtol=1e-12)
-            np.testing.assert_allclose(d[i][: len(got)], dist[i, got], rtol=1e-12)
-            assert np.all(np.diff(d[i][: len(got)]) >= 0) and np.isinf(d[i][len(got):]).all()
-
-
 # ---------------------------------------------------------------- order, frame, resolution
 @pytest.mark.parametrize("build", [lambda p: hgjax.knn(p, 8), lambda p: hgjax.cube(p, 0.1)], ids=["knn", "cube"])
 def test_neighbourhoods_do_not_depend_on_input_order(build):

@@ -425,7 +425,8 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     partner = np.append(own, 0.0)  # c_j by partner index, 0 for the padding N
 
     def run(fn, pts, rows, nbr, row_args=(), args=()):
-        return _stream._stream(fn, pts, rows, nbr, row_args, args, chunk, False)
+        return _stream.map_rows(fn, pts, rows, nbr, row_args=row_args, args=args, dtype=pts.dtype,
+                                chunk_size=chunk)
 
     # Pass 1: q of every stored pair (from the points cast to wdtype, as the authors' code),
     # and its weight c_i c_j (the point pairs it stands for).

@@ -406,9 +406,23 @@ def combine(gamma_a, gamma_b, ratio):
     x = ratio * n
     m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, n).astype(xp.int32)
     big = xp.sort(g, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
-    total = big[0] + big[1]
-    eps = xp.where(total > 0, big[1] / xp.where(total > 0, total, 1), 0.5).astype(g.dtype)
-    return eps * g[:, 0] + (1 - eps) * g[:, 1]
+    return mix(g[:, 0], g[:, 1], big[0], big[1])
+
+
+def mix(gamma_a, gamma_b, big_a, big_b):
+    """eps gamma_a + (1 - eps) gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b) (Eq. (16)).
+
+    Args:
+      gamma_a, gamma_b: (N,) single-length sharpness (NumPy or JAX).
+      big_a, big_b: the order statistics Gamma_a, Gamma_b (scalars in the same dtype).
+
+    Returns:
+      (N,) combined gamma; eps = 0.5 when Gamma_a + Gamma_b = 0.
+    """
+    xp = jnp if _stream.is_traced(gamma_a, gamma_b, big_a, big_b) else np
+    total = big_a + big_b
+    eps = xp.where(total > 0, big_b / xp.where(total > 0, total, 1), 0.5).astype(gamma_a.dtype)
+    return eps * gamma_a + (1 - eps) * gamma_b
 
 
 def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None,

@@ -202,6 +202,74 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
     return low, s - low
 
 
+def build_params(*, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
+                 resolution: float | None = None, dedupe: bool | None = None) -> dict:
+    """Validated build parameters of HKC/HKF; ``d_factor`` and a reference ``resolution`` may still be None.
+
+    Raises:
+      TypeError, ValueError: invalid arguments.
+    """
+    variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
+    return {
+        "variant": variant,
+        "d_factor": None if d_factor is None else _validate.check_positive(d_factor, "d_factor"),
+        "kernel_size": _validate.check_kernel_size(kernel_size),
+        "resolution": None if resolution is None else _validate.check_positive(resolution, "resolution"),
+        "dedupe": variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe"),
+    }
+
+
+def needs_stats(params: dict) -> bool:
+    """Whether resolving ``params`` needs the cloud's :class:`hgjax.spatial.SampleStats`."""
+    return params["d_factor"] is None or (params["variant"] == "reference" and params["resolution"] is None)
+
+
+def resolve(params: dict, stats: spatial.SampleStats | None) -> dict:
+    """Build parameters with every whole-cloud decision made: d_factor, and the reference resolution.
+
+    The invariant variant's d factor comes from the sample's irregularity
+    (:func:`default_d_factor`); the reference variant's resolution is the sample's mean
+    nearest-other distance (1.0 when the cloud has a single location) and its factor 1.3.
+    """
+    out = dict(params)
+    if out["d_factor"] is None:
+        out["d_factor"] = REFERENCE_D_FACTOR if out["variant"] == "reference" else default_d_factor(stats.irregularity())
+    if out["variant"] == "reference" and out["resolution"] is None:
+        out["resolution"] = stats.resolution(robust=False) or 1.0
+    return out
+
+
+def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
+               capacity: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params`` (see :func:`resolve`).
+
+    Returns:
+      (idx, scale, reach): idx (R, K) int32 sorted-frame indices by increasing Chebyshev
+      distance, padded with n; scale (R,) float64 voxel spacing d; reach (R,) the distance
+      per axis within which every point the row used lies (cube and spacing estimate).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    if params["resolution"] is None:
+        res, reach = spatial.local_spacing(index, rows, LOCAL_K)
+    else:
+        res, reach = np.full(rows.size, params["resolution"]), np.zeros(rows.size)
+    k = params["kernel_size"]
+    half = k / 2 * params["d_factor"] * res
+    reach = np.maximum(reach, half)
+    max_count = MAX_COUNT if params["variant"] == "invariant" else None
+    start = [32]
+
+    def query(part):
+        idx, half[part] = index.cube(half[part], rows[part], capacity=start[0], max_count=max_count)
+        # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
+        # percentile count instead of doubling up from 32 again.
+        start[0] = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
+        return idx
+
+    idx = spatial.pad_queries(index, query, capacity, "cube", rows.size)
+    return idx, 2 / k * half, reach
+
+
 def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                    resolution: float | None = None, dedupe: bool | None = None,
                    capacity: int | None = None) -> spatial.Neighbourhoods:
@@ -248,34 +316,11 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       ((300,), True)
     """
     pts = _validate.check_points(points)
-    variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
-    if d_factor is not None:
-        d_factor = _validate.check_positive(d_factor, "d_factor")
-    kernel_size = _validate.check_kernel_size(kernel_size)
+    params = build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size, resolution=resolution,
+                          dedupe=dedupe)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
-    dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
-    index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=dedupe)
-    if resolution is not None:
-        res = np.full(index.n, _validate.check_positive(resolution, "resolution"))
-    elif variant == "reference":
-        res = np.full(index.n, spatial.resolution(index, robust=False) or 1.0)
-    else:
-        res = spatial.local_spacing(index, LOCAL_K)
-    if d_factor is None:
-        d_factor = REFERENCE_D_FACTOR if variant == "reference" else default_d_factor(spatial.irregularity(index))
-    half = kernel_size / 2 * d_factor * res
-    max_count = MAX_COUNT if variant == "invariant" else None
-
-    capacity = [32]
-
-    def query(rows):
-        idx, half[rows] = index.cube(half[rows], rows, capacity=capacity[0], max_count=max_count)
-        # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
-        # percentile count instead of doubling up from 32 again (exact, not a power of two: a
-        # host query compiles nothing, and k = 64 for a 95th percentile of 35 doubled the work).
-        capacity[0] = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
-        return idx
-
-    idx = spatial.pad_queries(index, query, cap, "cube")
-    return spatial.assemble(pts, index, idx, 2 / kernel_size * half)
+    index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=params["dedupe"])
+    params = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
+    idx, scale, _ = build_rows(index, np.arange(index.n), params, cap)
+    return spatial.assemble(pts, index, idx, scale, params=params)

@@ -1,0 +1,363 @@
+"""Tiled resampling: a plan of every whole-cloud decision, tiles with verified halos, an exact global selection.
+
+:func:`resample` cuts the cloud with a fixed global grid of cubes of edge ``tile`` and gives
+the same indices, in the same order, whatever the grid (``tile=None`` is one tile, and is
+what :func:`hgjax.resample` runs):
+
+1. **Plan** (:class:`Plan`). Every decision a method takes from the whole cloud is made
+   once and passed to every tile: the frame origin (the centre of the bounding box, an exact
+   min / max reduction), the number kept, and the build parameters that depend on the
+   cloud (HKC/HKF's ``d_factor`` from the sampling irregularity, the reference resolution),
+   resolved from the nearest distances of a seeded sample of global ids
+   (:func:`hgjax.spatial.sample_ids`) gathered from the tiles that own them.
+2. **Tiles** (:func:`tile_scores`). A point belongs to exactly one tile, the cell
+   ``floor((x - lo) / tile)`` of the grid anchored at the cloud's minimum corner (half-open
+   ``[lo, hi)`` ownership). A tile is scored on its core points with the points of a halo
+   around it. The halo is verified, not guessed: every core neighbourhood (its k-nearest
+   radius, its cube, the neighbourhoods its spacing estimate read) must lie inside the
+   tile's box; otherwise the tile is redone with twice the halo. Neighbour ties are broken
+   by (distance, global id) and each neighbourhood's offsets are rounded to the working
+   dtype from float64 coordinates, so a core point's score has the same bits in every tile
+   that can hold its neighbourhood.
+3. **Selection** (:func:`hgjax.select.top_pairs`). The kept set is the top ceil(ratio N)
+   by (score, global id) over the whole cloud, exactly, from per-tile histograms of
+   order-preserving integer keys; LHF's two order statistics (Eqs. (15)-(16)) are taken
+   the same way. Random methods draw each point's number from the key and its global id.
+
+Each tile is a pure function of its points and the plan, and only per-tile summaries and
+scores leave it. ``pca_ac`` (Ward clustering of all scores) and ``fps`` (every pick needs
+the global farthest point) are inherently global: they run with ``tile=None`` and are
+refused with a tile size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from hgjax import _stream, _validate, samplers, select, spatial
+from hgjax.scores import ea, hkc, hkf, lhf, voxel
+
+__all__ = ["Plan", "plan", "resample", "tile_scores"]
+
+TILED = ("ea", "hkc", "hkf", "lhf", "uniform")
+GLOBAL_ONLY = {
+    "pca_ac": "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into"
+              " tiles",
+    "fps": "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles",
+    "gfr": "GFR's graph weights need the variance over every pair of the cloud; its tiled graph is not built yet",
+    "voxel": "the voxel search sizes one grid over the whole cloud; its tiled passes are not built yet",
+}
+CUBE = ("hkc", "hkf")
+HALO_SPACINGS = 4  # the first halo, in mean sample spacings times sqrt(K)
+PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """Every whole-cloud decision of one run, made once and passed to every tile.
+
+    Attributes:
+      method: the scoring method.
+      n: number of points N; m: number kept, ceil(ratio N).
+      origin: (3,) float64 frame origin (the bounding box's centre); coordinates reach the
+        host index as ``points - origin`` in float64.
+      lo, hi: (3,) float64 bounds of the cloud in that frame.
+      tile: tile edge in the points' units, or None for one tile.
+      dtype: the kernels' float dtype.
+      build: resolved build parameters (nothing left to decide per tile).
+      score: score parameters.
+      halo: the first halo width tried around each tile.
+    """
+
+    method: str
+    n: int
+    m: int
+    origin: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    tile: float | None
+    dtype: np.dtype
+    build: dict
+    score: dict
+    halo: float
+
+
+class _Cloud:
+    """Points by global id, and the global ids of each tile (host; the points are never copied whole)."""
+
+    def __init__(self, points: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 tile: float | None):
+        self.points, self.origin, self.lo, self.hi, self.tile = points, origin, lo, hi, tile
+        self._last = None
+        n = points.shape[0]
+        if tile is None:
+            self.shape, self.members = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}
+            return
+        self.shape = tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+        cells = np.concatenate([self.cells(self.frame(np.arange(s, min(s + PASS_ROWS, n))))
+                                for s in range(0, n, PASS_ROWS)])
+        code = np.ravel_multi_index(cells.T, self.shape)
+        order = np.argsort(code, kind="stable")  # within a tile, ascending global id
+        bounds = np.flatnonzero(np.diff(code[order])) + 1
+        self.members = {np.unravel_index(code[order[s]], self.shape): order[s:e].astype(np.int64)
+                        for s, e in zip(np.r_[0, bounds], np.r_[bounds, n])}
+        self.members = {tuple(int(c) for c in k): v for k, v in self.members.items()}
+
+    def indexed(self, cell, halo: float, dedupe: bool):
+        """(gids, x, core, index) of :meth:`gather` with a host index over it; the last one is reused."""
+        key = (cell, None if self.tile is None else halo, dedupe)
+        if self._last is None or self._last[0] != key:
+            gids, x, core = self.gather(cell, halo)
+            self._last = (key, (gids, x, core, spatial.SpatialIndex(x, dedupe=dedupe, gid=gids)))
+        return self._last[1]
+
+    def frame(self, gids: np.ndarray) -> np.ndarray:
+        """(R, 3) float64 coordinates of ``gids`` minus the plan's origin."""
+        return np.asarray(self.points[gids], dtype=np.float64) - self.origin
+
+    def cells(self, x: np.ndarray) -> np.ndarray:
+        """(R, 3) int64 grid cell owning each point of frame coordinates ``x``."""
+        return np.clip(np.floor((x - self.lo) / self.tile).astype(np.int64), 0, np.array(self.shape) - 1)
+
+    def box(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray]:
+        """The half-open box [lo, hi) of ``cell`` grown by ``halo``, in frame coordinates."""
+        if self.tile is None:
+            return self.lo - halo, self.hi + halo
+        c = np.asarray(cell, dtype=np.float64)
+        return self.lo + c * self.tile - halo, self.lo + (c + 1) * self.tile + halo
+
+    def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(gids (n,) ascending, frame coordinates (n, 3), core mask (n,)) of a tile and its halo."""
+        core = self.members[cell]
+        if self.tile is None:
+            return core, self.frame(core), np.ones(core.size, bool)
+        box_lo, box_hi = self.box(cell, halo)
+        first, last = self.cells(box_lo[None])[0], self.cells(box_hi[None])[0]
+        near = [g for c, g in self.members.items()
+                if c != cell and all(first[a] <= c[a] <= last[a] for a in range(3))]
+        gids = np.concatenate([core] + near)
+        x = self.frame(gids)
+        keep = np.ones(gids.size, bool)
+        keep[core.size:] = ((x[core.size:] >= box_lo) & (x[core.size:] < box_hi)).all(axis=1)
+        gids, x = gids[keep], x[keep]
+        order = np.argsort(gids, kind="stable")
+        return gids[order], x[order], order < core.size
+
+    def covers(self, cell, halo: float, x: np.ndarray, reach: np.ndarray) -> bool:
+        """Whether every box of half-width ``reach`` around ``x`` lies in the tile's box (or beyond the cloud)."""
+        if self.tile is None:
+            return True
+        box_lo, box_hi = self.box(cell, halo)
+        left = (box_lo <= self.lo) | (x - reach[:, None] >= box_lo)
+        right = (box_hi > self.hi) | (x + reach[:, None] < box_hi)
+        return bool((left & right).all())
+
+
+def _scoring_params(method: str, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of a scoring method, before any whole-cloud decision."""
+    if method in CUBE:
+        build = voxel.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
+                                                              "dedupe") if k in params})
+        score = {"kernel_size": build["kernel_size"]}
+        if method == "hkf":
+            score["variant"] = build["variant"]
+        return build, score
+    if method == "lhf":
+        lengths = _validate.check_lengths(params.get("lengths", lhf.DEFAULT_LENGTHS))
+        variant = lhf._common.check_variant(params.get("variant", "invariant"))
+        dedupe = params.get("dedupe")
+        dedupe = variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe")
+        solver = _validate.check_choice(params.get("solver", "gram"), "solver", lhf.SOLVERS)
+        return ({"k": max(lengths), "dedupe": dedupe},
+                {"lengths": lengths, "variant": variant, "solver": solver})
+    k = _validate.check_int(params.get("k", ea.DEFAULT_K), "k", minimum=2)
+    return {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
+
+
+def _reach_k(build: dict) -> int:
+    return voxel.LOCAL_K + 1 if "kernel_size" in build else build["k"]
+
+
+def plan(points, ratio: float, *, method: str, tile: float | None = None, **params) -> tuple[Plan, "_Cloud"]:
+    """Resolve every whole-cloud decision of a tiled run (host).
+
+    Args:
+      points: (N, 3) float32 or float64 array (an ``np.memmap`` streams from disk).
+      ratio: fraction kept, in (0, 1].
+      method: a scoring method that tiles (:data:`TILED`, not the samplers).
+      tile: tile edge (> 0) in the points' units, or None for one tile.
+      **params: the method's build and score parameters.
+
+    Returns:
+      (plan, cloud): the :class:`Plan` and the tiled cloud it was made for.
+    """
+    pts = _validate.check_points(points)
+    n = pts.shape[0]
+    m = _validate.n_keep(n, _validate.check_ratio(ratio))
+    if tile is not None:
+        tile = _validate.check_positive(tile, "tile")
+    build, score = _scoring_params(method, params)
+    bmin, bmax = _bounds(pts)
+    origin = (bmin + bmax) / 2
+    lo, hi = bmin - origin, bmax - origin
+    dtype = spatial.working_dtype(pts.dtype)
+    cloud = _Cloud(pts, origin, lo, hi, tile)
+    # The first halo: a few neighbourhood radii at the mean density of the occupied tiles
+    # (a surface crossing a cube of edge t with n points has a spacing of about t / sqrt(n)).
+    halo = 0.0 if tile is None else HALO_SPACINGS * tile * np.sqrt(_reach_k(build) * len(cloud.members) / n)
+    base = Plan(method, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo))
+    if method in CUBE:
+        _validate.check_min_points(n, 2, "HKC/HKF")
+        build = voxel.resolve(build, _sample_stats(cloud, base) if voxel.needs_stats(build) else None)
+    elif method == "lhf":
+        _validate.check_min_points(n, build["k"], f"LHF with length {build['k']}")
+    else:
+        _validate.check_min_points(n, build["k"], f"k={build['k']} nearest neighbourhoods")
+    return dataclasses.replace(base, build=build), cloud
+
+
+def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis float64 min and max, one chunk at a time (an exact reduction)."""
+    parts = [np.asarray(pts[s:s + PASS_ROWS], dtype=np.float64) for s in range(0, pts.shape[0], PASS_ROWS)]
+    return np.min([p.min(axis=0) for p in parts], axis=0), np.max([p.max(axis=0) for p in parts], axis=0)
+
+
+def _sample_stats(cloud: _Cloud, plan_: Plan) -> spatial.SampleStats:
+    """Nearest distances of the seeded sample (:func:`hgjax.spatial.sample_ids`), from the tiles that own it."""
+    wanted = spatial.sample_ids(plan_.n)
+    found = {}
+    for cell, core in cloud.members.items():
+        mine = core[np.isin(core, wanted)]
+        if mine.size:
+            found.update(_tile_stats(cloud, plan_, cell, mine))
+    pairs = np.array([found[g] for g in wanted.tolist()], dtype=np.float64).reshape(-1, 2)
+    return spatial.SampleStats(pairs[:, 0], pairs[:, 1])
+
+
+def _tile_stats(cloud: _Cloud, plan_: Plan, cell, mine: np.ndarray) -> dict:
+    """{gid: (distinct, other)} nearest distances of the sampled core points ``mine`` of one tile."""
+    halo = plan_.halo
+    while True:
+        gids, x, _, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
+        pos = np.searchsorted(gids, mine)
+        distinct, other = spatial.nearest_distances(index, index.row[pos])
+        reach = np.where(np.isfinite(distinct), distinct, np.inf)
+        if cloud.covers(cell, halo, x[pos], reach):
+            return {int(g): (d, o) for g, d, o in zip(mine, distinct, other)}
+        halo *= 2
+
+
+def tile_scores(cloud: _Cloud, plan_: Plan, cell, *, chunk_size=None, progress=False) -> tuple[np.ndarray, np.ndarray]:
+    """Scores of the core points of one tile, computed on the tile and a verified halo.
+
+    Args:
+      cloud: the tiled cloud :func:`plan` returned.
+      plan_: the resolved :class:`Plan`.
+      cell: the tile's grid cell (i, j, k).
+      chunk_size, progress: streaming options; never change results.
+
+    Returns:
+      (gids (R,) ascending, scores (R,) or (R, 2) for LHF's two lengths) of the core points.
+    """
+    halo = plan_.halo
+    while True:
+        gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
+        rows = np.unique(index.row[core])
+        if plan_.method in CUBE:
+            idx, scale, reach = voxel.build_rows(index, rows, plan_.build)
+            row_args = (scale.astype(plan_.dtype),)
+        else:
+            parts = [index.knn(plan_.build["k"], rows[s:s + spatial.QUERY_ROWS])
+                     for s in range(0, rows.size, spatial.QUERY_ROWS)]
+            idx, reach = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+            row_args = ()
+        if cloud.covers(cell, halo, index.points[rows], reach):
+            break
+        halo *= 2
+    values = _kernel_scores(plan_, index.points, rows, idx, row_args, chunk_size, progress)
+    at = np.empty(index.n, dtype=np.int64)
+    at[rows] = np.arange(rows.size)
+    return gids[core], values[at[index.row[core]]]
+
+
+def _kernel_scores(plan_: Plan, points, rows, idx, row_args, chunk_size, progress) -> np.ndarray:
+    """The method's kernel on each row's neighbourhood, offsets rounded from float64 coordinates."""
+    method, p = plan_.method, plan_.score
+    run = lambda fn, narrow: _stream.map_rows(fn, points, rows, idx, row_args=row_args, dtype=plan_.dtype,  # noqa: E731
+                                              chunk_size=chunk_size, progress=progress, narrow=narrow)
+    if method == "hkc":
+        return run(hkc._kernel(p["kernel_size"]), True)
+    if method == "hkf":
+        return run(hkf._kernel(p["kernel_size"], p["variant"]), True)
+    if method == "lhf":
+        if p["variant"] == "reference" or p["solver"] == "eigh":  # one eigh per program (lhf.single)
+            return np.concatenate([run(lhf._kernel((n,), p["variant"], p["solver"]), False)
+                                   for n in p["lengths"]], axis=1)
+        return run(lhf._kernel(p["lengths"], p["variant"], p["solver"]), False)
+    return run(ea.variation, False)
+
+
+def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None, key=None,
+             **params) -> np.ndarray:
+    """Indices of the ceil(ratio N) points a method keeps, computed tile by tile.
+
+    The same indices, in the same order, as :func:`hgjax.resample` on the whole cloud,
+    whatever ``tile`` is (module docstring); with ``tile=None`` it is :func:`hgjax.resample`.
+    Memory is bounded by a tile and its halo, not by N (scores aside: 4-8 bytes per point),
+    so an ``np.memmap`` of 1e8 points streams from disk.
+
+    Args:
+      points: (N, 3) float32 or float64 (NumPy, JAX or ``np.memmap``); never modified.
+      ratio: fraction kept, in (0, 1].
+      method: a key of :data:`hgjax.METHODS`.
+      tile: tile edge (> 0) in the points' units, or None (one tile).
+      client: reserved for a ``dask.distributed.Client``; only None (this process) is supported.
+      key: ``jax.random`` key of the random methods.
+      **params: the method's parameters (as :func:`hgjax.resample`), and ``chunk_size``,
+        ``progress``.
+
+    Returns:
+      (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first, ties by index.
+
+    Raises:
+      TypeError, ValueError: invalid arguments, or a method that cannot be tiled given a tile.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> pts = hgjax.eval.box_union_cloud(seed=0, n_points=4000).points
+      >>> a = hgjax.tiles.resample(pts, 0.2, method="ea", tile=0.5)
+      >>> bool((a == hgjax.resample(pts, 0.2, method="ea")).all())
+      True
+    """
+    from hgjax import pipeline  # the registry imports this module
+
+    entry = pipeline._entry(method)
+    if client is not None:
+        raise ValueError("client must be None (tiles run in this process); a Dask client is not supported yet")
+    if tile is not None and method in GLOBAL_ONLY:
+        raise ValueError(f"method {method!r} cannot run in tiles (tile={tile!r}): {GLOBAL_ONLY[method]};"
+                         " pass tile=None")
+    pipeline._split(entry, "build", params)  # unknown names raise
+    if method == "uniform":
+        return samplers.uniform_sample(points, ratio, key=key)
+    if method not in TILED:
+        return pipeline._whole(points, ratio, entry, key, params)
+    stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
+    plan_, cloud = plan(points, ratio, method=method, tile=tile, **params)
+    parts = [tile_scores(cloud, plan_, cell, **stream) for cell in cloud.members]
+    if method == "lhf":
+        parts = _lhf_combine(parts, plan_.m)
+    largest = bool(entry.largest)
+    return select.top_pairs([(select.order_keys(s, largest=largest), g) for g, s in parts], plan_.m)
+
+
+def _lhf_combine(parts, m: int):
+    """LHF's gamma (Eqs. (15)-(16)) per tile, from the two global order statistics Gamma_a, Gamma_b."""
+    big = []
+    for col in range(2):
+        key, _ = select.kth_pair([(select.order_keys(s[:, col], largest=True), g) for g, s in parts], m)
+        big.append(select.key_value(key, largest=True))
+    dtype = parts[0][1].dtype
+    return [(g, lhf.mix(s[:, 0], s[:, 1], dtype.type(big[0]), dtype.type(big[1]))) for g, s in parts]
