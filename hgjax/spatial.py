@@ -127,8 +127,10 @@ class Neighbourhoods:
         of points.
       method: the method whose builder made these neighbourhoods (static), or None for the
         generic builders :func:`knn` and :func:`cube`.
-      params: the resolved build parameters as sorted ``(name, value)`` pairs (static):
-        :func:`hgjax.score` refuses a method or a parameter that disagrees with them.
+      params: the build parameters as given (defaults filled, data-dependent ones such as
+        HKC's ``d_factor`` left None so that clouds built alike stack into one batch), as
+        sorted ``(name, value)`` pairs (static): :func:`hgjax.score` refuses a method or a
+        parameter that disagrees with them.
 
     Examples:
       >>> import numpy as np, hgjax
@@ -390,7 +392,7 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, sc
       index: the index the query ran on.
       idx_sorted: (n, K) sorted-frame neighbour rows, padded with n.
       scale_sorted: optional (n,) per-row length.
-      params: the resolved build parameters to record (see :attr:`Neighbourhoods.params`).
+      params: the build parameters to record (see :attr:`Neighbourhoods.params`).
 
     Returns:
       :class:`Neighbourhoods` whose points are the caller's in a local frame, cast to the
@@ -435,9 +437,10 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) ->
     k = _validate.check_int(k, "k", minimum=1)
     _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
+    dedupe = _validate.check_bool(dedupe, "dedupe")
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
     idx = pad_queries(index, lambda part: index.knn(k, part)[0], cap, "k-nearest neighbourhood", index.n)
-    return assemble(pts, index, idx, params={"k": k, "dedupe": bool(dedupe)})
+    return assemble(pts, index, idx, params={"k": k, "dedupe": dedupe})
 
 
 def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:

@@ -53,6 +53,7 @@ twin :func:`soft_gamma` shares :func:`gram_bands` and blends across the last two
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import NamedTuple
@@ -451,8 +452,9 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
     """
     lengths = _validate.check_lengths(lengths)
     variant = _common.check_variant(variant)
-    dedupe = variant == "invariant" if dedupe is None else bool(dedupe)
-    return spatial.knn(points, max(lengths), dedupe=dedupe, capacity=capacity)
+    dedupe = variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe")
+    nb = spatial.knn(points, max(lengths), dedupe=dedupe, capacity=capacity)
+    return dataclasses.replace(nb, params=spatial.record({"lengths": lengths, "variant": variant, "dedupe": dedupe}))
 
 
 @functools.lru_cache(maxsize=None)

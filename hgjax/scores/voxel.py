@@ -321,6 +321,6 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=params["dedupe"])
-    params = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
-    idx, scale, _ = build_rows(index, np.arange(index.n), params, cap)
+    resolved = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
+    idx, scale, _ = build_rows(index, np.arange(index.n), resolved, cap)
     return spatial.assemble(pts, index, idx, scale, params=params)

@@ -1,0 +1,144 @@
+"""The tiled path: the same indices as one process whatever the tiles, verified halos, exact selection."""
+
+import dataclasses
+import tracemalloc
+
+import jax
+import numpy as np
+import pytest
+
+import hgjax
+from hgjax import select, spatial, tiles
+
+KEYED = {"uniform": {"key": jax.random.key(3)}}
+VARIANTS = [("ea", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}),
+            ("hkc", {"variant": "reference"}), ("lhf", {"variant": "reference", "lengths": (4, 8)})]
+
+
+@pytest.fixture(scope="module")
+def smooth():
+    return hgjax.eval.box_union_cloud(seed=1, n_points=3000).points
+
+
+@pytest.fixture(scope="module")
+def rounded(smooth):
+    """The box union rounded to 1 cm of its 6-unit extent: many equal distances and duplicates."""
+    return np.round(smooth * 50) / 50
+
+
+def _tiled(points, method, tile, **params):
+    return tiles.resample(points, 0.2, method=method, tile=tile, **KEYED.get(method, {}), **params)
+
+
+@pytest.mark.parametrize("method,params", VARIANTS, ids=[f"{m}-{p.get('variant', 'default')}" for m, p in VARIANTS])
+@pytest.mark.parametrize("which", ["smooth", "rounded"])
+def test_tiled_equals_one_process(method, params, which, request):
+    p = request.getfixturevalue(which)
+    want = hgjax.resample(p, 0.2, method=method, **KEYED.get(method, {}), **params)
+    for tile in (1.4, 2.5):
+        _, cloud = tiles.plan(p, 0.2, method="ea", tile=tile)
+        assert len(cloud.members) >= 4
+        np.testing.assert_array_equal(_tiled(p, method, tile, **params), want)
+
+
+def test_points_on_tile_edges_are_owned_once():
+    g = np.arange(0.0, 2.01, 0.25)
+    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)  # every coordinate on a tile edge
+    _, cloud = tiles.plan(p, 0.2, method="ea", tile=0.5)
+    owned = np.sort(np.concatenate(list(cloud.members.values())))
+    np.testing.assert_array_equal(owned, np.arange(len(p)))
+    for cell, gids in cloud.members.items():
+        x = cloud.frame(gids)
+        box_lo, box_hi = cloud.box(cell, 0.0)
+        inner = (x < box_hi) | (x >= cloud.hi)  # half-open, the cloud's last plane with the last tile
+        assert ((x >= box_lo) & inner).all()
+    np.testing.assert_array_equal(tiles.resample(p, 0.3, method="lhf", tile=0.5, lengths=(4, 8)),
+                                  hgjax.resample(p, 0.3, method="lhf", lengths=(4, 8)))
+
+
+@pytest.mark.parametrize("method", ["ea", "hkc"])
+def test_a_halo_given_too_small_grows_to_the_exact_result(smooth, method):
+    plan, cloud = tiles.plan(smooth, 0.2, method=method, tile=1.5)
+    small = dataclasses.replace(plan, halo=plan.halo / 50)
+    for cell in cloud.members:
+        g0, s0 = tiles.tile_scores(cloud, plan, cell)
+        g1, s1 = tiles.tile_scores(cloud, small, cell)
+        np.testing.assert_array_equal(g0, g1)
+        np.testing.assert_array_equal(s0, s1)
+
+
+def test_tile_order_does_not_matter(smooth):
+    plan, cloud = tiles.plan(smooth, 0.2, method="ea", tile=1.5)
+    cells = list(cloud.members)
+    parts = {c: tiles.tile_scores(cloud, plan, c) for c in cells}
+    keyed = lambda order: [(select.order_keys(parts[c][1], largest=True), parts[c][0]) for c in order]  # noqa: E731
+    shuffled = [cells[i] for i in np.random.default_rng(0).permutation(len(cells))]
+    np.testing.assert_array_equal(select.top_pairs(keyed(cells), plan.m), select.top_pairs(keyed(shuffled), plan.m))
+    np.testing.assert_array_equal(select.top_pairs(keyed(cells), plan.m), hgjax.resample(smooth, 0.2, method="ea"))
+
+
+@pytest.mark.parametrize("method", ["pca_ac", "fps"])
+def test_global_methods_are_refused_with_tiles(smooth, method):
+    with pytest.raises(ValueError, match=f"method '{method}' cannot run in tiles.*tile=None"):
+        tiles.resample(smooth, 0.2, method=method, tile=1.0)
+    assert len(tiles.resample(smooth, 0.2, method=method, tile=None)) == 600
+
+
+def test_knn_ties_are_broken_by_global_id():
+    g = np.arange(6.0)
+    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)  # a lattice: ties everywhere
+    gid = np.random.default_rng(0).permutation(len(p)) + 1000
+    index = spatial.SpatialIndex(p, gid=gid)
+    idx, reach = index.knn(9, np.arange(index.n))
+    dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
+    g_sorted = index.gid[:-1]
+    for i in range(index.n):
+        key = np.where(np.arange(index.n) == i, -1.0, dist[i])
+        want = np.lexsort((g_sorted, key))[:9]
+        np.testing.assert_array_equal(idx[i], want)
+        assert reach[i] == dist[i, want[-1]]
+
+
+def test_mismatched_neighbourhoods_are_refused(smooth):
+    nb = hgjax.neighbourhoods(smooth[:500], "hkc", kernel_size=5)
+    with pytest.raises(ValueError, match="kernel_size=3 disagrees with the neighbourhoods, built with kernel_size=5"):
+        hgjax.score(nb, "hkc", kernel_size=3)
+    assert hgjax.score(nb, "hkc").shape == (500,)  # the recorded kernel_size is used
+    lhf = hgjax.neighbourhoods(smooth[:500], "lhf", lengths=(3, 20))
+    with pytest.raises(ValueError, match=r"lengths=\(8, 16\) disagrees"):
+        hgjax.score(lhf, "lhf", ratio=0.2, lengths=(8, 16))
+    with pytest.raises(ValueError, match="built for method 'lhf'; method 'ea' needs its own"):
+        hgjax.score(lhf, "ea")
+    hgjax.score(nb, "hkf")  # HKC and HKF share their neighbourhoods
+    with pytest.raises(TypeError, match="nb must be hgjax.Neighbourhoods"):
+        hgjax.score(None, "ea")
+
+
+@pytest.mark.parametrize("method", ["hkc", "lhf", "ea"])
+def test_one_far_outlier_changes_nothing(smooth, method):
+    p = smooth.astype(np.float32)
+    far = np.concatenate([p, np.array([[1e6, 1e6, 1e6]], np.float32)])
+    a = hgjax.resample(p, 0.2, method=method)
+    b = hgjax.resample(far, 0.2, method=method)
+    b = b[b < len(p)]
+    overlap = len(np.intersect1d(a, b)) / len(a)
+    assert overlap >= 0.99, overlap
+
+
+def test_memory_of_a_streamed_run_is_bounded_by_the_tile(tmp_path):
+    p = hgjax.eval.box_union_cloud(seed=2, n_points=120_000).points.astype(np.float32)
+    path = tmp_path / "cloud.npy"
+    np.save(path, p)
+    disk = np.load(path, mmap_mode="r")
+
+    def peak(tile):
+        tracemalloc.start()
+        idx = tiles.resample(disk, 0.1, method="ea", tile=tile)
+        used = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return idx, used
+
+    whole, whole_peak = peak(None)
+    tiled, tiled_peak = peak(1.0)
+    np.testing.assert_array_equal(whole, tiled)
+    assert tiled_peak < 0.5 * whole_peak, (tiled_peak, whole_peak)
