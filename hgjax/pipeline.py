@@ -21,12 +21,11 @@ import numpy as np
 
 from hgjax import _validate, samplers, spatial, tiles
 from hgjax.scores import ea, gfr, hkc, hkf, lhf, pca_ac, voxel
-from hgjax.select import soft_select, top_k, weighted_sample
+from hgjax.select import ExactSum, soft_select, top_k, weighted_sample
 
 __all__ = ["METHODS", "Method", "keep", "neighbourhoods", "resample", "score", "soft_resample", "soft_score",
            "soft_weights"]
 
-GFR_MODES = ("random", "top")
 _STAGES = ("build", "score", "soft_score", "select")
 
 
@@ -100,12 +99,12 @@ def _top(largest: bool) -> Callable:
 
 def _gfr_select(scores, m, *, key=None, mode="random"):
     """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores."""
-    mode = _validate.check_choice(mode, "mode", GFR_MODES)
+    mode = _validate.check_choice(mode, "mode", gfr.MODES)
     if mode == "top":
         return top_k(scores, m, largest=True)
     _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
     values = np.asarray(scores, dtype=np.float64)
-    n, total = values.shape[0], float(np.sum(values))
+    n, total = values.shape[0], ExactSum.of(values).value()
     pi = 0.8 * values / total + 0.2 / n if total > 0 else np.full(n, 1.0 / n)
     return weighted_sample(key, pi, m)
 

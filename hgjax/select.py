@@ -9,6 +9,8 @@ pure JAX, returning per-point keep weights.
 
 from __future__ import annotations
 
+import dataclasses
+import fractions
 import functools
 
 import jax
@@ -18,11 +20,12 @@ import numpy as np
 from hgjax import _validate
 from hgjax.scores import _common
 
-__all__ = ["key_value", "keyed_top", "kth_pair", "order_keys", "point_bits", "soft_select", "top_k", "top_pairs", "weighted_sample"]
+__all__ = ["ExactSum", "key_value", "keyed_top", "kth_pair", "order_keys", "point_bits", "soft_select", "top_k", "top_pairs", "weighted_sample"]
 
 BISECTION_STEPS = 64
 DRAW_CHUNK = 1 << 16  # ids per compiled draw: a new cloud size compiles nothing
 DRAW_PART = 1 << 20  # ids per part of :func:`keyed_top`
+EXACT_PART = 1 << 25  # values per bincount of :meth:`ExactSum.of` (its sums stay exact)
 RADIX_BITS = 16  # bits of the key resolved per histogram round of :func:`kth_pair`
 
 
@@ -86,6 +89,54 @@ def order_keys(scores, *, largest: bool) -> np.ndarray:
     sign = bits >> np.uint64(63)
     ascending = np.where(sign == 1, ~bits, bits | np.uint64(1 << 63))
     return ~ascending if largest else ascending
+
+
+@dataclasses.dataclass(frozen=True)
+class ExactSum:
+    """The exact sum of float64 values: integer mantissa sums per binary exponent.
+
+    Adding two ExactSums is exact and associative, so a sum reduced over tiles in any
+    grouping or order gives the same bits; :meth:`value` rounds once, correctly.
+
+    Examples:
+      >>> from hgjax.select import ExactSum
+      >>> (ExactSum.of([1e20, 1.0]) + ExactSum.of([-1e20])).value()
+      1.0
+    """
+
+    terms: tuple = ()  # sorted (exponent, integer) pairs: the sum is sum(t * 2**(e - 53))
+
+    @classmethod
+    def of(cls, values) -> "ExactSum":
+        v = np.asarray(values, dtype=np.float64).ravel()
+        v = v[v != 0]
+        total = cls()
+        for start in range(0, v.size, EXACT_PART):
+            mant, exp = np.frexp(v[start:start + EXACT_PART])
+            whole = (mant * 2.0**53).astype(np.int64)  # exact: |whole| < 2^53
+            high = whole >> 26  # whole = high 2^26 + low, 0 <= low < 2^26
+            low = whole - (high << 26)
+            exps, at = np.unique(exp, return_inverse=True)
+            # float64 bincount sums of |high| < 2^27 and low < 2^26 over < 2^26 terms stay exact
+            sums_high = np.bincount(at, weights=high.astype(np.float64))
+            sums_low = np.bincount(at, weights=low.astype(np.float64))
+            total = total + cls(tuple((int(e), (int(a) << 26) + int(b))
+                                      for e, a, b in zip(exps, sums_high, sums_low)))
+        return total
+
+    def __add__(self, other: "ExactSum") -> "ExactSum":
+        out = dict(self.terms)
+        for e, t in other.terms:
+            out[e] = out.get(e, 0) + t
+        return ExactSum(tuple(sorted(out.items())))
+
+    def value(self) -> float:
+        """The sum rounded once to float64."""
+        if not self.terms:
+            return 0.0
+        low = min(e for e, _ in self.terms)
+        whole = sum(t << (e - low) for e, t in self.terms)
+        return float(fractions.Fraction(whole) * fractions.Fraction(2) ** (low - 53))
 
 
 def key_value(key: int, *, largest: bool) -> float:

@@ -37,20 +37,20 @@ import dataclasses
 import numpy as np
 
 from hgjax import _stream, _validate, samplers, select, spatial
-from hgjax.scores import ea, hkc, hkf, lhf, voxel
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, voxel
 
 __all__ = ["Plan", "plan", "resample", "tile_scores"]
 
-TILED = ("ea", "hkc", "hkf", "lhf", "uniform")
+TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "uniform")
 GLOBAL_ONLY = {
     "pca_ac": "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into"
               " tiles",
     "fps": "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles",
-    "gfr": "GFR's graph weights need the variance over every pair of the cloud; its tiled graph is not built yet",
     "voxel": "the voxel search sizes one grid over the whole cloud; its tiled passes are not built yet",
 }
 CUBE = ("hkc", "hkf")
 HALO_SPACINGS = 4  # the first halo, in mean sample spacings times sqrt(K)
+GFR_KEEP_POINTS = 4_000_000  # up to this N, GFR keeps each tile's graph between its two passes
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
 
 
@@ -172,12 +172,19 @@ def _scoring_params(method: str, params: dict) -> tuple[dict, dict]:
         solver = _validate.check_choice(params.get("solver", "gram"), "solver", lhf.SOLVERS)
         return ({"k": max(lengths), "dedupe": dedupe},
                 {"lengths": lengths, "variant": variant, "solver": solver})
+    if method == "gfr":
+        variant = _validate.check_choice(params.get("variant", "invariant"), "variant", gfr.GFR_VARIANTS)
+        factor = params.get("radius_factor")
+        factor = gfr.RADIUS_FACTOR if factor is None else _validate.check_positive(factor, "radius_factor")
+        return ({"variant": variant, "radius_factor": factor, "dedupe": True, "r": None,
+                 "max_nn": _validate.check_int(params.get("max_nn", gfr.MAX_NN), "max_nn", minimum=1)},
+                {"mode": _validate.check_choice(params.get("mode", "random"), "mode", gfr.MODES)})
     k = _validate.check_int(params.get("k", ea.DEFAULT_K), "k", minimum=2)
     return {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
 
 
 def _reach_k(build: dict) -> int:
-    return voxel.LOCAL_K + 1 if "kernel_size" in build else build["k"]
+    return voxel.LOCAL_K + 1 if "kernel_size" in build else build.get("k", ea.DEFAULT_K)
 
 
 def plan(points, ratio: float, *, method: str, tile: float | None = None, **params) -> tuple[Plan, "_Cloud"]:
@@ -211,6 +218,9 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, **para
     if method in CUBE:
         _validate.check_min_points(n, 2, "HKC/HKF")
         build = voxel.resolve(build, _sample_stats(cloud, base) if voxel.needs_stats(build) else None)
+    elif method == "gfr":
+        build["r"] = gfr.squared_radius(build["radius_factor"], _sample_stats(cloud, base))
+        base = dataclasses.replace(base, halo=max(base.halo, 2.5 * np.sqrt(build["r"])))
     elif method == "lhf":
         _validate.check_min_points(n, build["k"], f"LHF with length {build['k']}")
     else:
@@ -344,13 +354,79 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
         return samplers.uniform_sample(points, ratio, key=key)
     if method not in TILED:
         return pipeline._whole(points, ratio, entry, key, params)
+    if method == "gfr" and params.get("variant") == "reference":
+        if tile is not None:
+            raise ValueError(f"method 'gfr' with variant='reference' cannot run in tiles (tile={tile!r}): its squared"
+                             " radius comes from the min and max nearest distance of the whole cloud; pass tile=None")
+        return pipeline._whole(points, ratio, entry, key, params)
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
     plan_, cloud = plan(points, ratio, method=method, tile=tile, **params)
-    parts = [tile_scores(cloud, plan_, cell, **stream) for cell in cloud.members]
+    if method == "gfr":
+        parts = _gfr_scores(cloud, plan_, stream)
+        if plan_.score["mode"] == "random":
+            return _gfr_sample(parts, plan_, _validate.check_key(
+                key, "gfr", ' (or mode="top" for the deterministic top scores)'))
+    else:
+        parts = [tile_scores(cloud, plan_, cell, **stream) for cell in cloud.members]
     if method == "lhf":
         parts = _lhf_combine(parts, plan_.m)
     largest = bool(entry.largest)
     return select.top_pairs([(select.order_keys(s, largest=largest), g) for g, s in parts], plan_.m)
+
+
+def _gfr_graph(cloud: _Cloud, plan_: Plan, cell) -> dict:
+    """GFR's graph around the core locations of one tile, and its exact pair sums (Chen et al. 2018).
+
+    A core location's stored pairs are those it ranks or that rank it, so every location
+    within the radius R of it must see its whole R-ball: the halo is verified to hold 2R
+    around every core location.
+    """
+    b = plan_.build
+    reach = 2 * np.sqrt(b["r"]) * (1 + 1e-5)  # the pair query's bound, twice
+    halo = plan_.halo
+    while True:
+        gids, x, core, index = cloud.indexed(cell, halo, True)
+        rows = np.unique(index.row[core])
+        if cloud.covers(cell, halo, index.points[rows], np.full(rows.size, reach)):
+            break
+        halo *= 2
+    a, c = gfr.location_pairs(index, b["r"], b["max_nn"])
+    sym = gfr.symmetric(a, c, index.n, index.gid[:-1])
+    counts = np.append(np.bincount(index.row, minlength=index.n).astype(np.float64), 0.0)
+    q = gfr.pair_lengths(index.points, rows, sym, plan_.dtype)
+    return {"gids": gids, "core": core, "index": index, "rows": rows, "sym": sym, "counts": counts, "q": q,
+            "sums": gfr.pair_sums(q, rows, sym, index.gid, counts)}
+
+
+def _gfr_scores(cloud: _Cloud, plan_: Plan, stream: dict):
+    """GFR scores of every tile's core points: pair sums over all tiles, then the flows (two passes)."""
+    keep = plan_.n <= GFR_KEEP_POINTS  # small clouds keep each tile's graph between the passes
+    graphs = {cell: _gfr_graph(cloud, plan_, cell) for cell in cloud.members}
+    sums = [sum((g["sums"][i] for g in graphs.values()), select.ExactSum()) for i in range(3)]
+    mean_q, two_var = gfr.moments(sums)
+    if not keep:
+        graphs = dict.fromkeys(graphs)
+    parts = []
+    for cell, g in graphs.items():
+        g = g or _gfr_graph(cloud, plan_, cell)
+        lp = gfr.laplacian_norms(g["index"].points, g["rows"], g["sym"], g["q"], g["counts"], mean_q, two_var,
+                                 plan_.dtype, plan_.dtype, **stream)
+        at = np.empty(g["index"].n, dtype=np.int64)
+        at[g["rows"]] = np.arange(g["rows"].size)
+        parts.append((g["gids"][g["core"]], lp[at[g["index"].row[g["core"]]]].astype(plan_.dtype)))
+    return parts
+
+
+def _gfr_sample(parts, plan_: Plan, key) -> np.ndarray:
+    """GFR's default selection: Gumbel-top-k with pi = 0.8 s / sum(s) + 0.2 / N (an exact global sum)."""
+    total = sum((select.ExactSum.of(s) for _, s in parts), select.ExactSum()).value()
+    keyed = []
+    for g, s in parts:
+        pi = 0.8 * s.astype(np.float64) / total + 0.2 / plan_.n if total > 0 else np.full(s.size, 1.0 / plan_.n)
+        with np.errstate(divide="ignore"):
+            perturbed = np.where(pi > 0, np.log(pi) + select.point_gumbel(key, g), -np.inf)
+        keyed.append((select.order_keys(perturbed, largest=True), g))
+    return select.top_pairs(keyed, plan_.m)
 
 
 def _lhf_combine(parts, m: int):

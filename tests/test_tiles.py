@@ -10,8 +10,8 @@ import pytest
 import hgjax
 from hgjax import select, spatial, tiles
 
-KEYED = {"uniform": {"key": jax.random.key(3)}}
-VARIANTS = [("ea", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}),
+KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
+VARIANTS = [("ea", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}),
             ("hkc", {"variant": "reference"}), ("lhf", {"variant": "reference", "lengths": (4, 8)})]
 
 
@@ -30,7 +30,7 @@ def _tiled(points, method, tile, **params):
     return tiles.resample(points, 0.2, method=method, tile=tile, **KEYED.get(method, {}), **params)
 
 
-@pytest.mark.parametrize("method,params", VARIANTS, ids=[f"{m}-{p.get('variant', 'default')}" for m, p in VARIANTS])
+@pytest.mark.parametrize("method,params", VARIANTS, ids=[f"{m}-{p.get('variant', p.get('mode', 'default'))}" for m, p in VARIANTS])
 @pytest.mark.parametrize("which", ["smooth", "rounded"])
 def test_tiled_equals_one_process(method, params, which, request):
     p = request.getfixturevalue(which)
@@ -82,6 +82,11 @@ def test_global_methods_are_refused_with_tiles(smooth, method):
     with pytest.raises(ValueError, match=f"method '{method}' cannot run in tiles.*tile=None"):
         tiles.resample(smooth, 0.2, method=method, tile=1.0)
     assert len(tiles.resample(smooth, 0.2, method=method, tile=None)) == 600
+
+
+def test_gfr_reference_is_refused_with_tiles(smooth):
+    with pytest.raises(ValueError, match="variant='reference' cannot run in tiles"):
+        tiles.resample(smooth, 0.2, method="gfr", variant="reference", mode="top", tile=1.0)
 
 
 def test_knn_ties_are_broken_by_global_id():

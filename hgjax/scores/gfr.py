@@ -51,12 +51,13 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hgjax import _stream, _validate, spatial
+from hgjax import _stream, _validate, select, spatial
 from hgjax.scores import _common
 
 __all__ = ["graph", "high_pass", "neighbourhoods", "score", "soft_score"]
 
 GFR_VARIANTS = ("invariant", "reference")
+MODES = ("random", "top")  # selection: weighted sampling (needs a key) or the top scores
 MAX_NN = 100
 RADIUS_FACTOR = 10.0
 SKIP_SQ_DIST = 1e-10  # reference: points with a neighbour this close (squared) do not set minNN
@@ -75,22 +76,24 @@ def _sq_dist(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
 
 
-def _locations(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, cKDTree]:
-    """Distinct locations of ``p``: (u (U, 3), first (U,) smallest index at each, inverse (N,), tree over u)."""
-    u, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
-    return u, first, inverse.ravel(), cKDTree(u)
+def squared_radius(radius_factor: float, stats: spatial.SampleStats) -> float:
+    """The invariant graph's squared radius (radius_factor x resolution)^2.
 
-
-def _resolution(tree: cKDTree, inverse: np.ndarray) -> float:
-    """Median over points of the Euclidean distance to the nearest distinct point (0 if none has one).
-
-    ``tree`` holds the distinct locations and ``inverse`` (N,) maps each point to its own, so a
-    point's nearest distinct point is its location's nearest other location.
+    The resolution is the median distance to the nearest distinct point over the seeded
+    sample of :func:`hgjax.spatial.sample_ids` (all points up to 1000): exact duplicates
+    and far outliers do not move it, and a tiled run resolves the same value.
     """
-    if tree.n < 2:
-        return 0.0
-    nearest = tree.query(tree.data, k=2, workers=-1)[0][:, 1]
-    return float(np.median(nearest[inverse]))
+    return (radius_factor * stats.resolution(robust=True)) ** 2
+
+
+def location_pairs(index: spatial.SpatialIndex, r: float, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
+    """Undirected pairs (a, b), a < b, of the rows (distinct locations) of a deduplicated index.
+
+    Ties at the ``max_nn`` cap are ranked by the locations' global ids (``index.gid``).
+    """
+    if r <= 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return _location_pairs(index.tree, r, max_nn, index.gid[:-1])
 
 
 def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
@@ -199,7 +202,8 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
       points: (N, 3) float32 or float64, already validated (e.g. by
         ``hgjax._validate.check_points``).
       variant: ``"invariant"`` (default): Euclidean radius ``radius_factor`` x resolution
-        (median distance to the nearest distinct point), a pair stored when either end
+        (median distance to the nearest distinct point over a seeded sample, see
+        :func:`squared_radius`), a pair stored when either end
         ranks the other among its ``max_nn`` nearest distinct locations. ``"reference"``: the authors' rules,
         squared radius min(10 minNN, 2 maxNN) on float32 squared distances, a pair stored
         in its smaller index's row among that row's ``max_nn`` nearest partners of higher
@@ -246,13 +250,13 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         r = _reference_radius(p, tree)
         rows, cols = _pairs(p, tree, r, max_nn) if r > 0 else empty
     else:
-        u, lowest, inverse, tree = _locations(pts.astype(np.float64))
-        r = (radius_factor * _resolution(tree, inverse)) ** 2
-        a, b = _location_pairs(tree, r, max_nn, lowest) if r > 0 else empty
-        i, j = lowest[a], lowest[b]
+        index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
+        r = squared_radius(radius_factor, spatial.sample_stats(index))
+        a, b = location_pairs(index, r, max_nn)
+        i, j = index.order[a], index.order[b]  # the first point of each location
         rows, cols = _split_keys(np.minimum(i, j) * n + np.maximum(i, j), n)
-        if u.shape[0] < n:
-            first = lowest[inverse].astype(np.int32)
+        if index.n < n:
+            first = index.order[index.row].astype(np.int32)
     counts = np.bincount(rows, minlength=n)
     idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
     idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
@@ -418,50 +422,85 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     _validate.check_graph(points, idx, first, wdtype)
     n = points.shape[0]
     wdtype = np.dtype(points.dtype if wdtype is None else wdtype)
-    chunk = _stream.chunk_rows(chunk_size)
-    # Blocks of at most SCORE_ROWS rows, each with the columns its rows need (rows holding
-    # few pairs, such as the empty rows of later copies, in a narrow group).
-    blocks = [(part, idx[part, :k]) for rows, k in _stream.narrow_groups(idx, n)
-              for part in (rows[start:start + SCORE_ROWS] for start in range(0, rows.size, SCORE_ROWS))]
-    own = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
-    partner = np.append(own, 0.0)  # c_j by partner index, 0 for the padding N
+    valid = idx < n
+    sym = symmetric(np.repeat(np.arange(n), valid.sum(axis=1)), idx[valid], n, np.arange(n))
+    own = np.arange(n)
+    counts = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
+    stream = {"chunk_size": chunk_size, "progress": progress}
+    # q from the points cast to wdtype first, as the authors' float32 code computes it.
+    q = pair_lengths(points.astype(wdtype), own, sym, wdtype, **stream)
+    mean_q, two_var = moments(pair_sums(q, own, sym, np.append(own, n), np.append(counts, 0.0)))
+    lp = laplacian_norms(points, own, sym, q, np.append(counts, 0.0), mean_q, two_var, points.dtype, wdtype, **stream)
+    return jax.device_put((lp if first is None else lp[first]).astype(points.dtype))
 
-    def run(fn, pts, rows, nbr, row_args=(), args=()):
-        return _stream.map_rows(fn, pts, rows, nbr, row_args=row_args, args=args, dtype=pts.dtype,
-                                chunk_size=chunk)
 
-    # Pass 1: q of every stored pair (from the points cast to wdtype, as the authors' code),
-    # and its weight c_i c_j (the point pairs it stands for).
-    cast = points.astype(wdtype)
-    qs = []
-    sums = np.zeros(3)  # sum of weights, of weight x q, of weight x q^2
-    for rows, nbr in blocks:
-        qs.append(run(_sq_length, cast, rows, nbr))
-        pair = own[rows, None] * partner[nbr]
-        q = qs[-1].astype(np.float64)
-        sums += [pair.sum(), np.sum(pair * q), np.sum(pair * q * q)]
-    count, mean_q = sums[0], (sums[1] / sums[0] if sums[0] else 0.0)
-    mean_z = sums[1] / count / mean_q if mean_q > 0 else 0.0
-    z_sq = sums[2] / count / mean_q**2 if mean_q > 0 else 0.0
-    two_var = 2 * max(z_sq - mean_z * mean_z, 0.0)
-    # Pass 2: the pair flows W0_ij (p_i - p_j), reduced block by block: the row sums (W0,
-    # weighted by c_j) and the scatter-add onto the partners (W0^T, weighted by c_i), never
-    # the whole (N, K, 3) array.
-    acc = np.promote_types(points.dtype, wdtype)
-    args = (jax.device_put(np.asarray(mean_q, acc)), jax.device_put(np.asarray(two_var, acc)))
-    lp = np.zeros((n, 3))
-    bar = _stream._progress(n, progress and len(blocks) > 4)
-    for (rows, nbr), q in zip(blocks, qs):
-        c = run(_flow_kernel(wdtype), points, rows, nbr, (q,), args)  # (R, k, 3)
-        lp[rows] += np.einsum("rk,rkd->rd", partner[nbr], c)
-        back = own[rows, None, None] * c  # x c_i
-        lp -= np.stack([np.bincount(nbr.ravel(), back[..., d].ravel(), minlength=n + 1)[:n] for d in range(3)], axis=1)
-        if bar is not None:
-            bar.update(rows.size)
-    if bar is not None:
-        bar.close()
-    score = np.sqrt(np.sum(lp * lp, axis=1))
-    return jax.device_put((score if first is None else score[first]).astype(points.dtype))
+def symmetric(a: np.ndarray, b: np.ndarray, n: int, tie: np.ndarray) -> np.ndarray:
+    """(n, K) int32 partners of every node over the undirected pairs (a, b), by ``tie`` of the partner.
+
+    Both directions of every pair, each row ordered by the partners' ``tie`` (their global
+    ids), padded with n: the order in which :func:`laplacian_norms` sums a row, so a point's
+    score does not depend on how the graph was cut or padded.
+    """
+    src, dst = np.concatenate([a, b]), np.concatenate([b, a])
+    order = np.lexsort((tie[dst], src))
+    src, dst = src[order], dst[order]
+    counts = np.bincount(src, minlength=n)
+    out = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
+    out[src, np.arange(src.size) - (np.cumsum(counts) - counts)[src]] = dst
+    return out
+
+
+def _blocks(own: np.ndarray):
+    """Slices of at most SCORE_ROWS rows (bounds the host memory of (R, K, 3) flows)."""
+    return [slice(s, min(s + SCORE_ROWS, own.size)) for s in range(0, own.size, SCORE_ROWS)]
+
+
+def pair_lengths(points, own, sym, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
+    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``sym[own]``."""
+    nbr = sym[own]
+    return np.concatenate([_stream.map_rows(_sq_length, points, own[b], nbr[b], dtype=wdtype, chunk_size=chunk_size,
+                                            progress=progress) for b in _blocks(own)] or [np.zeros(nbr.shape, wdtype)])
+
+
+def pair_sums(q, own, sym, tie_ext, counts_ext) -> tuple:
+    """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the pairs (i, j) of rows ``own`` with tie_j > tie_i.
+
+    Each undirected pair is counted once, from its end with the smaller global id.
+    """
+    nbr = sym[own]
+    counted = (nbr < sym.shape[0]) & (tie_ext[nbr] > tie_ext[own][:, None])
+    w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
+    qq = q[counted].astype(np.float64)
+    return select.ExactSum.of(w), select.ExactSum.of(w * qq), select.ExactSum.of(w * qq * qq)
+
+
+def moments(sums) -> tuple[float, float]:
+    """(mean q, 2 var z) of z = q / mean q from :func:`pair_sums` (summed over tiles); 0 without pairs."""
+    count, sum_q, sum_q2 = (x.value() for x in sums)
+    mean_q = sum_q / count if count else 0.0
+    mean_z = sum_q / count / mean_q if mean_q > 0 else 0.0
+    z_sq = sum_q2 / count / mean_q**2 if mean_q > 0 else 0.0
+    return mean_q, 2 * max(z_sq - mean_z * mean_z, 0.0)
+
+
+def laplacian_norms(points, own, sym, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
+                    progress=False) -> np.ndarray:
+    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``sym[own]``, in row order.
+
+    The flows come from one compiled kernel; each row is then summed column by column in
+    float64, so padding columns (zeros) never change a sum's bits.
+    """
+    acc = np.promote_types(dtype, wdtype)
+    args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
+    nbr = sym[own]
+    c = counts_ext[nbr]
+    lp = np.zeros((own.size, 3))
+    for b in _blocks(own):
+        flows = _stream.map_rows(_flow_kernel(np.dtype(wdtype)), points, own[b], nbr[b], row_args=(q[b],), args=args,
+                                 dtype=dtype, chunk_size=chunk_size, progress=progress)
+        for k in range(nbr.shape[1]):
+            lp[b] += c[b, k, None] * flows[:, k]
+    return np.sqrt(np.sum(lp * lp, axis=1))
 
 
 def soft_score(nb, *, variant: str = "invariant"):
