@@ -7,6 +7,7 @@ ceil(ratio N) unique int64 indices into the caller's points, highest priority fi
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib.util
 import types
@@ -323,22 +324,57 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     if ratio is None and voxel_size is None:
         raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
     m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
-    cols = np.asarray(pts, dtype=np.float64).T  # (3, N): the compiled passes read the caller's rows in place
-    origin, top = _axis_bounds(cols)
-    extent = float((top - origin).max()) or 1.0
-    if voxel_size is None:
-        _, voxel, v = _voxel_search(cols, origin, extent, m)
-    else:
-        size = _validate.check_positive(voxel_size, "voxel_size")
-        if extent / size > VOXEL_LEVELS:
-            raise ValueError(f"voxel_size must be at least the cloud's extent / 2**20 = {extent / VOXEL_LEVELS:.3g}"
-                             f" (at most 2**20 voxels along an axis); got {voxel_size!r}")
-        voxel, v = _voxel_grid(cols, origin, extent, size)
+    grid = voxel_grid(pts, m, voxel_size)
+    cols = np.asarray(pts, dtype=np.float64).T
+    voxel, v = (grid.voxel, grid.count) if grid.voxel is not None else _voxel_grid(cols, grid.origin, grid.extent,
+                                                                                      grid.size)
     reps, counts = _voxel_representatives(cols, voxel, v)
     ranked = reps[np.argsort((counts.max() - counts) * (n + 1) + reps)]  # population desc, then index (one key)
     if m is None or m <= ranked.size:
         return ranked[:m].astype(np.int64)
     return np.concatenate([ranked, np.setdiff1d(np.arange(n), reps)])[:m].astype(np.int64)
+
+
+@dataclasses.dataclass(frozen=True)
+class VoxelGrid:
+    """The voxel grid of a cloud: edge ``size`` from ``origin`` (its minimum corner), and its extent.
+
+    ``voxel`` (N,) and ``count`` hold the search's assignment of the whole cloud when it made one.
+    """
+
+    origin: np.ndarray
+    extent: float
+    size: float
+    voxel: np.ndarray | None = None
+    count: int = 0
+
+
+def voxel_grid(pts: np.ndarray, m: int | None, voxel_size) -> VoxelGrid:
+    """The grid :func:`voxel_sample` uses: ``voxel_size`` (checked), or the count-targeted search for m voxels."""
+    cols = np.asarray(pts, dtype=np.float64).T  # (3, N): the compiled passes read the caller's rows in place
+    origin, top = _axis_bounds(cols)
+    extent = float((top - origin).max()) or 1.0
+    if voxel_size is None:
+        size, voxel, v = _voxel_search(cols, origin, extent, m)
+        return VoxelGrid(origin, extent, size, voxel, v)
+    size = _validate.check_positive(voxel_size, "voxel_size")
+    if extent / size > VOXEL_LEVELS:
+        raise ValueError(f"voxel_size must be at least the cloud's extent / 2**20 = {extent / VOXEL_LEVELS:.3g}"
+                         f" (at most 2**20 voxels along an axis); got {voxel_size!r}")
+    return VoxelGrid(origin, extent, size)
+
+
+def voxel_tile(cols: np.ndarray, grid: VoxelGrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Voxels of the points ``cols`` (3, n) (ascending global ids) in ``grid``.
+
+    Returns:
+      (reps, counts, first): per voxel, its point nearest the centroid, its population and
+      its first (lowest-id) point, as indices into the n points.
+    """
+    voxel, v = _voxel_grid(cols, grid.origin, grid.extent, grid.size)
+    reps, counts = _voxel_representatives(cols, voxel, v)
+    order = np.argsort(voxel, kind="stable")
+    return reps, counts, order[np.cumsum(counts) - counts]
 
 
 @functools.partial(jax.jit, static_argnums=(1,))

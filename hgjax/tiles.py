@@ -41,12 +41,11 @@ from hgjax.scores import ea, gfr, hkc, hkf, lhf, voxel
 
 __all__ = ["Plan", "plan", "resample", "tile_scores"]
 
-TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "uniform")
+TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "uniform", "voxel")
 GLOBAL_ONLY = {
     "pca_ac": "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into"
               " tiles",
     "fps": "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles",
-    "voxel": "the voxel search sizes one grid over the whole cloud; its tiled passes are not built yet",
 }
 CUBE = ("hkc", "hkf")
 HALO_SPACINGS = 4  # the first halo, in mean sample spacings times sqrt(K)
@@ -352,7 +351,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     pipeline._split(entry, "build", params)  # unknown names raise
     if method == "uniform":
         return samplers.uniform_sample(points, ratio, key=key)
-    if method not in TILED:
+    if method == "voxel" and tile is not None:
+        return _voxel(points, ratio, tile, params.get("voxel_size"))
+    if method not in TILED or entry.kind is None:
         return pipeline._whole(points, ratio, entry, key, params)
     if method == "gfr" and params.get("variant") == "reference":
         if tile is not None:
@@ -437,3 +438,36 @@ def _lhf_combine(parts, m: int):
         big.append(select.key_value(key, largest=True))
     dtype = parts[0][1].dtype
     return [(g, lhf.mix(s[:, 0], s[:, 1], dtype.type(big[0]), dtype.type(big[1]))) for g, s in parts]
+
+
+def _voxel(points, ratio, tile: float, voxel_size) -> np.ndarray:
+    """``voxel`` in tiles: :func:`hgjax.voxel_sample`'s grid, voxels owned by the tile of their lowest id.
+
+    The edge is searched once on the whole cloud (or given); each tile assigns its core
+    points and a halo of one voxel edge, so every voxel with a core point is whole. A voxel
+    belongs to the tile that owns its lowest-id point, which gives its representative (the
+    point nearest the centroid, summed in id order) and population; the global ranking is
+    by (population, id), exactly as in one process.
+    """
+    pts = _validate.check_points(points)
+    n = pts.shape[0]
+    tile = _validate.check_positive(tile, "tile")
+    m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
+    if m is None and voxel_size is None:
+        raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
+    grid = samplers.voxel_grid(pts, m, voxel_size)
+    bmin, bmax = _bounds(pts)
+    origin = (bmin + bmax) / 2
+    cloud = _Cloud(pts, origin, bmin - origin, bmax - origin, tile)
+    parts, reps = [], []
+    for cell in cloud.members:
+        gids, _, core = cloud.gather(cell, 1.01 * grid.size)
+        rep, counts, first = samplers.voxel_tile(np.asarray(pts[gids], dtype=np.float64).T, grid)
+        owned = core[first]
+        parts.append((select.order_keys(counts[owned].astype(np.float64), largest=True), gids[rep[owned]]))
+        reps.append(gids[rep[owned]])
+    v = sum(g.size for _, g in parts)
+    ranked = select.top_pairs(parts, v if m is None else min(m, v))
+    if m is None or m <= v:
+        return ranked
+    return np.concatenate([ranked, np.setdiff1d(np.arange(n), np.concatenate(reps))])[:m].astype(np.int64)
