@@ -29,6 +29,7 @@ import numpy as np
 
 BLOCK = 1024  # rows per vmapped block
 CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
+MIN_POINT_ROWS = 1 << 16  # the smallest device copy of a cloud's points (see point_rows)
 
 
 def is_traced(*trees) -> bool:
@@ -106,9 +107,13 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
              chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
     """Host engine of :func:`map_neighbourhoods`: ``fn`` on the rows ``own`` of ``points``.
 
-    Offsets (C, K, 3) are built on the host in the dtype of ``points`` (float64 coordinates
-    give each neighbourhood's offsets exactly rounded to ``dtype``, whatever the frame's
-    origin) and streamed in fixed-size chunks through one compiled kernel per (fn, K).
+    The points go to the device once, as ``dtype`` values hi and, for float64 points run in
+    float32, the remainders lo = points - hi; each chunk sends only its rows and neighbour
+    indices, and the offsets (C, K, 3) are gathered on the device as (hi_j - hi_i) + (lo_j -
+    lo_i): each neighbourhood's offsets to the precision of ``dtype`` whatever the frame's
+    origin, with the same bits in every tile that holds the neighbourhood. The points are
+    padded to :func:`point_rows`, so a new cloud size compiles only when it crosses a power
+    of four above 65,536 points.
 
     Args:
       fn, row_args, args, chunk_size, progress, narrow: as :func:`map_neighbourhoods`;
@@ -121,16 +126,34 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
     Returns:
       ``fn``'s outputs stacked over the rows, as NumPy arrays (R, ...).
     """
-    n = points.shape[0]
+    n, dtype = points.shape[0], np.dtype(dtype)
+    size = point_rows(n)
+    hi = np.zeros((size, 3), dtype)
+    hi[:n] = points
+    lo = None
+    if points.dtype != dtype:
+        lo = np.zeros((size, 3), dtype)
+        lo[:n] = points - hi[:n].astype(points.dtype)
+    ext = (jax.device_put(hi), None if lo is None else jax.device_put(lo), jax.device_put(np.int32(n)))
     row_args = tuple(np.asarray(a) for a in row_args)
     args, chunk = tuple(jax.device_put(np.asarray(a)) for a in args), chunk_rows(chunk_size)
+    own, idx = np.asarray(own, dtype=np.int32), np.asarray(idx, dtype=np.int32)
     groups = narrow_groups(idx, n) if narrow else [(np.arange(idx.shape[0]), idx.shape[1])]
     if len(groups) > 1:
-        parts = [_stream(fn, points, own[rows], idx[rows, :k], tuple(a[rows] for a in row_args), args, chunk,
-                         progress, dtype) for rows, k in groups]
+        parts = [_stream(fn, ext, own[rows], idx[rows, :k], tuple(a[rows] for a in row_args), args, chunk, progress)
+                 for rows, k in groups]
         back = np.argsort(np.concatenate([rows for rows, _ in groups]))  # rows back in order
         return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
-    return _stream(fn, points, own, idx, row_args, args, chunk, progress, dtype)
+    return _stream(fn, ext, own, idx, row_args, args, chunk, progress)
+
+
+def point_rows(n: int) -> int:
+    """Rows of the device copy of n points: the smallest power of four above n, at least 2^16.
+
+    Row n (and every row after it) is zero padding; few distinct sizes mean few compiled
+    kernels across clouds.
+    """
+    return max(MIN_POINT_ROWS, 1 << (2 * -(-int(n).bit_length() // 2)))
 
 
 def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
@@ -154,29 +177,25 @@ def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
     return [(np.flatnonzero(group == g), int(w)) for g, w in enumerate(bounds) if np.any(group == g)]
 
 
-def _stream(fn, points, own, idx, row_args, args, chunk, progress, dtype):
-    """Fixed (C, K, 3) chunks of offsets in ``dtype`` through one kernel.
+def _stream(fn, ext, own, idx, row_args, args, chunk, progress):
+    """Fixed chunks of C rows (their own rows (C,) and neighbours (C, K)) through one kernel.
 
-    Streams the points ``own`` (R,) with their neighbours ``idx`` (R, K); returns NumPy
-    outputs (R, ...).
+    ``ext`` = (hi, lo or None, n) on the device (:func:`map_rows`); returns NumPy outputs (R, ...).
     """
-    n, r = points.shape[0], idx.shape[0]
-    ext = np.concatenate([points, np.zeros((1, 3), points.dtype)])
+    r = idx.shape[0]
+    n = int(ext[2])
     kernel = _sharded(fn, len(row_args), len(args)) if len(jax.devices()) > 1 else _jitted(fn, len(row_args))
     outputs = []
     bar = _progress(r, progress and r > 4 * chunk)
     for start in range(0, r, chunk):
         rows = slice(start, min(start + chunk, r))
-        nbr = idx[rows]
-        valid = nbr < n
-        offsets = np.where(valid[..., None], ext[nbr] - ext[own[rows], None, :], 0).astype(dtype)
-        pad = chunk - offsets.shape[0]
-        fill = lambda x: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
+        pad = chunk - (rows.stop - rows.start)
+        fill = lambda x, v=0: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), constant_values=v)  # noqa: E731
         if outputs:
             # At most one kernel in flight: two programs calling LAPACK eigh at the same time
             # can deadlock in jaxlib's CPU thread pool.
             jax.block_until_ready(outputs[-1])
-        outputs.append(kernel(fill(offsets), fill(valid), tuple(fill(a[rows]) for a in row_args), args))
+        outputs.append(kernel(*ext, fill(own[rows]), fill(idx[rows], n), tuple(fill(a[rows]) for a in row_args), args))
         if bar is not None:
             bar.update(rows.stop - rows.start)
     if bar is not None:
@@ -184,20 +203,35 @@ def _stream(fn, points, own, idx, row_args, args, chunk, progress, dtype):
     return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:r], *outputs)
 
 
+def _gathered(fn: Callable, hi, lo, n, own, nbr, row_args, args):
+    """Offsets of the chunk's neighbourhoods gathered on the device, then the block map of ``fn``."""
+    valid = nbr < n
+    offsets = hi[nbr] - hi[own][:, None, :]
+    if lo is not None:
+        offsets = offsets + (lo[nbr] - lo[own][:, None, :])
+    return _blocks(fn, jnp.where(valid[..., None], offsets, 0), valid, row_args, args)
+
+
 @functools.lru_cache(maxsize=None)
 def _jitted(fn: Callable, n_row_args: int) -> Callable:
     del n_row_args  # part of the cache key only
-    return jax.jit(functools.partial(_blocks, fn))
+    return jax.jit(functools.partial(_gathered, fn))
 
 
 @functools.lru_cache(maxsize=None)
 def _sharded(fn: Callable, n_row_args: int, n_args: int) -> Callable:
-    """The block map with the rows of each chunk split over all local devices."""
+    """The gathered block map with the rows of each chunk split over all local devices."""
     mesh = jax.sharding.Mesh(np.array(jax.devices()), ("points",))
     rows, rep = jax.sharding.PartitionSpec("points"), jax.sharding.PartitionSpec()
-    body = functools.partial(_blocks, fn)
-    return jax.jit(jax.shard_map(body, mesh=mesh, in_specs=(rows, rows, (rows,) * n_row_args, (rep,) * n_args),
-                                 out_specs=rows, check_vma=False))
+    body = functools.partial(_gathered, fn)
+
+    def run(hi, lo, n, own, nbr, row_args, args):
+        return jax.shard_map(lambda h, lo_, n_, o, b, ra, a: body(h, lo_, n_, o, b, ra, a), mesh=mesh,
+                             in_specs=(rep, None if lo is None else rep, rep, rows, rows, (rows,) * n_row_args,
+                                       (rep,) * n_args), out_specs=rows, check_vma=False)(hi, lo, n, own, nbr,
+                                                                                        row_args, args)
+
+    return jax.jit(run)
 
 
 def _progress(total: int, enabled: bool):

@@ -149,22 +149,19 @@ def key_value(key: int, *, largest: bool) -> float:
     return float(np.array([bits], dtype=np.uint64).view(np.float64)[0])
 
 
-def _radix_histogram(keys: np.ndarray, prefix: int, level: int) -> np.ndarray:
-    """Counts (2^RADIX_BITS,) of the next digit of the keys whose first ``level`` digits are ``prefix``."""
-    shift = np.uint64(64 - RADIX_BITS * (level + 1))
-    if level:
-        keys = keys[(keys >> np.uint64(64 - RADIX_BITS * level)) == np.uint64(prefix)]
-    digit = ((keys >> shift) & np.uint64((1 << RADIX_BITS) - 1)).astype(np.int64)
-    return np.bincount(digit, minlength=1 << RADIX_BITS)
+def _digits(keys: np.ndarray, level: int) -> np.ndarray:
+    """The level-th 16-bit digit (from the top) of uint64 keys, as int64."""
+    return ((keys >> np.uint64(64 - RADIX_BITS * (level + 1))) & np.uint64((1 << RADIX_BITS) - 1)).astype(np.int64)
 
 
 def kth_pair(parts, m: int) -> tuple[int, int]:
     """The m-th smallest (key, global id) pair over several parts, exactly, from summaries.
 
     Four rounds of per-part histograms of the next 16 bits of the keys (integer counts, whose
-    sums do not depend on the order of the parts) find the m-th key; then the ids holding
-    exactly that key are gathered and the remaining rank is taken among them. Only
-    histograms and the ids of one key leave a part, never its scores.
+    sums do not depend on the order of the parts) find the m-th key, each round among the
+    keys that share the digits found so far; then the ids holding exactly that key are
+    gathered and the remaining rank is taken among them. Only histograms and the ids of one
+    key leave a part, never its scores.
 
     Args:
       parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
@@ -181,13 +178,16 @@ def kth_pair(parts, m: int) -> tuple[int, int]:
       (1, 2)
     """
     prefix, need = 0, m
+    live = list(parts)
     for level in range(64 // RADIX_BITS):
-        hist = sum(_radix_histogram(keys, prefix, level) for keys, _ in parts)
+        digits = [_digits(keys, level) for keys, _ in live]
+        hist = sum(np.bincount(d, minlength=1 << RADIX_BITS) for d in digits)
         cum = np.cumsum(hist)
         digit = int(np.searchsorted(cum, need))
         need -= int(cum[digit - 1]) if digit else 0
         prefix = (prefix << RADIX_BITS) | digit
-    ids = np.sort(np.concatenate([gids[keys == np.uint64(prefix)] for keys, gids in parts]))
+        live = [(keys[d == digit], gids[d == digit]) for (keys, gids), d in zip(live, digits)]
+    ids = np.sort(np.concatenate([gids for _, gids in live]))
     return prefix, int(ids[need - 1])
 
 

@@ -273,7 +273,7 @@ def tile_scores(cloud: _Cloud, plan_: Plan, cell, *, chunk_size=None, progress=F
     halo = plan_.halo
     while True:
         gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
-        rows = np.unique(index.row[core])
+        rows = _core_rows(index, core)
         if plan_.method in CUBE:
             idx, scale, reach = voxel.build_rows(index, rows, plan_.build)
             row_args = (scale.astype(plan_.dtype),)
@@ -289,6 +289,13 @@ def tile_scores(cloud: _Cloud, plan_: Plan, cell, *, chunk_size=None, progress=F
     at = np.empty(index.n, dtype=np.int64)
     at[rows] = np.arange(rows.size)
     return gids[core], values[at[index.row[core]]]
+
+
+def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
+    """(R,) ascending sorted-frame rows (locations) of the core points."""
+    mine = np.zeros(index.n, bool)
+    mine[index.row[core]] = True
+    return np.flatnonzero(mine)
 
 
 def _kernel_scores(plan_: Plan, points, rows, idx, row_args, chunk_size, progress) -> np.ndarray:
@@ -387,7 +394,7 @@ def _gfr_graph(cloud: _Cloud, plan_: Plan, cell) -> dict:
     halo = plan_.halo
     while True:
         gids, x, core, index = cloud.indexed(cell, halo, True)
-        rows = np.unique(index.row[core])
+        rows = _core_rows(index, core)
         if cloud.covers(cell, halo, index.points[rows], np.full(rows.size, reach)):
             break
         halo *= 2
