@@ -149,12 +149,33 @@ def key_value(key: int, *, largest: bool) -> float:
     return float(np.array([bits], dtype=np.uint64).view(np.float64)[0])
 
 
-def _digits(keys: np.ndarray, level: int) -> np.ndarray:
-    """The level-th 16-bit digit (from the top) of uint64 keys, as int64."""
-    return ((keys >> np.uint64(64 - RADIX_BITS * (level + 1))) & np.uint64((1 << RADIX_BITS) - 1)).astype(np.int64)
+def _local(parts):
+    """Run ``fn(part, *args)`` on every part, here: the default of :func:`kth_pair`'s ``run``."""
+    return lambda fn, *args: [fn(part, *args) for part in parts]
 
 
-def kth_pair(parts, m: int) -> tuple[int, int]:
+def digit_histogram(part, level: int, prefix: int) -> np.ndarray:
+    """(2^16,) counts of the level-th 16-bit digit of the part's keys whose higher digits are ``prefix``."""
+    keys = part[0]
+    if level:
+        keys = keys[(keys >> np.uint64(64 - RADIX_BITS * level)) == np.uint64(prefix)]
+    digit = (keys >> np.uint64(64 - RADIX_BITS * (level + 1))) & np.uint64((1 << RADIX_BITS) - 1)
+    return np.bincount(digit.astype(np.int64), minlength=1 << RADIX_BITS)
+
+
+def ids_with_key(part, key: int) -> np.ndarray:
+    """The global ids of a part whose key is exactly ``key``."""
+    return part[1][part[0] == np.uint64(key)]
+
+
+def kept_pairs(part, key: int, gid: int):
+    """(keys, gids) of a part at or before the pair (key, gid) in (key, gid) order."""
+    keys, gids = part
+    sel = (keys < np.uint64(key)) | ((keys == np.uint64(key)) & (gids <= gid))
+    return keys[sel], gids[sel]
+
+
+def kth_pair(parts, m: int, *, run=None) -> tuple[int, int]:
     """The m-th smallest (key, global id) pair over several parts, exactly, from summaries.
 
     Four rounds of per-part histograms of the next 16 bits of the keys (integer counts, whose
@@ -166,6 +187,8 @@ def kth_pair(parts, m: int) -> tuple[int, int]:
     Args:
       parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
       m: rank, 1 <= m <= sum n_i.
+      run: ``run(fn, *args)`` returns ``[fn(part, *args) for part in parts]``, computed
+        wherever the parts live (a Dask client's workers); default here.
 
     Returns:
       (key, gid) of the m-th smallest pair in (key, gid) order.
@@ -177,21 +200,18 @@ def kth_pair(parts, m: int) -> tuple[int, int]:
       >>> kth_pair(parts, 2)
       (1, 2)
     """
+    run = run or _local(parts)
     prefix, need = 0, m
-    live = list(parts)
     for level in range(64 // RADIX_BITS):
-        digits = [_digits(keys, level) for keys, _ in live]
-        hist = sum(np.bincount(d, minlength=1 << RADIX_BITS) for d in digits)
-        cum = np.cumsum(hist)
+        cum = np.cumsum(sum(run(digit_histogram, level, prefix)))
         digit = int(np.searchsorted(cum, need))
         need -= int(cum[digit - 1]) if digit else 0
         prefix = (prefix << RADIX_BITS) | digit
-        live = [(keys[d == digit], gids[d == digit]) for (keys, gids), d in zip(live, digits)]
-    ids = np.sort(np.concatenate([gids for _, gids in live]))
+    ids = np.sort(np.concatenate(run(ids_with_key, prefix)))
     return prefix, int(ids[need - 1])
 
 
-def top_pairs(parts, m: int) -> np.ndarray:
+def top_pairs(parts, m: int, *, run=None) -> np.ndarray:
     """Global ids of the m smallest (key, global id) pairs over several parts, in that order.
 
     Exact: the threshold is :func:`kth_pair`'s, and each part contributes the ids at or
@@ -200,13 +220,13 @@ def top_pairs(parts, m: int) -> np.ndarray:
     Args:
       parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
       m: number kept, 1 <= m <= sum n_i.
+      run: as :func:`kth_pair`.
 
     Returns:
       (m,) int64 ids, highest priority (smallest key) first, equal keys by id.
     """
-    key, gid = kth_pair(parts, m)
-    kept = [(keys[sel], gids[sel]) for keys, gids in parts
-            for sel in [(keys < np.uint64(key)) | ((keys == np.uint64(key)) & (gids <= gid))]]
+    run = run or _local(parts)
+    kept = run(kept_pairs, *kth_pair(parts, m, run=run))
     keys = np.concatenate([k for k, _ in kept])
     gids = np.concatenate([g for _, g in kept]).astype(np.int64)
     return gids[np.lexsort((gids, keys))]

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import numpy as np
 
 from hgjax import _stream, _validate, samplers, select, spatial
@@ -87,8 +88,9 @@ class _Cloud:
     """Points by global id, and the global ids of each tile (host; the points are never copied whole)."""
 
     def __init__(self, points: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                 tile: float | None):
+                 tile: float | None, source=None):
         self.points, self.origin, self.lo, self.hi, self.tile = points, origin, lo, hi, tile
+        self.source = source  # the caller's array (an np.memmap is pickled as its file name)
         self._last = None
         n = points.shape[0]
         if tile is None:
@@ -103,6 +105,19 @@ class _Cloud:
         self.members = {np.unravel_index(code[order[s]], self.shape): order[s:e].astype(np.int64)
                         for s, e in zip(np.r_[0, bounds], np.r_[bounds, n])}
         self.members = {tuple(int(c) for c in k): v for k, v in self.members.items()}
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__, _last=None)
+        if self.source is not None and self.source.filename:  # travels as its file, not its bytes
+            m = self.source
+            state["points"] = state["source"] = (m.filename, m.dtype.str, m.offset, m.shape)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        if isinstance(state["points"], tuple):
+            filename, dtype, offset, shape = state["points"]
+            state["points"] = state["source"] = np.memmap(filename, dtype=dtype, mode="r", offset=offset, shape=shape)
+        self.__dict__.update(state)
 
     def indexed(self, cell, halo: float, dedupe: bool):
         """(gids, x, core, index) of :meth:`gather` with a host index over it; the last one is reused."""
@@ -186,45 +201,102 @@ def _reach_k(build: dict) -> int:
     return voxel.LOCAL_K + 1 if "kernel_size" in build else build.get("k", ea.DEFAULT_K)
 
 
-def plan(points, ratio: float, *, method: str, tile: float | None = None, **params) -> tuple[Plan, "_Cloud"]:
-    """Resolve every whole-cloud decision of a tiled run (host).
+class _Here:
+    """Runs the tile tasks one after another in this process."""
+
+    def __init__(self, cloud: _Cloud):
+        self.cloud = cloud
+
+    def tiles(self, fn, *args, cells=None) -> list:
+        return [fn(self.cloud, cell, *args) for cell in (cells or list(self.cloud.members))]
+
+    def each(self, fn, parts, *args) -> list:
+        return [fn(part, *args) for part in parts]
+
+    def gather(self, values) -> list:
+        return values
+
+    def run(self, parts):
+        return lambda fn, *args: self.gather(self.each(fn, parts, *args))
+
+
+class _Dask(_Here):
+    """Runs each tile task as one pure Dask task; results stay on the workers until gathered.
+
+    The tiled cloud is scattered to every worker once (a ``np.memmap`` travels as its file
+    name); a task is a function of the cloud, its cell and the resolved plan only, so a task
+    retried after a worker died computes the same bits.
+    """
+
+    def __init__(self, cloud: _Cloud, client):
+        self.cloud, self.client = cloud, client
+        self.shared = client.scatter(cloud, broadcast=True)
+
+    def tiles(self, fn, *args, cells=None) -> list:
+        return [self.client.submit(fn, self.shared, cell, *args, pure=True) for cell in (cells or list(self.cloud.members))]
+
+    def each(self, fn, parts, *args) -> list:
+        return [self.client.submit(fn, part, *args, pure=True) for part in parts]
+
+    def gather(self, values) -> list:
+        return self.client.gather(values)
+
+
+def _runner(cloud: _Cloud, client) -> _Here:
+    return _Here(cloud) if client is None else _Dask(cloud, client)
+
+
+def plan(points, ratio: float, *, method: str, tile: float | None = None, client=None,
+         **params) -> tuple[Plan, _Cloud]:
+    """Resolve every whole-cloud decision of a tiled run (host, or a Dask client's workers).
 
     Args:
       points: (N, 3) float32 or float64 array (an ``np.memmap`` streams from disk).
       ratio: fraction kept, in (0, 1].
       method: a scoring method that tiles (:data:`TILED`, not the samplers).
       tile: tile edge (> 0) in the points' units, or None for one tile.
+      client: a ``dask.distributed.Client`` that computes the sample's nearest distances, or None.
       **params: the method's build and score parameters.
 
     Returns:
       (plan, cloud): the :class:`Plan` and the tiled cloud it was made for.
     """
+    plan_, cloud = _base(points, ratio, method, tile, params)
+    return _resolved(plan_, _runner(cloud, client)), cloud
+
+
+def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]:
+    """The plan before any decision that needs neighbours, and the tiled cloud."""
     pts = _validate.check_points(points)
     n = pts.shape[0]
     m = _validate.n_keep(n, _validate.check_ratio(ratio))
     if tile is not None:
         tile = _validate.check_positive(tile, "tile")
     build, score = _scoring_params(method, params)
+    if method in CUBE:
+        _validate.check_min_points(n, 2, "HKC/HKF")
+    elif method != "gfr":
+        _validate.check_min_points(n, build["k"], f"k={build['k']} nearest neighbours")
     bmin, bmax = _bounds(pts)
     origin = (bmin + bmax) / 2
     lo, hi = bmin - origin, bmax - origin
     dtype = spatial.working_dtype(pts.dtype)
-    cloud = _Cloud(pts, origin, lo, hi, tile)
+    cloud = _Cloud(pts, origin, lo, hi, tile, points if isinstance(points, np.memmap) else None)
     # The first halo: a few neighbourhood radii at the mean density of the occupied tiles
     # (a surface crossing a cube of edge t with n points has a spacing of about t / sqrt(n)).
     halo = 0.0 if tile is None else HALO_SPACINGS * tile * np.sqrt(_reach_k(build) * len(cloud.members) / n)
-    base = Plan(method, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo))
-    if method in CUBE:
-        _validate.check_min_points(n, 2, "HKC/HKF")
-        build = voxel.resolve(build, _sample_stats(cloud, base) if voxel.needs_stats(build) else None)
-    elif method == "gfr":
-        build["r"] = gfr.squared_radius(build["radius_factor"], _sample_stats(cloud, base))
-        base = dataclasses.replace(base, halo=max(base.halo, 2.5 * np.sqrt(build["r"])))
-    elif method == "lhf":
-        _validate.check_min_points(n, build["k"], f"LHF with length {build['k']}")
-    else:
-        _validate.check_min_points(n, build["k"], f"k={build['k']} nearest neighbourhoods")
-    return dataclasses.replace(base, build=build), cloud
+    return Plan(method, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo)), cloud
+
+
+def _resolved(plan_: Plan, runner: _Here) -> Plan:
+    """The plan with the build parameters that depend on the sample's nearest distances resolved."""
+    build = dict(plan_.build)
+    if plan_.method in CUBE and voxel.needs_stats(build):
+        build = voxel.resolve(build, _sample_stats(runner, plan_))
+    elif plan_.method == "gfr":
+        build["r"] = gfr.squared_radius(build["radius_factor"], _sample_stats(runner, plan_))
+        plan_ = dataclasses.replace(plan_, halo=max(plan_.halo, 2.5 * np.sqrt(build["r"])))
+    return dataclasses.replace(plan_, build=build)
 
 
 def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -233,20 +305,21 @@ def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.min([p.min(axis=0) for p in parts], axis=0), np.max([p.max(axis=0) for p in parts], axis=0)
 
 
-def _sample_stats(cloud: _Cloud, plan_: Plan) -> spatial.SampleStats:
+def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
     """Nearest distances of the seeded sample (:func:`hgjax.spatial.sample_ids`), from the tiles that own it."""
     wanted = spatial.sample_ids(plan_.n)
+    cells = [cell for cell, core in runner.cloud.members.items() if np.isin(core, wanted).any()]
     found = {}
-    for cell, core in cloud.members.items():
-        mine = core[np.isin(core, wanted)]
-        if mine.size:
-            found.update(_tile_stats(cloud, plan_, cell, mine))
+    for part in runner.gather(runner.tiles(_tile_stats, plan_, wanted, cells=cells)):
+        found.update(part)
     pairs = np.array([found[g] for g in wanted.tolist()], dtype=np.float64).reshape(-1, 2)
     return spatial.SampleStats(pairs[:, 0], pairs[:, 1])
 
 
-def _tile_stats(cloud: _Cloud, plan_: Plan, cell, mine: np.ndarray) -> dict:
-    """{gid: (distinct, other)} nearest distances of the sampled core points ``mine`` of one tile."""
+def _tile_stats(cloud: _Cloud, cell, plan_: Plan, wanted: np.ndarray) -> dict:
+    """{gid: (distinct, other)} nearest distances of the sampled core points of one tile."""
+    core = cloud.members[cell]
+    mine = core[np.isin(core, wanted)]
     halo = plan_.halo
     while True:
         gids, x, _, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
@@ -258,14 +331,14 @@ def _tile_stats(cloud: _Cloud, plan_: Plan, cell, mine: np.ndarray) -> dict:
         halo *= 2
 
 
-def tile_scores(cloud: _Cloud, plan_: Plan, cell, *, chunk_size=None, progress=False) -> tuple[np.ndarray, np.ndarray]:
+def tile_scores(cloud: _Cloud, cell, plan_: Plan, stream: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Scores of the core points of one tile, computed on the tile and a verified halo.
 
     Args:
       cloud: the tiled cloud :func:`plan` returned.
-      plan_: the resolved :class:`Plan`.
       cell: the tile's grid cell (i, j, k).
-      chunk_size, progress: streaming options; never change results.
+      plan_: the resolved :class:`Plan`.
+      stream: ``chunk_size`` and ``progress`` of the kernel stream; never change results.
 
     Returns:
       (gids (R,) ascending, scores (R,) or (R, 2) for LHF's two lengths) of the core points.
@@ -285,10 +358,15 @@ def tile_scores(cloud: _Cloud, plan_: Plan, cell, *, chunk_size=None, progress=F
         if cloud.covers(cell, halo, index.points[rows], reach):
             break
         halo *= 2
-    values = _kernel_scores(plan_, index.points, rows, idx, row_args, chunk_size, progress)
+    values = _kernel_scores(plan_, index.points, rows, idx, row_args, stream or {})
+    return gids[core], _per_point(index, rows, core, values)
+
+
+def _per_point(index: spatial.SpatialIndex, rows: np.ndarray, core: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Per-location ``values`` (R, ...) of ``rows`` as the values of the core points (copies share theirs)."""
     at = np.empty(index.n, dtype=np.int64)
     at[rows] = np.arange(rows.size)
-    return gids[core], values[at[index.row[core]]]
+    return values[at[index.row[core]]]
 
 
 def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
@@ -298,11 +376,11 @@ def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
     return np.flatnonzero(mine)
 
 
-def _kernel_scores(plan_: Plan, points, rows, idx, row_args, chunk_size, progress) -> np.ndarray:
-    """The method's kernel on each row's neighbourhood, offsets rounded from float64 coordinates."""
+def _kernel_scores(plan_: Plan, points, rows, idx, row_args, stream: dict) -> np.ndarray:
+    """The method's kernel on each row's neighbourhood (:func:`hgjax._stream.map_rows`)."""
     method, p = plan_.method, plan_.score
     run = lambda fn, narrow: _stream.map_rows(fn, points, rows, idx, row_args=row_args, dtype=plan_.dtype,  # noqa: E731
-                                              chunk_size=chunk_size, progress=progress, narrow=narrow)
+                                              narrow=narrow, **stream)
     if method == "hkc":
         return run(hkc._kernel(p["kernel_size"]), True)
     if method == "hkf":
@@ -320,16 +398,19 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     """Indices of the ceil(ratio N) points a method keeps, computed tile by tile.
 
     The same indices, in the same order, as :func:`hgjax.resample` on the whole cloud,
-    whatever ``tile`` is (module docstring); with ``tile=None`` it is :func:`hgjax.resample`.
-    Memory is bounded by a tile and its halo, not by N (scores aside: 4-8 bytes per point),
-    so an ``np.memmap`` of 1e8 points streams from disk.
+    whatever ``tile`` is and wherever the tiles run (module docstring); with ``tile=None``
+    and no client it is :func:`hgjax.resample`. Memory is bounded by a tile and its halo,
+    not by N (scores aside: 12-16 bytes per point), so an ``np.memmap`` of 1e8 points
+    streams from disk.
 
     Args:
       points: (N, 3) float32 or float64 (NumPy, JAX or ``np.memmap``); never modified.
       ratio: fraction kept, in (0, 1].
       method: a key of :data:`hgjax.METHODS`.
       tile: tile edge (> 0) in the points' units, or None (one tile).
-      client: reserved for a ``dask.distributed.Client``; only None (this process) is supported.
+      client: a ``dask.distributed.Client``: each tile is one pure task on its workers,
+        scores stay there and only per-tile summaries and kept ids travel (extra
+        ``distributed``); None runs the tiles one after another in this process.
       key: ``jax.random`` key of the random methods.
       **params: the method's parameters (as :func:`hgjax.resample`), and ``chunk_size``,
         ``progress``.
@@ -350,39 +431,73 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     from hgjax import pipeline  # the registry imports this module
 
     entry = pipeline._entry(method)
-    if client is not None:
-        raise ValueError("client must be None (tiles run in this process); a Dask client is not supported yet")
-    if tile is not None and method in GLOBAL_ONLY:
+    distributed = tile is not None or client is not None
+    if distributed and method in GLOBAL_ONLY:
         raise ValueError(f"method {method!r} cannot run in tiles (tile={tile!r}): {GLOBAL_ONLY[method]};"
                          " pass tile=None")
     pipeline._split(entry, "build", params)  # unknown names raise
-    if method == "uniform":
-        return samplers.uniform_sample(points, ratio, key=key)
-    if method == "voxel" and tile is not None:
-        return _voxel(points, ratio, tile, params.get("voxel_size"))
-    if method not in TILED or entry.kind is None:
-        return pipeline._whole(points, ratio, entry, key, params)
     if method == "gfr" and params.get("variant") == "reference":
-        if tile is not None:
+        if distributed:
             raise ValueError(f"method 'gfr' with variant='reference' cannot run in tiles (tile={tile!r}): its squared"
                              " radius comes from the min and max nearest distance of the whole cloud; pass tile=None")
         return pipeline._whole(points, ratio, entry, key, params)
+    if method == "uniform":
+        return samplers.uniform_sample(points, ratio, key=key)
+    if method == "voxel" and distributed:
+        return _voxel(points, ratio, tile, params.get("voxel_size"), client)
+    if method not in TILED or entry.kind is None:
+        return pipeline._whole(points, ratio, entry, key, params)
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
-    plan_, cloud = plan(points, ratio, method=method, tile=tile, **params)
-    if method == "gfr":
-        parts = _gfr_scores(cloud, plan_, stream)
-        if plan_.score["mode"] == "random":
-            return _gfr_sample(parts, plan_, _validate.check_key(
-                key, "gfr", ' (or mode="top" for the deterministic top scores)'))
-    else:
-        parts = [tile_scores(cloud, plan_, cell, **stream) for cell in cloud.members]
+    if method == "gfr" and params.get("mode", "random") == "random":
+        key = _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
+    plan_, cloud = _base(points, ratio, method, tile, params)
+    runner = _runner(cloud, client)
+    plan_ = _resolved(plan_, runner)
+    parts = _gfr_scores(runner, plan_, stream) if method == "gfr" else runner.tiles(tile_scores, plan_, stream)
     if method == "lhf":
-        parts = _lhf_combine(parts, plan_.m)
-    largest = bool(entry.largest)
-    return select.top_pairs([(select.order_keys(s, largest=largest), g) for g, s in parts], plan_.m)
+        parts = _lhf_combine(runner, parts, plan_.m)
+    if method == "gfr" and plan_.score["mode"] == "random":
+        total = sum(runner.gather(runner.each(_exact_sum, parts)), select.ExactSum()).value()
+        keyed = runner.each(_gfr_keys, parts, total, plan_.n, np.asarray(jax.random.key_data(key)))
+    else:
+        keyed = runner.each(_keys, parts, bool(entry.largest))
+    return select.top_pairs(keyed, plan_.m, run=runner.run(keyed))
 
 
-def _gfr_graph(cloud: _Cloud, plan_: Plan, cell) -> dict:
+def _keys(part, largest: bool, column: int | None = None):
+    """(keys, gids) of a part's scores (:func:`hgjax.select.order_keys`)."""
+    gids, scores = part
+    return select.order_keys(scores if column is None else scores[:, column], largest=largest), gids
+
+
+def _lhf_combine(runner: _Here, parts, m: int):
+    """LHF's gamma (Eqs. (15)-(16)) per tile, from the two global order statistics Gamma_a, Gamma_b."""
+    big = []
+    for col in range(2):
+        keyed = runner.each(_keys, parts, True, col)
+        big.append(select.key_value(select.kth_pair(keyed, m, run=runner.run(keyed))[0], largest=True))
+    return runner.each(_lhf_mix, parts, big[0], big[1])
+
+
+def _lhf_mix(part, big_a: float, big_b: float):
+    gids, g = part
+    return gids, lhf.mix(g[:, 0], g[:, 1], g.dtype.type(big_a), g.dtype.type(big_b))
+
+
+def _exact_sum(part) -> select.ExactSum:
+    return select.ExactSum.of(part[1])
+
+
+def _gfr_keys(part, total: float, n: int, key_data: np.ndarray):
+    """GFR's Gumbel-top-k keys: log pi + Gumbel(key, gid), pi = 0.8 s / sum(s) + 0.2 / N (Chen et al.)."""
+    gids, s = part
+    pi = 0.8 * s.astype(np.float64) / total + 0.2 / n if total > 0 else np.full(s.size, 1.0 / n)
+    with np.errstate(divide="ignore"):
+        perturbed = np.where(pi > 0, np.log(pi) + select.point_gumbel(key_data, gids), -np.inf)
+    return select.order_keys(perturbed, largest=True), gids
+
+
+def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
     """GFR's graph around the core locations of one tile, and its exact pair sums (Chen et al. 2018).
 
     A core location's stored pairs are those it ranks or that rank it, so every location
@@ -406,48 +521,38 @@ def _gfr_graph(cloud: _Cloud, plan_: Plan, cell) -> dict:
             "sums": gfr.pair_sums(q, rows, sym, index.gid, counts)}
 
 
-def _gfr_scores(cloud: _Cloud, plan_: Plan, stream: dict):
-    """GFR scores of every tile's core points: pair sums over all tiles, then the flows (two passes)."""
-    keep = plan_.n <= GFR_KEEP_POINTS  # small clouds keep each tile's graph between the passes
-    graphs = {cell: _gfr_graph(cloud, plan_, cell) for cell in cloud.members}
-    sums = [sum((g["sums"][i] for g in graphs.values()), select.ExactSum()) for i in range(3)]
-    mean_q, two_var = gfr.moments(sums)
-    if not keep:
-        graphs = dict.fromkeys(graphs)
-    parts = []
-    for cell, g in graphs.items():
-        g = g or _gfr_graph(cloud, plan_, cell)
-        lp = gfr.laplacian_norms(g["index"].points, g["rows"], g["sym"], g["q"], g["counts"], mean_q, two_var,
-                                 plan_.dtype, plan_.dtype, **stream)
-        at = np.empty(g["index"].n, dtype=np.int64)
-        at[g["rows"]] = np.arange(g["rows"].size)
-        parts.append((g["gids"][g["core"]], lp[at[g["index"].row[g["core"]]]].astype(plan_.dtype)))
-    return parts
+def _gfr_sums(graph: dict) -> tuple:
+    return graph["sums"]
 
 
-def _gfr_sample(parts, plan_: Plan, key) -> np.ndarray:
-    """GFR's default selection: Gumbel-top-k with pi = 0.8 s / sum(s) + 0.2 / N (an exact global sum)."""
-    total = sum((select.ExactSum.of(s) for _, s in parts), select.ExactSum()).value()
-    keyed = []
-    for g, s in parts:
-        pi = 0.8 * s.astype(np.float64) / total + 0.2 / plan_.n if total > 0 else np.full(s.size, 1.0 / plan_.n)
-        with np.errstate(divide="ignore"):
-            perturbed = np.where(pi > 0, np.log(pi) + select.point_gumbel(key, g), -np.inf)
-        keyed.append((select.order_keys(perturbed, largest=True), g))
-    return select.top_pairs(keyed, plan_.m)
+def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: dict):
+    """(gids, scores) of a tile's core points from its graph and the global weight statistics."""
+    index, rows, core = graph["index"], graph["rows"], graph["core"]
+    lp = gfr.laplacian_norms(index.points, rows, graph["sym"], graph["q"], graph["counts"], mean_q, two_var,
+                             plan_.dtype, plan_.dtype, **stream)
+    return graph["gids"][core], _per_point(index, rows, core, lp.astype(plan_.dtype))
 
 
-def _lhf_combine(parts, m: int):
-    """LHF's gamma (Eqs. (15)-(16)) per tile, from the two global order statistics Gamma_a, Gamma_b."""
-    big = []
-    for col in range(2):
-        key, _ = select.kth_pair([(select.order_keys(s[:, col], largest=True), g) for g, s in parts], m)
-        big.append(select.key_value(key, largest=True))
-    dtype = parts[0][1].dtype
-    return [(g, lhf.mix(s[:, 0], s[:, 1], dtype.type(big[0]), dtype.type(big[1]))) for g, s in parts]
+def _gfr_tile(cloud: _Cloud, cell, plan_: Plan, mean_q: float, two_var: float, stream: dict):
+    return _gfr_norms(_gfr_graph(cloud, cell, plan_), plan_, mean_q, two_var, stream)
 
 
-def _voxel(points, ratio, tile: float, voxel_size) -> np.ndarray:
+def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
+    """GFR scores of every tile's core points: pair sums over all tiles, then the flows (two passes).
+
+    Dask workers and small clouds keep each tile's graph between the passes; a large cloud
+    in this process builds it again, so memory stays bounded by a tile.
+    """
+    graphs = runner.tiles(_gfr_graph, plan_)
+    sums = runner.gather(runner.each(_gfr_sums, graphs))
+    mean_q, two_var = gfr.moments([sum((t[i] for t in sums), select.ExactSum()) for i in range(3)])
+    if isinstance(runner, _Dask) or plan_.n <= GFR_KEEP_POINTS:
+        return runner.each(_gfr_norms, graphs, plan_, mean_q, two_var, stream)
+    del graphs
+    return runner.tiles(_gfr_tile, plan_, mean_q, two_var, stream)
+
+
+def _voxel(points, ratio, tile, voxel_size, client) -> np.ndarray:
     """``voxel`` in tiles: :func:`hgjax.voxel_sample`'s grid, voxels owned by the tile of their lowest id.
 
     The edge is searched once on the whole cloud (or given); each tile assigns its core
@@ -458,23 +563,32 @@ def _voxel(points, ratio, tile: float, voxel_size) -> np.ndarray:
     """
     pts = _validate.check_points(points)
     n = pts.shape[0]
-    tile = _validate.check_positive(tile, "tile")
+    if tile is not None:
+        tile = _validate.check_positive(tile, "tile")
     m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
     if m is None and voxel_size is None:
         raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
-    grid = samplers.voxel_grid(pts, m, voxel_size)
+    grid = dataclasses.replace(samplers.voxel_grid(pts, m, voxel_size), voxel=None)
     bmin, bmax = _bounds(pts)
     origin = (bmin + bmax) / 2
-    cloud = _Cloud(pts, origin, bmin - origin, bmax - origin, tile)
-    parts, reps = [], []
-    for cell in cloud.members:
-        gids, _, core = cloud.gather(cell, 1.01 * grid.size)
-        rep, counts, first = samplers.voxel_tile(np.asarray(pts[gids], dtype=np.float64).T, grid)
-        owned = core[first]
-        parts.append((select.order_keys(counts[owned].astype(np.float64), largest=True), gids[rep[owned]]))
-        reps.append(gids[rep[owned]])
-    v = sum(g.size for _, g in parts)
-    ranked = select.top_pairs(parts, v if m is None else min(m, v))
+    source = points if isinstance(points, np.memmap) else None
+    runner = _runner(_Cloud(pts, origin, bmin - origin, bmax - origin, tile, source), client)
+    parts = runner.tiles(_voxel_part, grid)
+    v = sum(runner.gather(runner.each(_count, parts)))
+    ranked = select.top_pairs(parts, v if m is None else min(m, v), run=runner.run(parts))
     if m is None or m <= v:
         return ranked
-    return np.concatenate([ranked, np.setdiff1d(np.arange(n), np.concatenate(reps))])[:m].astype(np.int64)
+    reps = np.concatenate([g for _, g in runner.gather(parts)])
+    return np.concatenate([ranked, np.setdiff1d(np.arange(n), reps)])[:m].astype(np.int64)
+
+
+def _voxel_part(cloud: _Cloud, cell, grid) -> tuple[np.ndarray, np.ndarray]:
+    """(keys, gids) of the voxels a tile owns: representatives ranked by population."""
+    gids, _, core = cloud.gather(cell, 1.01 * grid.size)
+    rep, counts, first = samplers.voxel_tile(np.asarray(cloud.points[gids], dtype=np.float64).T, grid)
+    owned = core[first]
+    return select.order_keys(counts[owned].astype(np.float64), largest=True), gids[rep[owned]]
+
+
+def _count(part) -> int:
+    return int(part[1].size)
