@@ -97,14 +97,16 @@ class _Cloud:
             self.shape, self.members = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}
             return
         self.shape = tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
-        cells = np.concatenate([self.cells(self.frame(np.arange(s, min(s + PASS_ROWS, n))))
-                                for s in range(0, n, PASS_ROWS)])
-        code = np.ravel_multi_index(cells.T, self.shape)
+        code = np.empty(n, dtype=np.int64)  # each point's tile, one chunk of the cloud at a time
+        for s in range(0, n, PASS_ROWS):
+            code[s:s + PASS_ROWS] = np.ravel_multi_index(self.cells(self.frame(np.arange(s, min(s + PASS_ROWS, n)))).T,
+                                                         self.shape)
         order = np.argsort(code, kind="stable")  # within a tile, ascending global id
-        bounds = np.flatnonzero(np.diff(code[order])) + 1
-        self.members = {np.unravel_index(code[order[s]], self.shape): order[s:e].astype(np.int64)
-                        for s, e in zip(np.r_[0, bounds], np.r_[bounds, n])}
-        self.members = {tuple(int(c) for c in k): v for k, v in self.members.items()}
+        code = code[order]
+        bounds = np.flatnonzero(code[1:] != code[:-1]) + 1
+        starts = np.r_[0, bounds]
+        self.members = {tuple(int(c) for c in np.unravel_index(code[s], self.shape)): order[s:e]
+                        for s, e in zip(starts, np.r_[bounds, n])}
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__, _last=None)
@@ -231,15 +233,23 @@ class _Dask(_Here):
     def __init__(self, cloud: _Cloud, client):
         self.cloud, self.client = cloud, client
         self.shared = client.scatter(cloud, broadcast=True)
+        self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
 
     def tiles(self, fn, *args, cells=None) -> list:
-        return [self.client.submit(fn, self.shared, cell, *args, pure=True) for cell in (cells or list(self.cloud.members))]
+        return [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True)
+                for cell in (cells or list(self.cloud.members))]
 
     def each(self, fn, parts, *args) -> list:
-        return [self.client.submit(fn, part, *args, pure=True) for part in parts]
+        return [self.client.submit(_task, self.x64, fn, part, *args, pure=True) for part in parts]
 
     def gather(self, values) -> list:
         return self.client.gather(values)
+
+
+def _task(x64: bool, fn, *args):
+    """``fn(*args)`` on a worker, with JAX's 64-bit mode as on the client (only inside the task)."""
+    with jax.enable_x64(x64):
+        return fn(*args)
 
 
 def _runner(cloud: _Cloud, client) -> _Here:

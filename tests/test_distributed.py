@@ -1,0 +1,64 @@
+"""Tiles as Dask tasks on a 2-process LocalCluster: the same indices as one process, worker faults survived."""
+
+import os
+import signal
+import threading
+import time
+
+import jax
+import numpy as np
+import pytest
+
+import hgjax
+from hgjax import tiles
+
+distributed = pytest.importorskip("distributed")
+
+CASES = [("ea", {}), ("lhf", {}), ("hkc", {}), ("gfr", {"key": jax.random.key(1)}), ("gfr", {"mode": "top"}),
+         ("uniform", {"key": jax.random.key(2)}), ("voxel", {})]
+
+
+@pytest.fixture(scope="module")
+def client():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def clouds():
+    smooth = hgjax.eval.box_union_cloud(seed=3, n_points=2500).points
+    return {"smooth": smooth, "rounded": np.round(smooth * 50) / 50}
+
+
+@pytest.mark.parametrize("method,params", CASES, ids=[f"{m}-{p.get('mode', 'default')}" for m, p in CASES])
+@pytest.mark.parametrize("which", ["smooth", "rounded"])
+def test_dask_tiles_equal_one_process(client, clouds, method, params, which):
+    p = clouds[which]
+    want = hgjax.resample(p, 0.2, method=method, **params)
+    got = tiles.resample(p, 0.2, method=method, tile=1.5, client=client, **params)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_a_memmap_travels_as_its_file(client, tmp_path):
+    p = hgjax.eval.box_union_cloud(seed=4, n_points=2500).points.astype(np.float32)
+    np.save(tmp_path / "c.npy", p)
+    disk = np.load(tmp_path / "c.npy", mmap_mode="r")
+    np.testing.assert_array_equal(tiles.resample(disk, 0.2, method="ea", tile=1.5, client=client),
+                                  hgjax.resample(p, 0.2, method="ea"))
+
+
+def test_a_worker_killed_mid_run_changes_nothing(client):
+    p = hgjax.eval.box_union_cloud(seed=5, n_points=6000).points
+    want = hgjax.resample(p, 0.2, method="hkc")
+    pids = client.run(os.getpid)
+    out = {}
+    run = threading.Thread(target=lambda: out.update(idx=tiles.resample(p, 0.2, method="hkc", tile=0.8, client=client)))
+    run.start()
+    deadline = time.monotonic() + 60
+    while not any(client.processing().values()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    os.kill(next(iter(pids.values())), signal.SIGKILL)
+    run.join(timeout=300)
+    np.testing.assert_array_equal(out["idx"], want)
+    client.wait_for_workers(2, timeout=60)  # the nanny restarted it
