@@ -2,16 +2,26 @@
 
 Usage:
   python bench/speed.py                 # N = 1e4, 1e5, 1e6  -> bench/results/speed.md
-  python bench/speed.py --scale         # adds N = 1e7 (streaming; float32) and a log-log PNG
+  python bench/speed.py --scale         # adds N = 1e7 (tiled engine, float32) and a log-log PNG
+  python bench/speed.py --sizes 10000 --methods hkc,ea --repeats 1 --scale --scale-n 2e5 --scale-ref 2e4 \
+      --scale-tile 5e4 --out /tmp/speed_smoke.md     # smoke test of the scale path at small N
   python bench/speed.py --sizes 10000 --methods hkc,lhf --repeats 3 --out /tmp/speed.md
   python bench/speed.py --sizes 1000000 --methods lhf,lhf:reference --out bench/results/speed_lhf_reference.md
   python bench/speed.py --real          # real scans against synthetic clouds -> bench/results/speed_real.md
 
 Each (method, N) runs in a fresh subprocess so its peak RSS is its own. Times are medians of
 ``--repeats`` calls after one warm-up call; the warm-up's extra time is reported as compile
-time. The yardstick ``cKDTree(points).query(points, k=16, workers=-1)`` (random input order,
-tree build included) is timed in the same run. Clouds are sampled uniformly on the surface of
-a box (``hgjax.eval.box_surface``), float32 at 1e7 and float64 (with x64) below.
+time. Two yardsticks are timed in the same run, in one process, in turn: the bare kNN
+``cKDTree(p).query(p, k=16, workers=-1)`` in random input order, and the floor, the same query
+on the Morton-sorted copy ``p[hgjax.spatial_order(p)]`` (tree build included, sort not).
+Clouds are sampled uniformly on the surface of a box (``hgjax.eval.box_surface``), float32 at
+1e7 and float64 (with x64) below.
+
+At N = 1e7 (``--scale``) hkc, hkf, lhf, ea and gfr run through the tiled engine,
+``hgjax.tiles.resample(points, 0.2, method=m, tile=edge)``, with the tile edge taken from the
+box extent so that each occupied tile holds about 1e6 points (``_report.tile_edge``); memory is
+then bounded by a tile and its halo. A method not in ``hgjax.tiles.TILED`` at run time runs in
+one process (``tile=None``) and its row says so.
 
 ``--real`` times real data against synthetic clouds of the same N, all in ONE process (side
 by side, so a shared machine's load hits every cloud alike): the table-and-mug scan
@@ -29,18 +39,22 @@ import json
 import math
 import os
 import platform
-import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
+sys.path.insert(0, str(HERE))
+
+import _report  # noqa: E402
 # Methods whose cost must scale to 1e7 (issue 6); the others are timed up to 1e6.
 SCALE_METHODS = ("hkc", "hkf", "lhf", "ea", "gfr")
+SCALE_TILE_POINTS = 10**6  # points per occupied tile at 1e7
 # Points of the naive loop timed at 1e4, extrapolated per point (naive HKC takes ~2 s a point).
 NAIVE_POINTS = {"hkc": 20, "lhf": 200}
 SMALL_REPEATS = 11  # at least this many timed calls at N <= 1e4, where one call takes ~0.05 s
@@ -52,23 +66,33 @@ REAL_TARGET = 1.2  # real / synthetic of the same N
 DUPLICATE_SHARE = 0.3
 
 
+CLOUDS_ENV = "HGJAX_BENCH_CLOUDS"  # folder where the parent saved the scale cloud for its workers
+SCALE_ENV = "HGJAX_BENCH_SCALE"  # "N,reference N,points per tile" of the scale rows (--scale-n etc.)
+
+
+def _scale_conf() -> tuple[int, int, int]:
+    """(N of the scale rows, N of their one-process reference, points per tile), as the parent set them."""
+    n, ref, per_tile = os.environ.get(SCALE_ENV, f"{10**7},{10**6},{SCALE_TILE_POINTS}").split(",")
+    return int(n), int(ref), int(per_tile)
+
+
 def _cloud(n: int):
     import numpy as np
 
-    from hgjax.eval import box_surface
-
-    pts = box_surface(n, seed=0)
-    return pts.astype(np.float32) if n >= 10**7 else pts
+    return _report.box_cloud(n, np.float32 if n >= _scale_conf()[0] else np.float64, os.environ.get(CLOUDS_ENV))
 
 
-def _run_method(method: str, pts):
+def _run_method(method: str, pts, tile=None):
+    """``hgjax.resample`` (``tile=None``) or the tiled engine with tiles of edge ``tile``."""
     import jax
 
     import hgjax
 
     method, _, variant = method.partition(":")  # "lhf:reference" times a non-default variant
     params = {"variant": variant} if variant else {}
-    return hgjax.resample(pts, 0.2, method=method, key=jax.random.key(0), **params)
+    if tile is None:
+        return hgjax.resample(pts, 0.2, method=method, key=jax.random.key(0), **params)
+    return hgjax.tiles.resample(pts, 0.2, method=method, tile=tile, key=jax.random.key(0), **params)
 
 
 def _build(method: str, pts):
@@ -84,21 +108,13 @@ def _build(method: str, pts):
 def worker(kind: str, n: int, repeats: int) -> dict:
     import jax
 
-    if n < 10**7:
+    if n < _scale_conf()[0]:
         jax.config.update("jax_enable_x64", True)
     pts = _cloud(n)
     times = []
-    if kind == "knn":
-        import numpy as np
-        from scipy.spatial import cKDTree
-
-        perm = np.random.default_rng(0).permutation(n)  # random order, as users' files come
-        p = pts[perm]
-        for _ in range(repeats):
-            t = time.perf_counter()
-            cKDTree(p).query(p, k=16, workers=-1)
-            times.append(time.perf_counter() - t)
-        return {"median": statistics.median(times), "peak_mb": _peak_mb()}
+    if kind == "knn":  # bare (random order) and floor (Morton order), in turn
+        knn = _report.knn_times(pts, repeats)
+        return {"median": knn["bare"], "floor": knn["floor"], "peak_mb": _peak_mb()}
     if kind.startswith("naive:"):
         sys.path.insert(0, str(ROOT / "tests"))
         import naive
@@ -119,7 +135,7 @@ def worker(kind: str, n: int, repeats: int) -> dict:
         per_point = (time.perf_counter() - t) / NAIVE_POINTS[method]
         return {"median": per_point * n, "peak_mb": _peak_mb()}
     method = kind
-    if n >= 10**7:
+    if n >= _scale_conf()[0]:
         return _scale_worker(method, pts, repeats)
     t = time.perf_counter()
     _run_method(method, pts)
@@ -139,20 +155,35 @@ def worker(kind: str, n: int, repeats: int) -> dict:
 
 
 def _scale_worker(method: str, pts, repeats: int) -> dict:
-    """1e7 float32: a warm-up and a timed call, then 1e6 float32 in the same process.
+    """1e7 float32 through the tiled engine: a warm-up and a timed call, then 1e6 float32 in one process.
 
-    The 1e7 time is the second call (compile = first - second; a new N compiles a new kernel
-    since the cloud is a kernel argument). The per-point time at 1e6 comes from a float32 cloud
-    timed like the 1e7 one, so the ratio compares like with like.
+    The tile edge gives occupied tiles of about ``SCALE_TILE_POINTS`` points; a method not in
+    ``hgjax.tiles.TILED`` runs with ``tile=None``. The 1e7 time is the second call (compile =
+    first - second) and the peak RSS is read right after it. The per-point time at 1e6 comes
+    from a float32 cloud run with ``hgjax.resample`` (one process, the same process), so the
+    ratio is the whole cost of going to 1e7 the tiled way.
     """
     import numpy as np
 
+    import hgjax
+
+    _, ref_n, per_tile = _scale_conf()
+    name = method.partition(":")[0]
+    tiled = name in hgjax.tiles.TILED
+    tile = _report.tile_edge(pts, per_tile) if tiled else None
+    engine = {"engine": "one process (not in tiles.TILED)", "tiles": 1, "tile": None}
+    if tile is not None:
+        plan, cloud = hgjax.tiles.plan(pts, 0.2, method=name, tile=tile)
+        sizes = [g.size for g in cloud.members.values()]
+        engine = {"engine": "tiled", "tiles": len(sizes), "tile": tile, "largest_tile": max(sizes)}
+        del plan, cloud
     calls = []
     for _ in range(2):
         t = time.perf_counter()
-        _run_method(method, pts)
+        _run_method(method, pts, tile)
         calls.append(time.perf_counter() - t)
-    small = _cloud(10**6).astype(np.float32)
+    peak = _peak_mb()  # before the 1e6 reference, which is not part of the 1e7 run
+    small = _report.box_cloud(ref_n, np.float32)
     _run_method(method, small)
     times = []
     for _ in range(repeats):
@@ -161,7 +192,7 @@ def _scale_worker(method: str, pts, repeats: int) -> dict:
         times.append(time.perf_counter() - t)
     return {"median": calls[1], "compile": max(calls[0] - calls[1], 0.0), "build": math.nan,
             "us_per_point": calls[1] / len(pts) * 1e6,
-            "us_per_point_1e6": statistics.median(times) / 10**6 * 1e6, "peak_mb": _peak_mb()}
+            "us_per_point_1e6": statistics.median(times) / ref_n * 1e6, "peak_mb": peak, **engine}
 
 
 def _real_clouds() -> list[tuple[str, str, object]]:
@@ -253,16 +284,11 @@ def real_report(r: dict, repeats: int, command: str) -> list[str]:
     return lines
 
 
-def _peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+_peak_mb = _report.peak_mb
 
 
 def _spawn(kind: str, n: int, repeats: int) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--worker", kind, str(n), str(repeats)],
-                         capture_output=True, text=True, cwd=ROOT, check=False)
-    if out.returncode != 0:
-        return {"error": out.stderr.strip().splitlines()[-1] if out.stderr.strip() else "failed"}
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return _report.spawn(Path(__file__), ["--worker", kind, n, repeats])
 
 
 def _device() -> str:
@@ -275,13 +301,19 @@ def _device() -> str:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
-    parser.add_argument("--scale", action="store_true", help="add N = 1e7 and the log-log plot")
+    parser.add_argument("--scale", action="store_true", help="add N = 1e7 (tiled engine) and the log-log plot")
+    parser.add_argument("--scale-n", type=float, default=1e7, help="N of the --scale rows (default 1e7)")
+    parser.add_argument("--scale-ref", type=float, default=1e6,
+                        help="N of their one-process per-point reference (default 1e6)")
+    parser.add_argument("--scale-tile", type=float, default=SCALE_TILE_POINTS,
+                        help="points per occupied tile of the --scale rows (default 1e6)")
     parser.add_argument("--sizes", default="10000,100000,1000000")
     parser.add_argument("--methods", default=None, help="comma list (default: all registered)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--real", action="store_true",
                         help="real scans against synthetic clouds of the same N -> results/speed_real.md")
     parser.add_argument("--out", default=None, help="default results/speed.md (--real: results/speed_real.md)")
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     if args.worker:
         kind, n, repeats = args.worker
@@ -297,7 +329,7 @@ def main(argv=None) -> None:
         methods = args.methods.split(",") if args.methods else list(REAL_METHODS)
         out = subprocess.run([sys.executable, __file__, "--worker", "real", ",".join(methods), str(args.repeats)],
                              stdout=subprocess.PIPE, text=True, cwd=ROOT, check=True)
-        command = "python bench/speed.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        command = "python bench/speed.py " + " ".join(argv)
         lines = real_report(json.loads(out.stdout.strip().splitlines()[-1]), args.repeats, command.strip())
         path = Path(args.out or HERE / "results" / "speed_real.md")
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -308,16 +340,33 @@ def main(argv=None) -> None:
 
     methods = args.methods.split(",") if args.methods else sorted(hgjax.METHODS)
     sizes = [int(float(s)) for s in args.sizes.split(",")]
+    scale_n = int(args.scale_n)
+    os.environ[SCALE_ENV] = f"{scale_n},{int(args.scale_ref)},{int(args.scale_tile)}"  # read by the workers
+    sizes = [n for n in sizes if n < scale_n] + ([scale_n] if args.scale else [])
+    with tempfile.TemporaryDirectory(prefix="hgjax_speed_") as clouds:
+        os.environ[CLOUDS_ENV] = clouds
+        if args.scale:  # saved once: the workers load it instead of sampling it (peak RSS)
+            _report.save_box_cloud(scale_n, "float32", clouds)
+        results = _measure(methods, sizes, args.repeats)
+    lines = _table(results, methods, sizes, args, argv)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text("\n".join(lines) + "\n")
     if args.scale:
-        sizes.append(10**7)
+        _plot(results, methods, sizes, Path(args.out).with_suffix(".png"))
+    print("\n".join(lines))
+
+
+def _measure(methods, sizes, repeats: int) -> dict:
+    """{(kind, N): worker result} of the yardsticks, every method and the naive loops, one process each."""
     results = {}
     for n in sizes:
-        reps = max(args.repeats, SMALL_REPEATS) if n <= 10**4 else args.repeats
-        knn = _spawn("knn", n, reps if n < 10**7 else 1)
+        reps = max(repeats, SMALL_REPEATS) if n <= 10**4 else repeats
+        scale = n >= _scale_conf()[0]
+        knn = _spawn("knn", n, 1 if scale else reps)
         results[("knn", n)] = knn
         print(f"N={n:.0e} knn {knn}", file=sys.stderr, flush=True)
         for m in methods:
-            if n >= 10**7 and m not in SCALE_METHODS:
+            if scale and m.partition(":")[0] not in SCALE_METHODS:
                 continue
             if m in ("fps",) and n > 10**5:
                 continue  # O(N M) by design; reported up to 1e5
@@ -328,48 +377,69 @@ def main(argv=None) -> None:
             for m in ("hkc", "lhf"):
                 if m in methods:
                     results[(f"naive:{m}", n)] = _spawn(f"naive:{m}", n, 1)
+    return results
+
+
+def _table(results: dict, methods, sizes, args, argv) -> list[str]:
+    """Markdown of :func:`_measure`'s results."""
+    import hgjax
+
     lines = [
         "# Speed and memory",
         "",
-        f"Command: `python bench/speed.py{' --scale' if args.scale else ''}"
-        f"{'' if args.sizes == '10000,100000,1000000' else ' --sizes ' + args.sizes}"
-        f"{'' if args.methods is None else ' --methods ' + args.methods}`  ",
-        f"Machine: {os.cpu_count()} cores, {platform.processor() or platform.machine()}, device {_device()}, "
-        f"jax {__import__('jax').__version__}, {time.strftime('%Y-%m-%d')}.  ",
-        f"Medians of {args.repeats} calls ({SMALL_REPEATS} at N <= 1e4) after a warm-up (at 1e7: the second of two calls, float32, build not",
-        "timed separately); ratio = time / bare kNN in the same run;",
+        f"Command: `python bench/speed.py{''.join(' ' + a for a in argv)}`  ",
+        f"Machine: {_report.machine()}.  ",
+        f"Medians of {args.repeats} calls ({SMALL_REPEATS} at N <= 1e4) after a warm-up (at {args.scale_n:.0e}: the second of "
+        f"two calls, float32, tiled engine with tiles of about {args.scale_tile:.0e} points, build not timed separately;",
+        "kNN: one call of each);",
+        "bare kNN = `cKDTree(p).query(p, k=16, workers=-1)` in random order; floor = the same on the Morton-sorted",
+        "copy `p[hgjax.spatial_order(p)]` (tree build included, sort not), both timed in turn in one process;",
+        "/ kNN and / floor = time / that yardstick of the same N in the same run;",
         "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
-        "peak = peak RSS of the process that ran the method (MB).",
+        "peak = peak RSS of the process that ran the method (MB; the kNN process holds both orders).",
         "",
-        "| N | method | median s | / kNN | build s | JAX part / build | points/s | compile s | peak MB |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| N | method | median s | / kNN | / floor | build s | JAX part / build | points/s | compile s | peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
-        base = results[("knn", n)].get("median", math.nan)
-        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | | | {n / base:,.0f} | | "
-                     f"{results[('knn', n)].get('peak_mb', math.nan):.0f} |")
+        knn = results[("knn", n)]
+        if "error" in knn:
+            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | |")
+        base, floor = knn.get("median", math.nan), knn.get("floor", math.nan)
+        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} | | | {n / base:,.0f} | | "
+                     f"{knn.get('peak_mb', math.nan):.0f} |")
+        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | "
+                     f"{n / floor:,.0f} | | |")
         for m in methods:
             r = results.get((m, n))
             if r is None:
                 continue
             if "error" in r:
-                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | |")
+                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | |")
                 continue
             if hgjax.METHODS[m.partition(":")[0]].kind is None:  # samplers: no neighbourhood build
                 build, jax_part = "", ""
             else:
                 ratio = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7
-                build, jax_part = f"{r['build']:.3f}", f"{ratio:.2f}"
-            lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | {build} | "
-                         f"{jax_part} | {n / r['median']:,.0f} | {r['compile']:.2f} | {r['peak_mb']:.0f} |")
-    scale_rows = [(m, results[(m, 10**7)]) for m in methods if "us_per_point" in results.get((m, 10**7), {})]
+                build, jax_part = (f"{r['build']:.3f}", f"{ratio:.2f}") if not math.isnan(ratio) else ("", "")
+            lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | "
+                         f"{r['median'] / floor:.2f} | {build} | {jax_part} | {n / r['median']:,.0f} | "
+                         f"{r['compile']:.2f} | {r['peak_mb']:.0f} |")
+    big = max(sizes)
+    scale_rows = [(m, results[(m, big)]) for m in methods if "us_per_point" in results.get((m, big), {})]
     if scale_rows:
-        lines += ["", "Time per point, float32, 1e7 against 1e6 timed in the same process (medians of "
-                  f"{args.repeats} calls at 1e6; target ratio <= 1.3):", "",
-                  "| method | us/point 1e6 | us/point 1e7 | ratio |", "|---|---|---|---|"]
+        lines += ["", f"Time per point, float32, {big:.0e} (tiled engine, tiles of about {args.scale_tile:.0e} "
+                  "points: `hgjax.tiles.resample(p, 0.2, method=m, tile=edge)`, edge from the box extent) against "
+                  f"{args.scale_ref:.0e} in one process (`hgjax.resample`, float32, same process, median of "
+                  f"{args.repeats} calls); target ratio <= 1.3; peak = peak RSS of the process after the "
+                  f"{big:.0e} calls, before the reference (MB):", "",
+                  f"| method | engine | tiles | largest tile | tile edge | us/point {args.scale_ref:.0e} | us/point "
+                  f"{big:.0e} | ratio | peak MB |", "|---|---|---|---|---|---|---|---|---|"]
         for m, r in scale_rows:
-            lines.append(f"| {m} | {r['us_per_point_1e6']:.3f} | {r['us_per_point']:.3f} | "
-                         f"{r['us_per_point'] / r['us_per_point_1e6']:.2f} |")
+            edge = "" if r.get("tile") is None else f"{r['tile']:.4g}"
+            lines.append(f"| {m} | {r['engine']} | {r['tiles']} | {r.get('largest_tile', big):,} | {edge} | "
+                         f"{r['us_per_point_1e6']:.3f} | {r['us_per_point']:.3f} | "
+                         f"{r['us_per_point'] / r['us_per_point_1e6']:.2f} | {r['peak_mb']:.0f} |")
     naive_rows = [(m, results[(f"naive:{m}", 10**4)]) for m in ("hkc", "lhf") if (f"naive:{m}", 10**4) in results]
     if naive_rows:
         lines += ["", "Naive NumPy loop at N = 1e4 (tests/naive.py; the first points timed in this run, "
@@ -378,11 +448,7 @@ def main(argv=None) -> None:
         for m, r in naive_rows:
             fast = results[(m, 10**4)]["median"]
             lines.append(f"| {m} | {NAIVE_POINTS[m]} | {r['median']:.1f} | {fast:.3f} | {r['median'] / fast:,.0f}x |")
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("\n".join(lines) + "\n")
-    if args.scale:
-        _plot(results, methods, sizes, Path(args.out).with_suffix(".png"))
-    print("\n".join(lines))
+    return lines
 
 
 def _plot(results, methods, sizes, path: Path) -> None:
@@ -397,6 +463,9 @@ def _plot(results, methods, sizes, path: Path) -> None:
         if xs:
             ax.loglog(xs, [results[(m, n)]["median"] for n in xs], "o-" if m != "knn" else "k--",
                       label="bare kNN k=16" if m == "knn" else m)
+    xs = [n for n in sizes if "floor" in results.get(("knn", n), {})]
+    if xs:
+        ax.loglog(xs, [results[("knn", n)]["floor"] for n in xs], "k:", label="floor: Morton kNN k=16")
     ax.set_xlabel("points N")
     ax.set_ylabel("median time (s)")
     ax.set_title(f"hgjax end to end, {_device()}")
