@@ -191,10 +191,6 @@ def _stream(fn, ext, own, idx, row_args, args, chunk, progress):
         rows = slice(start, min(start + chunk, r))
         pad = chunk - (rows.stop - rows.start)
         fill = lambda x, v=0: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), constant_values=v)  # noqa: E731
-        if outputs:
-            # At most one kernel in flight: two programs calling LAPACK eigh at the same time
-            # can deadlock in jaxlib's CPU thread pool.
-            jax.block_until_ready(outputs[-1])
         outputs.append(kernel(*ext, fill(own[rows]), fill(idx[rows], n), tuple(fill(a[rows]) for a in row_args), args))
         if bar is not None:
             bar.update(rows.stop - rows.start)

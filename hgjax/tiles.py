@@ -396,9 +396,6 @@ def _kernel_scores(plan_: Plan, points, rows, idx, row_args, stream: dict) -> np
     if method == "hkf":
         return run(hkf._kernel(p["kernel_size"], p["variant"]), True)
     if method == "lhf":
-        if p["variant"] == "reference" or p["solver"] == "eigh":  # one eigh per program (lhf.single)
-            return np.concatenate([run(lhf._kernel((n,), p["variant"], p["solver"]), False)
-                                   for n in p["lengths"]], axis=1)
         return run(lhf._kernel(p["lengths"], p["variant"], p["solver"]), False)
     return run(ea.variation, False)
 

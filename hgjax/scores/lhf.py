@@ -514,15 +514,7 @@ def single(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: s
     variant = _common.check_variant(variant)
     solver = _validate.check_choice(solver, "solver", SOLVERS)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
-    if variant == "reference" or solver == "eigh":
-        # One length per compiled kernel: two batched LAPACK eigh calls in one XLA CPU program
-        # can deadlock in jaxlib 0.10's thread pool (bench/eigh_deadlock.py).
-        parts = [_stream.map_neighbourhoods(_kernel((n,), variant, solver), nb, chunk_size=chunk_size,
-                                            progress=progress) for n in lengths]
-        out = jnp.concatenate(parts, axis=1) if _stream.is_traced(nb) else np.concatenate(parts, axis=1)
-    else:
-        out = _stream.map_neighbourhoods(_kernel(lengths, variant, solver), nb, chunk_size=chunk_size,
-                                         progress=progress)
+    out = _stream.map_neighbourhoods(_kernel(lengths, variant, solver), nb, chunk_size=chunk_size, progress=progress)
     return out if _stream.is_traced(nb) else np.asarray(out)
 
 
