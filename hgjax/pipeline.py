@@ -347,7 +347,7 @@ def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -
     return tiles.resample(points, ratio, method=method, key=key, **params)
 
 
-def _whole(points, ratio, entry: Method, key, params: dict) -> np.ndarray:
+def _whole(points, ratio, entry: Method, key, params: dict, return_scores: bool = False):
     """The methods that run on the whole cloud at once (samplers, PCA-AC): their own selection."""
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
@@ -355,7 +355,8 @@ def _whole(points, ratio, entry: Method, key, params: dict) -> np.ndarray:
         return entry.select(pts, ratio, **({"key": key} if entry.needs_key else {}), **params)
     nb = neighbourhoods(pts, entry.name, **params)
     scores = score(nb, entry.name, **params, **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
-    return keep(scores, ratio, method=entry.name, key=key, **params)
+    idx = keep(scores, ratio, method=entry.name, key=key, **params)
+    return (idx, np.asarray(scores)) if return_scores else idx
 
 
 def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=0.05, **params) -> jax.Array:

@@ -401,7 +401,7 @@ def _kernel_scores(plan_: Plan, points, rows, idx, row_args, stream: dict) -> np
 
 
 def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None, key=None,
-             **params) -> np.ndarray:
+             return_scores: bool = False, **params):
     """Indices of the ceil(ratio N) points a method keeps, computed tile by tile.
 
     The same indices, in the same order, as :func:`hgjax.resample` on the whole cloud,
@@ -419,11 +419,14 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
         scores stay there and only per-tile summaries and kept ids travel (extra
         ``distributed``); None runs the tiles one after another in this process.
       key: ``jax.random`` key of the random methods.
+      return_scores: also return every point's score (gathered to this process).
       **params: the method's parameters (as :func:`hgjax.resample`), and ``chunk_size``,
         ``progress``.
 
     Returns:
-      (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first, ties by index.
+      (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first, ties by index;
+      with ``return_scores``, (indices, scores) with scores (N,) in the working dtype (LHF's
+      combined gamma), or None for the samplers.
 
     Raises:
       TypeError, ValueError: invalid arguments, or a method that cannot be tiled given a tile.
@@ -438,6 +441,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     from hgjax import pipeline  # the registry imports this module
 
     entry = pipeline._entry(method)
+    return_scores = _validate.check_bool(return_scores, "return_scores")
+    if return_scores and entry.kind is None:
+        return resample(points, ratio, method=method, tile=tile, client=client, key=key, **params), None
     distributed = tile is not None or client is not None
     if distributed and method in GLOBAL_ONLY:
         raise ValueError(f"method {method!r} cannot run in tiles (tile={tile!r}): {GLOBAL_ONLY[method]};"
@@ -447,13 +453,13 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
         if distributed:
             raise ValueError(f"method 'gfr' with variant='reference' cannot run in tiles (tile={tile!r}): its squared"
                              " radius comes from the min and max nearest distance of the whole cloud; pass tile=None")
-        return pipeline._whole(points, ratio, entry, key, params)
+        return pipeline._whole(points, ratio, entry, key, params, return_scores)
     if method == "uniform":
         return samplers.uniform_sample(points, ratio, key=key)
     if method == "voxel" and distributed:
         return _voxel(points, ratio, tile, params.get("voxel_size"), client)
     if method not in TILED or entry.kind is None:
-        return pipeline._whole(points, ratio, entry, key, params)
+        return pipeline._whole(points, ratio, entry, key, params, return_scores)
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
     if method == "gfr" and params.get("mode", "random") == "random":
         key = _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
@@ -468,7 +474,13 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
         keyed = runner.each(_gfr_keys, parts, total, plan_.n, np.asarray(jax.random.key_data(key)))
     else:
         keyed = runner.each(_keys, parts, bool(entry.largest))
-    return select.top_pairs(keyed, plan_.m, run=runner.run(keyed))
+    idx = select.top_pairs(keyed, plan_.m, run=runner.run(keyed))
+    if not return_scores:
+        return idx
+    scores = np.empty(plan_.n, dtype=plan_.dtype)
+    for gids, values in runner.gather(parts):
+        scores[gids] = values
+    return idx, scores
 
 
 def _keys(part, largest: bool, column: int | None = None):
