@@ -33,8 +33,14 @@ MIN_POINT_ROWS = 1 << 16  # the smallest device copy of a cloud's points (see po
 
 
 def is_traced(*trees) -> bool:
-    """True when any leaf is a JAX tracer (the call runs inside jit, vmap or grad)."""
-    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees))
+    """True when the call runs inside jit, vmap or grad: a leaf is a tracer, or a trace is active.
+
+    The second case is a caller's ``jit`` around a function that closes over concrete data
+    (``jax.jit(lambda: hgjax.score(nb, "hkc"))``): every JAX value made there is a tracer,
+    so the pure JAX path must run, never the host stream.
+    """
+    return any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(trees)) or isinstance(jnp.zeros(()),
+                                                                                            jax.core.Tracer)
 
 
 def chunk_rows(chunk_size: int | None = None) -> int:

@@ -147,3 +147,15 @@ def test_memory_of_a_streamed_run_is_bounded_by_the_tile(tmp_path):
     tiled, tiled_peak = peak(1.0)
     np.testing.assert_array_equal(whole, tiled)
     assert tiled_peak < 0.5 * whole_peak, (tiled_peak, whole_peak)
+
+
+@pytest.mark.parametrize("method,params", [("hkc", {}), ("hkf", {}), ("lhf", {"ratio": 0.2}), ("ea", {}), ("gfr", {})])
+def test_closed_over_neighbourhoods_score_under_jit(smooth, method, params):
+    nb = hgjax.neighbourhoods(smooth[:600], method)
+    eager = np.asarray(hgjax.score(nb, method, **params))
+    closed = np.asarray(jax.jit(lambda: hgjax.score(nb, method, **params))())
+    argument = np.asarray(jax.jit(lambda nb: hgjax.score(nb, method, **params))(nb))
+    np.testing.assert_allclose(closed, eager, rtol=1e-6)
+    np.testing.assert_allclose(closed, argument, rtol=1e-12)  # XLA may fold a closed-over constant
+    soft = jax.jit(lambda: hgjax.soft_weights(nb, 0.2, method=method))()
+    np.testing.assert_allclose(np.asarray(soft), np.asarray(hgjax.soft_weights(nb, 0.2, method=method)), rtol=1e-6)
