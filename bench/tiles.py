@@ -142,6 +142,40 @@ def mem_worker(cloud: str, n: int, method: str, edge: str, clouds: str) -> dict:
     return {"wall": time.perf_counter() - t, "peak_mb": _report.peak_mb()}
 
 
+def dask_worker(cloud: str, n: int, method: str, workers: int, repeats: int, edge: float, clouds: str) -> dict:
+    """Tiles as Dask tasks on a LocalCluster of ``workers`` processes (1 thread each), against one process.
+
+    Medians of ``repeats`` calls after a warm-up (each worker compiles its kernels once); the
+    indices are checked against one process; per-worker peak RSS from the workers; scheduler
+    overhead per task = (workers x wall - summed task compute time) / tasks of the last call.
+    """
+    import numpy as np
+    from distributed import Client, LocalCluster, get_task_stream
+
+    import hgjax
+
+    pts = _points(cloud, n, clouds)
+    want = np.asarray(_one(pts, method))
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                      host="127.0.0.1") as cluster, Client(cluster) as client:
+        run = lambda: hgjax.tiles.resample(pts, RATIO, method=method, tile=edge, client=client,  # noqa: E731
+                                           key=__import__("jax").random.key(0))
+        same = bool((np.asarray(run()) == want).all())
+        times = []
+        for _ in range(repeats):
+            with get_task_stream(client) as stream:
+                t = time.perf_counter()
+                got = np.asarray(run())
+                times.append(time.perf_counter() - t)
+            same &= bool((got == want).all())
+        busy = sum(stop - start for task in stream.data for action, start, stop in
+                   ((s["action"], s["start"], s["stop"]) for s in task["startstops"]) if action == "compute")
+        peaks = client.run(lambda: __import__("resource").getrusage(__import__("resource").RUSAGE_SELF).ru_maxrss)
+    return {"wall": statistics.median(times), "identical": same, "tasks": len(stream.data),
+            "overhead_ms": (workers * times[-1] - busy) / max(len(stream.data), 1) * 1e3,
+            "worker_peak_mb": max(peaks.values()) / 1024}
+
+
 def knn_worker(cloud: str, n: int, repeats: int, clouds: str) -> dict:
     return {**_report.knn_times(_points(cloud, n, clouds), repeats), "peak_mb": _report.peak_mb()}
 
@@ -214,6 +248,8 @@ def measure(args) -> dict:
                     row["pair"] = _spawn("pair", cloud, n, m, args.repeats, edge, tmp, timeout=args.timeout)
                     row["mem_one"] = _spawn("mem", cloud, n, m, "none", tmp, timeout=args.timeout)
                     row["mem_tiled"] = _spawn("mem", cloud, n, m, edge, tmp, timeout=args.timeout)
+                    for w in [int(x) for x in args.dask.split(",") if x]:
+                        row[f"dask{w}"] = _spawn("dask", cloud, n, m, w, args.repeats, edge, tmp, timeout=args.timeout)
                 res["rows"].append(row)
                 _log(name, m, row)
         if args.stream:
@@ -322,6 +358,25 @@ def report(res: dict, args) -> tuple[list[str], list[str], list[str]]:
                      f"{pr['tiled'] / knn.get('floor', math.nan):.2f} | {pr['tiles']} | {pr['largest']:,} | "
                      f"{pr['halo']:.4g} | {pr['halo_mean']:.3f} | {pr['halo_all']:.3f} | {peak('mem_one')} | "
                      f"{peak('mem_tiled')} | {same} |")
+    dask = [r for r in res["rows"] if any(k.startswith("dask") for k in r)]
+    if dask:
+        table += ["", "Tiles as Dask tasks (`client=` a LocalCluster of 1 or 2 worker processes, 1 thread each, on "
+                  "this machine), same clouds and edges; wall = median after a warm-up; overhead per task = (workers x "
+                  "wall - summed task compute) / tasks:", "",
+                  "| cloud | method | one process s | workers | wall s | / one process | tasks | overhead ms/task | "
+                  "peak MB per worker | indices |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in dask:
+            for k in sorted(k for k in r if k.startswith("dask")):
+                d, one = r[k], r["pair"]["one"]
+                if "error" in d:
+                    table.append(f"| {r['cloud']} | {r['method']} | | {k[4:]} | error: {d['error']} | | | | | |")
+                    continue
+                same = "identical" if d["identical"] else "**differ**"
+                if not d["identical"]:
+                    bad.append(f"{r['cloud']} {r['method']} dask {k[4:]}")
+                table.append(f"| {r['cloud']} | {r['method']} | {one:.3f} | {k[4:]} | {d['wall']:.3f} | "
+                             f"{d['wall'] / one:.2f} | {d['tasks']} | {d['overhead_ms']:.1f} | "
+                             f"{d['worker_peak_mb']:.0f} | {same} |")
     table += ["", "kNN16 yardsticks of the same clouds (s, medians; peak of their process):", "",
               "| cloud | bare kNN (random order) | floor (Morton order) | bare / floor | peak MB |", "|---|---|---|---|---|"]
     for name, k in res["knn"].items():
@@ -394,6 +449,7 @@ def main(argv=None) -> None:
     parser.add_argument("--min-tiles", type=int, default=8, help="tiles at least, at smaller N (default 8)")
     parser.add_argument("--tmpdir", default=None, help="where the clouds are saved (default: the system's)")
     parser.add_argument("--timeout", type=float, default=None, help="seconds per worker process (default none)")
+    parser.add_argument("--dask", default="1,2", help="Dask worker counts to time beside one process ('' for none)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: --sizes 2e4,1e5 --repeats 1 --stream 2e5 --per-tile 2.5e4 (scan included)")
     parser.add_argument("--out", default=None, help="default results/tiles.md (--quick: /tmp/tiles_quick.md)")
@@ -404,6 +460,7 @@ def main(argv=None) -> None:
         fn = {"pair": lambda c, n, m, r, e, d: pair_worker(c, int(n), m, int(r), float(e), d),
               "mem": lambda c, n, m, e, d: mem_worker(c, int(n), m, e, d),
               "knn": lambda c, n, r, d: knn_worker(c, int(n), int(r), d),
+              "dask": lambda c, n, m, w, r, e, d: dask_worker(c, int(n), m, int(w), int(r), float(e), d),
               "stream": stream_worker}[kind]
         print(json.dumps(fn(*a)))
         return

@@ -49,7 +49,7 @@ GLOBAL_ONLY = {
     "fps": "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles",
 }
 CUBE = ("hkc", "hkf")
-HALO_SPACINGS = 4  # the first halo, in mean sample spacings times sqrt(K)
+HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K)
 GFR_KEEP_POINTS = 4_000_000  # up to this N, GFR keeps each tile's graph between its two passes
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
 
