@@ -201,6 +201,9 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
     return dataclasses.replace(nb, method=method)
 
 
+_CHECKS = {"kernel_size": _validate.check_kernel_size, "lengths": _validate.check_lengths}
+
+
 def _matching(nb, entry: Method, stage: str, params: dict) -> dict:
     """``params`` of ``stage`` with the build parameters ``nb`` records filled in; a mismatch raises.
 
@@ -218,6 +221,8 @@ def _matching(nb, entry: Method, stage: str, params: dict) -> dict:
     for name in entry.params[stage] & entry.params["build"]:
         if name not in built or built[name] is None:
             continue
+        if name in out:
+            out[name] = _CHECKS.get(name, lambda v: v)(out[name])  # a bad value is named as such first
         given = out.setdefault(name, built[name])
         if (tuple(given) if isinstance(given, list) else given) != built[name]:
             raise ValueError(f"{name}={given!r} disagrees with the neighbourhoods, built with {name}={built[name]!r};"
