@@ -1,0 +1,253 @@
+"""The ``hgjax`` console script as scan users run it: no data loss, input order, batches
+that lose no work, and signals at every stage (subprocesses through the installed entry point)."""
+
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import hgjax
+from hgjax import io
+
+HGJAX = shutil.which("hgjax")
+PACKAGE_ROOT = str(pathlib.Path(hgjax.__file__).resolve().parents[1])
+N = 2000
+
+HOOK = '''
+"""Test hook: at one stage of an hgjax run, send a signal to this process or pause."""
+import os, signal, sys, threading, time
+
+import numpy as np
+import scipy.spatial
+
+stage, action = os.environ["HGJAX_TEST_HOOK"].split(":")
+
+
+def fire():
+    if action == "pause":
+        print("hook: paused", file=sys.stderr, flush=True)
+        time.sleep(600)
+    else:
+        os.kill(os.getpid(), getattr(signal, action))
+
+
+def fire_soon():
+    threading.Timer(0.2, fire).start()
+
+
+class Tree(scipy.spatial.cKDTree):
+    def query(self, x, *args, **kwargs):  # a query long enough for the signal to land inside
+        big = np.repeat(np.asarray(x, float), max(1, 2_000_000 // len(x)), axis=0)
+        fire_soon()
+        while True:
+            super().query(big, k=16, workers=-1)
+
+
+if stage == "neighbours":
+    scipy.spatial.cKDTree = Tree
+
+import hgjax
+import hgjax.io
+
+if stage == "read":
+    read_npy = hgjax.io._read_npy
+
+    def _read_npy(path):
+        columns = read_npy(path)
+        fire()
+        return columns
+
+    hgjax.io._read_npy = _read_npy
+elif stage == "score":
+    score = hgjax.score
+
+    def looping_score(nb, method, **params):
+        fire_soon()
+        while True:
+            score(nb, method, **params).block_until_ready()
+
+    hgjax.score = looping_score
+elif stage == "write":
+    atomic_write = hgjax.io._atomic_write
+
+    class Signalling:
+        def __init__(self, fh):
+            self.fh, self.fired = fh, False
+
+        def write(self, data):
+            written = self.fh.write(data)
+            if not self.fired:
+                self.fired = True
+                self.fh.flush()
+                fire()
+            return written
+
+        def __getattr__(self, name):
+            return getattr(self.fh, name)
+
+    hgjax.io._atomic_write = lambda target, write: atomic_write(target, lambda fh: write(Signalling(fh)))
+'''
+
+
+@pytest.fixture(scope="module")
+def scan(tmp_path_factory):
+    """One small cloud, as .npy and as a LAS scan with increasing GPS time."""
+    pytest.importorskip("laspy")
+    folder = tmp_path_factory.mktemp("scan")
+    points = hgjax.eval.box_union_cloud(seed=0, n_points=N).points
+    np.save(folder / "c.npy", points)
+    io.write_points(folder / "scan.las", points, attributes={"gps_time": np.linspace(0.0, 1.0, N)})
+    return folder
+
+
+def env(tmp_path, hook=None):
+    """The environment of a subprocess: this package first on the path, a private cache, and
+    with ``hook`` ("STAGE:ACTION"), the test hook above."""
+    paths = [PACKAGE_ROOT]
+    if hook is not None:
+        (tmp_path / "hook").mkdir(exist_ok=True)
+        (tmp_path / "hook" / "sitecustomize.py").write_text(HOOK)
+        paths.insert(0, str(tmp_path / "hook"))
+    result = {**os.environ, "PYTHONPATH": os.pathsep.join(paths), "HGJAX_CACHE_DIR": str(tmp_path / "cache")}
+    if hook is not None:
+        result["HGJAX_TEST_HOOK"] = hook
+    return result
+
+
+def hgjax_cli(tmp_path, *args, hook=None, timeout=120):
+    proc = subprocess.run([HGJAX, *map(str, args)], cwd=tmp_path, env=env(tmp_path, hook), capture_output=True,
+                          text=True, timeout=timeout)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return proc
+
+
+def test_the_console_script_runs_this_package(tmp_path):
+    proc = subprocess.run([HGJAX, "--version"], env=env(tmp_path), capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"hgjax {hgjax.__version__}"
+
+
+def test_npy_output_onto_its_input_holds_the_kept_points(tmp_path, scan):
+    path = tmp_path / "c.npy"
+    shutil.copy(scan / "c.npy", path)
+    source = np.load(path)
+    proc = hgjax_cli(tmp_path, "resample", path, "-o", path, "--method", "fps", "--ratio", 0.3)
+    assert proc.returncode == 0, proc.stderr
+    kept = io.read_points(path)
+    assert len(kept) == 600
+    assert set(map(tuple, kept.points)) <= set(map(tuple, source))  # points, not indices
+
+
+def test_truncated_las_is_an_error_naming_the_file(tmp_path, scan):
+    import laspy
+
+    header = laspy.read(scan / "scan.las").header
+    cut = tmp_path / "cut.las"
+    cut.write_bytes((scan / "scan.las").read_bytes()[:header.offset_to_point_data + 1000 * header.point_format.size])
+    proc = hgjax_cli(tmp_path, "resample", cut, "-o", tmp_path / "out.las", "--method", "fps")
+    assert proc.returncode == 2
+    assert "cut.las" in proc.stderr and "1000 points" in proc.stderr and f"announces {N}" in proc.stderr
+    assert not (tmp_path / "out.las").exists()
+
+
+def test_dash_is_refused_and_never_made_a_file(tmp_path, scan):
+    proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", "-")
+    assert proc.returncode == 2 and "standard output" in proc.stderr
+    proc = hgjax_cli(tmp_path, "resample", "-", "-o", "kept.ply")
+    assert proc.returncode == 2 and "standard input" in proc.stderr
+    proc = hgjax_cli(tmp_path, "compare", scan / "c.npy", "-o", "-", "--methods", "fps")
+    assert proc.returncode == 2 and "standard output" in proc.stderr
+    assert sorted(os.listdir(tmp_path)) == ["cache"]
+
+
+def test_kept_points_keep_the_scan_order(tmp_path, scan):
+    proc = hgjax_cli(tmp_path, "resample", scan / "scan.las", "-o", tmp_path / "in.las", "--method", "hkc")
+    assert proc.returncode == 0, proc.stderr
+    gps = io.read_points(tmp_path / "in.las").attributes["gps_time"]
+    assert len(gps) == 400 and np.all(np.diff(gps) > 0)
+    proc = hgjax_cli(tmp_path, "resample", scan / "scan.las", "-o", tmp_path / "best.las", "--method", "hkc",
+                     "--order", "priority")
+    assert proc.returncode == 0, proc.stderr
+    best = io.read_points(tmp_path / "best.las").attributes
+    assert np.all(np.diff(best["score"]) >= 0) and not np.all(np.diff(best["gps_time"]) > 0)
+    np.testing.assert_array_equal(np.sort(best["gps_time"]), gps)
+
+
+@pytest.mark.parametrize("stage, action", [("read", "SIGINT"), ("neighbours", "SIGINT"), ("score", "SIGINT"),
+                                           ("write", "SIGINT"), ("neighbours", "SIGTERM"), ("write", "SIGTERM")])
+def test_signals_at_every_stage_exit_cleanly(tmp_path, scan, stage, action):
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", out / "kept.ply", "--method", "hkc",
+                     hook=f"{stage}:{action}")
+    code, message = {"SIGINT": (130, "hgjax: interrupted"), "SIGTERM": (143, "hgjax: terminated")}[action]
+    assert proc.returncode == code, proc.stderr
+    assert proc.stderr.splitlines()[-1] == message and proc.stdout == ""
+    assert os.listdir(out) == []  # neither the output nor a temporary file
+
+
+def test_ctrl_c_during_a_laz_write_exits_130(tmp_path, scan):
+    proc = hgjax_cli(tmp_path, "resample", scan / "scan.las", "-o", tmp_path / "kept.laz", "--method", "fps",
+                     hook="write:SIGINT")
+    assert proc.returncode == 130 and "LazrsError" not in proc.stderr, proc.stderr
+    assert sorted(os.listdir(tmp_path)) == ["cache", "hook"]
+
+
+def test_kill_9_during_a_write_is_cleaned_up_by_the_next_run(tmp_path, scan):
+    out = tmp_path / "out"
+    out.mkdir()
+    with subprocess.Popen([HGJAX, "resample", scan / "c.npy", "-o", out / "kept.ply", "--method", "fps"],
+                          env=env(tmp_path, "write:pause"), stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            for line in proc.stderr:
+                if line.startswith("hook: paused"):
+                    break
+        finally:
+            proc.kill()
+    (temp,) = os.listdir(out)
+    assert temp.startswith(".kept.ply.") and temp.endswith(".tmp")
+    neighbour = out / ".kept.ply.otherhost.1.0123456789ab.tmp"  # another machine's writer: left alone
+    neighbour.write_bytes(b"")
+    proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", out / "kept.ply", "--method", "fps")
+    assert proc.returncode == 0, proc.stderr
+    assert f"removed {out / temp}" in proc.stderr
+    assert sorted(os.listdir(out)) == sorted([neighbour.name, "kept.ply"])
+
+
+def test_attributes_the_output_format_cannot_hold_are_refused_before_computing(tmp_path, scan):
+    points = np.load(scan / "c.npy")
+    io.write_points(tmp_path / "a.ply", points)
+    io.write_points(tmp_path / "b.ply", points, attributes={"intensity": np.linspace(0, 1, N, dtype=np.float32)})
+    start = time.perf_counter()
+    proc = hgjax_cli(tmp_path, "resample", tmp_path / "a.ply", tmp_path / "b.ply", "-o", tmp_path / "out",
+                     "--format", "las", "--method", "lhf")
+    assert proc.returncode == 2 and "b.ply" in proc.stderr and "'intensity'" in proc.stderr, proc.stderr
+    assert "nothing was written" in proc.stderr and os.listdir(tmp_path / "out") == []
+    assert " kept " not in proc.stderr and time.perf_counter() - start < 30
+
+
+def test_a_bad_file_in_a_batch(tmp_path, scan):
+    src = tmp_path / "tiles"
+    src.mkdir()
+    for name in "acd":
+        shutil.copy(scan / "c.npy", src / f"{name}.npy")
+    (src / "b.npy").write_bytes(b"\x93NUMPY not really")
+    proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps")
+    assert proc.returncode == 2 and "b.npy" in proc.stderr and "nothing was written" in proc.stderr
+    assert os.listdir(tmp_path / "out") == []
+    proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps", "--keep-going")
+    assert proc.returncode == 1 and "1 of 4 inputs failed" in proc.stderr and "b.npy" in proc.stderr
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply"]
+    os.remove(tmp_path / "out" / "c.ply")
+    before = {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
+    os.remove(src / "b.npy")
+    proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps", "--skip-existing")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.count("(--skip-existing)") == 2 and proc.stderr.count(" kept ") == 1
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply"]
+    assert before == {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
