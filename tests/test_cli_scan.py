@@ -42,11 +42,13 @@ def fire_soon():
 
 
 class Tree(scipy.spatial.cKDTree):
-    def query(self, x, *args, **kwargs):  # a query long enough for the signal to land inside
-        big = np.repeat(np.asarray(x, float), max(1, 2_000_000 // len(x)), axis=0)
+    def query(self, x, *args, **kwargs):
+        """A threaded search long enough for the signal to land inside and for its threads to
+        outlive the interpreter's shutdown (every point within the radius of every query)."""
+        big = np.repeat(np.asarray(x, float), max(1, 400_000 // len(x)), axis=0)
         fire_soon()
         while True:
-            super().query(big, k=16, workers=-1)
+            super().query_ball_point(big, 1e30, return_length=True, workers=-1)
 
 
 if stage == "neighbours":
@@ -77,12 +79,14 @@ elif stage == "write":
     atomic_write = hgjax.io._atomic_write
 
     class Signalling:
+        """Fires once the file holds more than its header (point data: written by lazrs for LAZ)."""
+
         def __init__(self, fh):
             self.fh, self.fired = fh, False
 
         def write(self, data):
             written = self.fh.write(data)
-            if not self.fired:
+            if not self.fired and self.fh.tell() > 2048:
                 self.fired = True
                 self.fh.flush()
                 fire()
