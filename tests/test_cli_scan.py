@@ -255,3 +255,46 @@ def test_a_bad_file_in_a_batch(tmp_path, scan):
     assert proc.stderr.count("(--skip-existing)") == 2 and proc.stderr.count(" kept ") == 1
     assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply"]
     assert before == {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
+
+
+def test_verbose_prints_the_seconds_of_each_stage(tmp_path, scan):
+    proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", tmp_path / "k.ply", "--method", "hkc", "-v")
+    assert proc.returncode == 0, proc.stderr
+    stages = [line.split(":")[0].split()[0] for line in proc.stderr.splitlines() if line.startswith("  ")]
+    assert stages == ["read", "neighbourhoods", "score", "keep", "write"]
+
+
+def test_score_writes_finite_values(tmp_path):
+    line = np.c_[np.linspace(0.0, 1.0, 500), np.zeros(500), np.zeros(500)]  # HKC: +inf where no low band
+    io.write_points(tmp_path / "line.ply", line)
+    scores = np.asarray(hgjax.score(hgjax.neighbourhoods(line, "hkc"), "hkc"))
+    assert np.isinf(scores).any() and np.isfinite(scores).any()
+    proc = hgjax_cli(tmp_path, "score", tmp_path / "line.ply", "-o", tmp_path / "s.ply", "--method", "hkc")
+    assert proc.returncode == 0, proc.stderr
+    written = io.read_points(tmp_path / "s.ply").attributes["score"]
+    assert np.isfinite(written).all()
+    finite = np.isfinite(scores)
+    np.testing.assert_allclose(written[finite], scores[finite], rtol=1e-6)
+    np.testing.assert_allclose(written[~finite], scores[finite].max(), rtol=1e-6)
+
+
+def test_samples_memory_uses_the_method_cost_and_the_cgroup_limit(tmp_path, monkeypatch):
+    from hgjax import cli
+
+    mesh = str(pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "fandisk.obj")
+    monkeypatch.setattr(cli, "_available_memory", lambda: 3 * 10**9)
+    cli._check_samples(10**6, [mesh], ["hkc"])
+    with pytest.raises(cli.UsageError, match="with gfr, more than the 3.0 GB available"):
+        cli._check_samples(10**6, [mesh], ["hkc", "gfr"])
+    monkeypatch.undo()
+    unlimited = cli._available_memory(str(tmp_path / "none"))
+    (tmp_path / "v2").mkdir()
+    (tmp_path / "v2" / "memory.max").write_text(f"{2**30}\n")
+    (tmp_path / "v2" / "memory.current").write_text(f"{2**28}\n")
+    assert cli._available_memory(str(tmp_path / "v2")) == min(unlimited, 2**30 - 2**28)
+    (tmp_path / "v2" / "memory.max").write_text("max\n")
+    assert cli._available_memory(str(tmp_path / "v2")) == pytest.approx(unlimited, rel=0.2)
+    (tmp_path / "v1" / "memory").mkdir(parents=True)
+    (tmp_path / "v1" / "memory" / "memory.limit_in_bytes").write_text(f"{2**29}\n")
+    (tmp_path / "v1" / "memory" / "memory.usage_in_bytes").write_text(f"{2**28}\n")
+    assert cli._available_memory(str(tmp_path / "v1")) == min(unlimited, 2**28)
