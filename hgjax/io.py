@@ -388,6 +388,8 @@ def _pcd_ascii_fields(fh: BinaryIO, fields: list[tuple], n: int, path: str) -> d
 
     Values are parsed as float64 and then cast, so a packed ``rgb`` float written as PCL
     writes it (the packed unsigned integer) keeps its bits."""
+    if n == 0:
+        raise PointCloudReadError(f"cannot read {path}: the file holds no points (POINTS 0)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # np.loadtxt warns on a body without rows
         table = np.loadtxt(fh, dtype=np.float64, ndmin=2, encoding="ascii")
