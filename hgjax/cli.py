@@ -47,7 +47,7 @@ examples:
   hgjax resample part.stl -o kept.npy --samples 50000 --method lhf
   hgjax resample tiles/ -o kept/ --format laz --keep-going --skip-existing   resume a batch
   hgjax resample scan.ply -o grid.ply --method voxel --voxel-size 0.05
-  hgjax score scan.pcd -o scored.ply --method hkf -p 'lengths=(10,30)'
+  hgjax score scan.pcd -o scored.ply --method lhf -p lengths=10,30
   hgjax compare bunny.ply -o out/ --methods hkc,hkf,lhf,fps
 
 Inputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY point clouds, and meshes (OBJ, STL, OFF, GLB/GLTF,
@@ -74,6 +74,7 @@ exit codes:
 """
 
 DEFAULT_RATIO = 0.2
+DEMO_PICTURE = "hgjax-demo.png"
 SEED_LIMIT = 2**32
 BYTES_PER_SAMPLE = {"ea": 2048, "fps": 2048, "gfr": 4096, "hkc": 2048, "hkf": 2048, "lhf": 2048, "pca_ac": 2048,
                     "uniform": 2048, "voxel": 2048}
@@ -141,6 +142,16 @@ def _seed(text: str) -> int:
     return value
 
 
+def _view(text: str) -> tuple[float, float]:
+    try:
+        elev, azim = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ELEV,AZIM in degrees, e.g. 25,-60; got {text!r}") from None
+    if not (np.isfinite(elev) and np.isfinite(azim)):
+        raise argparse.ArgumentTypeError(f"must be finite; got {text!r}")
+    return elev, azim
+
+
 def _param(text: str) -> tuple[str, object]:
     name, sep, value = text.partition("=")
     if not sep or not name.isidentifier():
@@ -192,11 +203,17 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--samples", type=_positive(int), default=None,
                        help="points sampled on a mesh (default 20000), or a seeded subset of a cloud")
 
+    def with_picture(p):
+        p.add_argument("--view", type=_view, default=(25.0, -60.0), metavar="ELEV,AZIM",
+                       help="camera elevation and azimuth of the picture in degrees (default 25,-60)")
+        p.add_argument("--zoom", type=_positive(float), default=1.0, help="picture magnification about the"
+                       " cloud's centre (default 1: the whole cloud)")
+
     def with_method(p, names):
         p.add_argument("--method", choices=names, default="hkc", help=f"one of {', '.join(names)} (default hkc)")
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
-                       help="method parameter, e.g. -p lengths=(10,30) (repeatable; see hgjax.METHODS)")
+                       help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")
 
     p = sub.add_parser("resample", parents=[common], help="keep a fraction of the points",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -225,18 +242,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help="ratio for scores that need one (LHF)")
 
     p = sub.add_parser("compare", parents=[common], help="run several methods and tabulate them",
-                       description="Run several methods on one input; print a markdown table and, with"
-                       " -o DIR, write compare.md, compare.csv and compare.png (needs matplotlib).")
+                       description="Run several methods on one input; print a markdown table (coverage"
+                       " gaps and the share of sharp features kept) and, with -o DIR, write compare.md,"
+                       " compare.csv and compare.png (kept points in red over the grey cloud; needs"
+                       " matplotlib).")
     with_inputs(p, several=False)
     p.add_argument("-o", "--output", default=None, metavar="DIR", help="output folder")
     p.add_argument("--methods", default=",".join(methods), help="comma-separated methods (default: all)")
     p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help=f"fraction kept (default {DEFAULT_RATIO})")
+    with_picture(p)
 
     p = sub.add_parser("demo", parents=[common], help="all methods on a built-in edge-labelled cloud",
-                       description="Sample a union of boxes with known sharp edges, run every method and"
-                       " print the point counts, the time and the precision of kept edge points.")
+                       description="Sample a union of boxes with known sharp edges, run every method,"
+                       " print the point counts, the time and the precision of kept edge points, and"
+                       " draw the kept points.")
     p.add_argument("--n-points", type=_positive(int), default=20000, help="cloud size (default 20000)")
     p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help=f"fraction kept (default {DEFAULT_RATIO})")
+    p.add_argument("-o", "--output", default=DEMO_PICTURE, metavar="PNG",
+                   help=f"picture of the kept points (default {DEMO_PICTURE} in the current folder; needs"
+                   " matplotlib)")
+    with_picture(p)
     return parser
 
 
@@ -678,34 +703,69 @@ def cmd_compare(args) -> None:
             raise UsageError(f"cannot write to {args.output}: the directory is not writable")
     data = _load(path, args)
     res = hgjax.intrinsic_resolution(data.points)
+    unit, unit_name = _gap_unit(data.points, res)
+    variation = _feature_variation(data.points)
     rows, kept = [], {}
     key, progress = _key(args), _progress(args)
     for method in methods:
         idx, _, seconds = _compute(hgjax.METHODS[method], data.points, args.ratio, {}, key, progress, args)
         mean, worst = _coverage(data.points, idx)
         kept[method] = idx
-        rows.append([method, idx.size, len(data), f"{seconds:.3f}", f"{mean / res:.3f}", f"{worst / res:.3f}"])
-    header = ["method", "kept", "points", "seconds", "mean gap (res)", "max gap (res)"]
+        share = f"{variation[idx].mean() / variation.mean():.2f}" if variation.mean() > 0 else "-"
+        rows.append([method, idx.size, len(data), f"{seconds:.3f}", f"{mean / unit:.3f}", f"{worst / unit:.3f}",
+                     share])
+    header = ["method", "kept", "points", "seconds", f"mean gap ({unit_name})", f"max gap ({unit_name})",
+              "feature share"]
     table = "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
                       + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
-    print(f"{path}: ratio {args.ratio}, resolution {res:.4g} (gap = distance from a point to the"
-          f" nearest kept point)\n\n{table}")
+    print(f"{path}: ratio {args.ratio}, resolution {res:.4g}. Gap: distance from a point to the nearest kept"
+          " point (small: even coverage). Feature share: mean surface variation of the kept points over"
+          " that of all points (above 1: sharp edges and corners kept preferentially; EA maximises it by"
+          f" definition).\n\n{table}")
     if args.output is None:
         return
     with open(os.path.join(args.output, "compare.md"), "w") as fh:
         fh.write(table + "\n")
     with open(os.path.join(args.output, "compare.csv"), "w", newline="") as fh:
         csv.writer(fh).writerows([header] + rows)
-    written = "compare.md, compare.csv"
+    picture = _picture(data.points, kept, os.path.join(args.output, "compare.png"), args,
+                       colors=data.attributes.get("colors"), title=os.path.basename(path))
+    print(f"wrote compare.md, compare.csv{', compare.png' * bool(picture)} to {args.output}", file=sys.stderr)
+
+
+def _gap_unit(points: np.ndarray, res: float) -> tuple[float, str]:
+    """The unit of coverage gaps: the intrinsic resolution, else (a cloud whose points mostly
+    coincide) the bounding-box diagonal, else 1."""
+    if res > 0:
+        return res, "res"
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    return (diagonal, "diagonal") if diagonal > 0 else (1.0, "units")
+
+
+def _feature_variation(points: np.ndarray) -> np.ndarray:
+    """Surface variation (EA's score) of every point: 0 on planes, up to 1/3 at corners; all 0
+    for a cloud of fewer points than EA's neighbourhoods hold."""
+    import hgjax
+
+    if len(points) < hgjax.scores.ea.DEFAULT_K:
+        return np.zeros(len(points))
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(hgjax.local_frame(points)[0], "ea"), "ea"), np.float64)
+
+
+def _picture(points, kept: dict, path: str, args, **style) -> bool:
+    """Draw the kept points of each method over the grey cloud to ``path``; False, with a note,
+    where matplotlib is missing."""
     try:
         from hgjax.plot import show_resampling
-
-        show_resampling(data.points, kept, colors=data.attributes.get("colors"), title=os.path.basename(path),
-                        path=os.path.join(args.output, "compare.png"))
-        written += ", compare.png"
     except ImportError as err:
         print(f"no picture written: {err}", file=sys.stderr)
-    print(f"wrote {written} to {args.output}", file=sys.stderr)
+        return False
+    try:
+        show_resampling(points, kept, view=args.view, zoom=args.zoom, context=True, path=path, **style)
+    except ImportError as err:
+        print(f"no picture written: {err}", file=sys.stderr)
+        return False
+    return True
 
 
 def cmd_demo(args) -> None:
@@ -717,10 +777,17 @@ def cmd_demo(args) -> None:
           f" keeping {args.ratio:g}")
     print(f"{'method':<8} {'points':>7} {'kept':>6} {'seconds':>8} {'edge precision':>15}")
     key, progress = _key(args), _progress(args)
+    kept = {}
     for method in sorted(hgjax.METHODS):
         idx, _, seconds = _compute(hgjax.METHODS[method], cloud.points, args.ratio, {}, key, progress, args)
+        kept[method] = idx
         print(f"{method:<8} {len(edge):>7} {idx.size:>6} {seconds:>8.2f} {float(edge[idx].mean()):>15.3f}")
     print(f"(a random subset keeps edge points with precision {edge.mean():.3f} on average)")
+    if args.output is not None and _picture(np.asarray(cloud.points), kept, args.output, args,
+                                            title="hgjax demo: kept points (red) over the cloud"):
+        print(f"wrote the picture to {os.path.abspath(args.output)}")
+    print("next: hgjax resample YOUR_SCAN.ply -o kept.ply --method hkc --ratio 0.2   (or hgjax compare"
+          " YOUR_SCAN.ply -o out/ to pick a method)")
 
 
 COMMANDS = {"resample": cmd_resample, "score": cmd_score, "compare": cmd_compare, "demo": cmd_demo}

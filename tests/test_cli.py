@@ -203,13 +203,18 @@ def test_score_float64(tmp_path):
     assert score.dtype == np.float64
 
 
-def test_demo_runs_every_method():
-    proc = run("demo", "--n-points", 2000, "--quiet")
+def test_demo_runs_every_method_and_draws_them(tmp_path):
+    import matplotlib.image
+
+    proc = run("demo", "--n-points", 2000, "--quiet", "-o", tmp_path / "demo.png")
     assert proc.returncode == 0, proc.stderr
     for method in hgjax.METHODS:
         assert f"\n{method} " in proc.stdout
     assert " 2000    400 " in proc.stdout
     assert proc.stderr == ""
+    assert f"wrote the picture to {tmp_path / 'demo.png'}" in proc.stdout
+    assert proc.stdout.splitlines()[-1].startswith("next: hgjax resample ")
+    assert matplotlib.image.imread(tmp_path / "demo.png").shape[1] > 1000
 
 
 def test_version_and_help(capsys):

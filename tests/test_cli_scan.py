@@ -298,3 +298,61 @@ def test_samples_memory_uses_the_method_cost_and_the_cgroup_limit(tmp_path, monk
     (tmp_path / "v1" / "memory" / "memory.limit_in_bytes").write_text(f"{2**29}\n")
     (tmp_path / "v1" / "memory" / "memory.usage_in_bytes").write_text(f"{2**28}\n")
     assert cli._available_memory(str(tmp_path / "v1")) == min(unlimited, 2**28)
+
+
+def test_compare_on_an_all_equal_cloud(tmp_path):
+    io.write_points(tmp_path / "same.xyz", np.ones((100, 3)))
+    proc = hgjax_cli(tmp_path, "compare", tmp_path / "same.xyz", "--methods", "fps,hkc")
+    assert proc.returncode == 0, proc.stderr
+    assert "| mean gap (units) |" in proc.stdout and "| fps | 20 | 100 |" in proc.stdout
+
+
+def test_compare_picture_view_zoom_and_feature_share(tmp_path, scan):
+    import matplotlib.image
+
+    proc = hgjax_cli(tmp_path, "compare", scan / "c.npy", "-o", tmp_path / "out", "--methods", "fps,ea",
+                     "--view", "10,-30", "--zoom", 2)
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split("|")[1].strip(): line.split("|")[7].strip() for line in proc.stdout.splitlines()
+            if line.startswith("| fps") or line.startswith("| ea")}
+    assert float(rows["ea"]) > 1.5 > 1.2 > float(rows["fps"])  # EA keeps sharp features; FPS covers evenly
+    assert matplotlib.image.imread(tmp_path / "out" / "compare.png").shape[1] > 500
+    proc = hgjax_cli(tmp_path, "compare", scan / "c.npy", "--view", "ten")
+    assert proc.returncode == 2 and "expected ELEV,AZIM" in proc.stderr
+
+
+def test_kept_points_are_drawn_over_the_grey_cloud():
+    pytest.importorskip("matplotlib")
+    from hgjax.plot import show_resampling
+
+    points = np.random.default_rng(0).random((300, 3))
+    colours = np.zeros((300, 3), np.uint8)  # a scan's own colours: black
+    fig = show_resampling(points, {"a": np.arange(10)}, colors=colours, context=True, zoom=2, view=(10, 20))
+    grey, red = fig.axes[1].collections
+    assert len(grey.get_offsets()) == 300 and np.allclose(grey.get_facecolor()[0][:3], 0.85)
+    assert len(red.get_offsets()) == 10 and red.get_facecolor()[0][0] > 0.8
+    low, high = fig.axes[1].get_xlim()
+    assert high - low == pytest.approx((points[:, 0].max() - points[:, 0].min()) / 2, rel=0.3)
+    assert (fig.axes[1].elev, fig.axes[1].azim) == (10, 20)
+
+
+def test_help_parameter_example_runs_in_bash(tmp_path, scan):
+    proc = hgjax_cli(tmp_path, "resample", "--help")
+    example = proc.stdout.split("e.g. -p ")[1].split()[0]
+    command = f"{HGJAX} score {scan / 'c.npy'} -o s.ply --method lhf -p {example}"
+    proc = subprocess.run(["bash", "-c", command], cwd=tmp_path, env=env(tmp_path), capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert len(io.read_points(tmp_path / "s.ply")) == N
+
+
+def test_the_all_extra_installs_every_optional_feature_and_hints_name_it(monkeypatch):
+    tomllib = pytest.importorskip("tomllib")
+
+    project = tomllib.loads((pathlib.Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    named = {name for name in extras if name not in ("all", "test")}
+    assert extras["all"] == [f"hgjax[{','.join(sorted(named, key=list(extras).index))}]"]
+    monkeypatch.setitem(sys.modules, "laspy", None)
+    with pytest.raises(ImportError, match=r'pip install "\.\[las\]" in the hgjax source folder \("\.\[all\]"'):
+        io.write_points("kept.las", np.eye(3))
