@@ -246,3 +246,9 @@ def check_capacity(capacity, width: int, what: str) -> None:
     if capacity is not None and width > capacity:
         raise ValueError(f"capacity={capacity} is too small: a {what} holds {width} points;"
                          f" pass capacity >= {width} (or capacity=None to size it automatically)")
+
+
+def install_hint(extra: str) -> str:
+    """How to install the optional packages of ``extra``, as this project is installed (from its
+    source folder; ``all`` holds every extra)."""
+    return f'pip install ".[{extra}]" in the hgjax source folder (".[all]" for every optional feature)'

@@ -15,12 +15,12 @@ Readers, chosen by the file extension (case-insensitive):
   first three columns are x, y, z and extra columns are kept as ``column_3``, ...
 - ``.npy``: an (N, 3+) numeric array (extra columns as for XYZ) or a structured array with
   fields ``x``, ``y``, ``z``.
-- ``.pcd`` (PCL; needs ``pip install "hgjax[pcd]"``): ``DATA ascii``, ``binary`` and
+- ``.pcd`` (PCL; needs the ``pcd`` extra): ``DATA ascii``, ``binary`` and
   ``binary_compressed``, read through pypcd4. A packed ``rgb``/``rgba`` field becomes
   ``colors`` (in ascii files it may be written as the packed float or, as PCL does, as
   the packed unsigned integer); ``normal_x`` ... become ``normals``; fields named ``_``
   (padding) are skipped; a field with COUNT C > 1 is kept as an (N, C) attribute.
-- ``.las`` / ``.laz`` (LAS 1.0-1.4, every point format; needs ``pip install "hgjax[las]"``),
+- ``.las`` / ``.laz`` (LAS 1.0-1.4, every point format; needs the ``las`` extra),
   read through laspy (LAZ through lazrs): ``points`` are the real coordinates
   X * scale + offset in float64 (exact for every int32 X), every other dimension of the
   point format and every extra dimension is an attribute under its laspy name in its
@@ -149,11 +149,12 @@ class PointData:
 
 def _require(extra: str, what: str) -> tuple:
     """Import the optional packages of ``extra`` (e.g. laspy and lazrs for ``las``)."""
+    from hgjax import _validate
+
     try:
         return tuple(importlib.import_module(name) for name in _MODULES[extra])
     except ImportError as err:
-        raise ImportError(f"{what} needs the optional package {err.name!r}:"
-                          f' pip install "hgjax[{extra}]"') from err
+        raise ImportError(f"{what} needs the optional package {err.name!r}: {_validate.install_hint(extra)}") from err
 
 
 # ----------------------------------------------------------------------------- reading

@@ -459,7 +459,7 @@ def fps_backend(backend: str) -> str:
     backend = _validate.check_choice(backend, "backend", FPS_BACKENDS)
     installed = importlib.util.find_spec("fpsample") is not None
     if backend == "fpsample" and not installed:
-        raise ImportError("backend='fpsample' needs the fpsample package: pip install 'hgjax[fps]'")
+        raise ImportError(f"backend='fpsample' needs the fpsample package: {_validate.install_hint('fps')}")
     if backend == "auto":
         return "fpsample" if installed and jax.default_backend() == "cpu" else "jax"
     return backend
