@@ -378,7 +378,7 @@ def test_show_resampling_panels_equal_axes_and_errors(monkeypatch):
     with pytest.raises(ValueError, match="columns must be"):
         show_resampling(pts, np.arange(3), columns=0)
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
-    with pytest.raises(ImportError, match=r"hgjax\[plot\]"):
+    with pytest.raises(ImportError, match=r'pip install "\.\[plot\]"'):
         show_resampling(pts, np.arange(3))
 
 
