@@ -124,7 +124,7 @@ def env(tmp_path, hook=None):
     return result
 
 
-def hgjax_cli(tmp_path, *args, hook=None, timeout=120):
+def hgjax_cli(tmp_path, *args, hook=None, timeout=300):
     proc = subprocess.run([HGJAX, *map(str, args)], cwd=tmp_path, env=env(tmp_path, hook), capture_output=True,
                           text=True, timeout=timeout)
     assert "Traceback" not in proc.stderr, proc.stderr
