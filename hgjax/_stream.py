@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hgjax import _validate
 
 BLOCK = 1024  # rows per vmapped block
 CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
@@ -47,12 +48,15 @@ def chunk_rows(chunk_size: int | None = None) -> int:
     """Rows per streamed chunk: a multiple of BLOCK per local device, fixed by default.
 
     Args:
-      chunk_size: requested rows (rounded up), or None for ``CHUNK_BLOCKS`` blocks.
+      chunk_size: requested rows (an integer >= 1, rounded up), or None for ``CHUNK_BLOCKS`` blocks.
+
+    Raises:
+      TypeError, ValueError: ``chunk_size`` is not an integer >= 1.
     """
     unit = BLOCK * len(jax.devices())
     if chunk_size is None:
         return CHUNK_BLOCKS * unit
-    return -(-chunk_size // unit) * unit
+    return -(-_validate.check_int(chunk_size, "chunk_size", minimum=1) // unit) * unit
 
 
 def _blocks(fn: Callable, offsets, valid, row_args, args):

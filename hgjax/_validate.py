@@ -232,13 +232,19 @@ def check_graph(points, idx, first, weights_dtype) -> None:
 
 
 def check_scores(scores, name="scores") -> np.ndarray:
+    """Return per-point scores as an (N,) float NumPy array, N >= 1, without NaN (inf is allowed:
+    HKC's beta is +inf where the low band vanishes)."""
+    if scores is None:
+        raise TypeError(f"{name} must be a float array of shape (N,); got None")
     s = np.asarray(scores)
-    if s.ndim != 1:
-        raise ValueError(f"{name} must have shape (N,); got {s.shape}")
     if not np.issubdtype(s.dtype, np.floating):
         raise TypeError(f"{name} must be a float array; got dtype {s.dtype}")
+    if s.ndim != 1:
+        raise ValueError(f"{name} must have shape (N,); got {s.shape}")
+    if s.size == 0:
+        raise ValueError(f"{name} must hold at least one score; got shape {s.shape}")
     if np.isnan(s).any():
-        raise ValueError(f"{name} contains NaN")
+        raise ValueError(f"{name} contains NaN at {int(np.isnan(s).sum())} of {s.size} points")
     return s
 
 
@@ -247,3 +253,9 @@ def check_capacity(capacity, width: int, what: str) -> None:
     if capacity is not None and width > capacity:
         raise ValueError(f"capacity={capacity} is too small: a {what} holds {width} points;"
                          f" pass capacity >= {width} (or capacity=None to size it automatically)")
+
+
+def install_hint(extra: str) -> str:
+    """How to install the optional packages of ``extra``, as this project is installed (from its
+    source folder; ``all`` holds every extra)."""
+    return f'pip install ".[{extra}]" in the hgjax source folder (".[all]" for every optional feature)'

@@ -17,11 +17,12 @@ JAX's persistent compilation cache is on, in ``$HGJAX_CACHE_DIR`` (empty: off), 
 compilation of the first. Within one run, files of different sizes share the compiled
 kernels (the library streams fixed-size chunks).
 
-Exit codes: 0 success; 1 failure while computing or writing; 2 invalid arguments or
-input, detected before any computation where possible (bad option, ratio, count, seed or
-parameter, unreadable input, unwritable output, too many samples for the memory); 130
-interrupted (Ctrl-C). Messages go to stderr, tables to stdout; user errors never print a
-Python traceback.
+Exit codes: 0 success; 1 failure while computing or writing (with ``--keep-going``: some
+inputs failed, the others were written); 2 invalid arguments or input, detected before any
+computation (bad option, ratio, count, seed or parameter, unreadable input, an attribute
+the output format cannot hold, unwritable output, too many samples for the memory); 130
+interrupted (Ctrl-C), 143 terminated (SIGTERM), with no partial file left. Messages go to
+stderr, tables to stdout; user errors never print a Python traceback.
 """
 
 from __future__ import annotations
@@ -43,17 +44,21 @@ examples:
   hgjax resample scan.ply -o kept.ply --method hkc --ratio 0.2
   hgjax resample scan.laz -o kept.laz --count 100000 --method lhf
   hgjax resample scans/ -o kept/ --format pcd      every point file of scans/, one output each
-  hgjax resample part.stl -o kept.npy --samples 50000 --method lhf   (.npy: kept indices)
+  hgjax resample part.stl -o kept.npy --samples 50000 --method lhf
+  hgjax resample tiles/ -o kept/ --format laz --keep-going --skip-existing   resume a batch
   hgjax resample scan.ply -o grid.ply --method voxel --voxel-size 0.05
-  hgjax score scan.pcd -o scored.ply --method hkf
+  hgjax score scan.pcd -o scored.ply --method lhf -p lengths=10,30
   hgjax compare bunny.ply -o out/ --methods hkc,hkf,lhf,fps
 
 Inputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY point clouds, and meshes (OBJ, STL, OFF, GLB/GLTF,
 PLY with faces) sampled to --samples points; a directory stands for its point and mesh
-files, sorted. Outputs: PLY, PCD, LAS/LAZ, XYZ/TXT with the input's attributes and a
-`score` attribute for scoring methods; .npy: the kept indices (resample) or a table with a
-`score` field (score). With several inputs, a directory or -o DIR, each output is named
-after its input's stem with the --format extension.
+files, sorted. Outputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY (a table with fields x, y, z, ...)
+with the input's attributes and a `score` attribute for scoring methods. Kept points are
+written in input order (--order priority: best first). `hgjax score` writes finite scores
+(+inf, an HKC point without a low band, becomes the largest finite score). With several
+inputs, a directory or -o DIR, each output is named after its input's stem with the
+--format extension. Every input is read and checked against its output format before
+anything is computed; -o may be the input. `-` (standard input or output) is refused.
 
 Computation is in float32 after moving the points to a local frame in float64 (UTM
 coordinates are safe); --dtype float64 turns on JAX's x64 mode. Compiled kernels are
@@ -63,16 +68,21 @@ cached in $HGJAX_CACHE_DIR (empty: no cache), else $XDG_CACHE_HOME/hgjax/jax or
 exit codes:
   0    success
   1    failure while computing or writing
+  1    also: some inputs failed with --keep-going (the others were written)
   2    invalid arguments or input (found before computing where possible)
-  130  interrupted (Ctrl-C)
+  130  interrupted (Ctrl-C); 143 terminated (SIGTERM); no partial file is left
 """
 
 DEFAULT_RATIO = 0.2
+DEMO_PICTURE = "hgjax-demo.png"
 SEED_LIMIT = 2**32
-BYTES_PER_SAMPLE = 2048
-"""Peak memory per point sampled on a mesh and resampled (measured: ~190 bytes to sample
-fandisk.obj, ~1700 more for HKC; rounded up). ``--samples`` is refused above the available
-memory divided by this."""
+BYTES_PER_SAMPLE = {"ea": 2048, "fps": 2048, "gfr": 4096, "hkc": 2048, "hkf": 2048, "lhf": 2048, "pca_ac": 2048,
+                    "uniform": 2048, "voxel": 2048}
+"""Peak memory per point sampled on a mesh and resampled, by method: ~190 bytes to sample
+fandisk.obj plus the method's own cost (measured: ~1700 for HKC; 2.9-3.7 KB in all for GFR),
+rounded up. The other methods are given HKC's cost: HKF, LHF and EA peaked at or below HKC
+at 2e5 samples; PCA-AC and the samplers were not measured beyond 5e4. ``--samples`` is
+refused above the available memory divided by the cost of the costliest method of the run."""
 FALLBACK_MEMORY = 8 * 2**30
 """Memory assumed where neither /proc/meminfo nor ``os.sysconf`` tells."""
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -84,6 +94,14 @@ CLI_PARAMS = {"ratio": "--ratio or --count", "voxel_size": "--voxel-size", "prog
 
 class UsageError(Exception):
     """An invalid argument or input detected by the CLI (exit code 2)."""
+
+
+class BatchFailure(Exception):
+    """Some inputs of a ``--keep-going`` run failed; the others were written (exit code 1)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received: handled as Ctrl-C is (exit code 143)."""
 
 
 def _ratio(text: str) -> float:
@@ -124,6 +142,16 @@ def _seed(text: str) -> int:
     return value
 
 
+def _view(text: str) -> tuple[float, float]:
+    try:
+        elev, azim = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ELEV,AZIM in degrees, e.g. 25,-60; got {text!r}") from None
+    if not (np.isfinite(elev) and np.isfinite(azim)):
+        raise argparse.ArgumentTypeError(f"must be finite; got {text!r}")
+    return elev, azim
+
+
 def _param(text: str) -> tuple[str, object]:
     name, sep, value = text.partition("=")
     if not sep or not name.isidentifier():
@@ -155,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
                         " enables JAX x64)")
     common.add_argument("--quiet", "--no-progress", dest="progress", action="store_false",
                         help="no progress bar (shown only when stderr is a terminal)")
+    common.add_argument("-v", "--verbose", action="store_true",
+                        help="print the seconds of each stage (read, neighbourhoods, score, keep, write)")
 
     def with_inputs(p, several):
         if several:
@@ -163,21 +193,32 @@ def build_parser() -> argparse.ArgumentParser:
                            help="output file (one input) or directory (created when missing)")
             p.add_argument("--format", choices=formats, default=None,
                            help="output format in a directory (default ply)")
+            p.add_argument("--keep-going", action="store_true",
+                           help="write every input that can be processed, list the others, exit 1 (default:"
+                           " any unreadable input stops the run before anything is computed, exit 2)")
+            p.add_argument("--skip-existing", action="store_true",
+                           help="leave out inputs whose output exists (resume an interrupted batch)")
         else:
             p.add_argument("inputs", nargs=1, metavar="IN", help="point cloud or mesh file")
         p.add_argument("--samples", type=_positive(int), default=None,
                        help="points sampled on a mesh (default 20000), or a seeded subset of a cloud")
 
+    def with_picture(p):
+        p.add_argument("--view", type=_view, default=(25.0, -60.0), metavar="ELEV,AZIM",
+                       help="camera elevation and azimuth of the picture in degrees (default 25,-60)")
+        p.add_argument("--zoom", type=_positive(float), default=1.0, help="picture magnification about the"
+                       " cloud's centre (default 1: the whole cloud)")
+
     def with_method(p, names):
         p.add_argument("--method", choices=names, default="hkc", help=f"one of {', '.join(names)} (default hkc)")
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
-                       help="method parameter, e.g. -p lengths=(10,30) (repeatable; see hgjax.METHODS)")
+                       help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")
 
     p = sub.add_parser("resample", parents=[common], help="keep a fraction of the points",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
-                       description="Keep ceil(ratio N) points, or exactly --count. The output keeps the"
-                       " input's attributes plus the method's `score`; .npy writes the kept indices.")
+                       description="Keep ceil(ratio N) points, or exactly --count, in input order (--order)."
+                       " The output keeps the input's attributes plus the method's `score`.")
     with_inputs(p, several=True)
     with_method(p, methods)
     size = p.add_mutually_exclusive_group()
@@ -189,6 +230,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="voxel method: one point per voxel of edge S (with --ratio/--count: that many)")
     p.add_argument("--key", type=_seed, default=None, help="seed of jax.random.key for random methods"
                    " (default: --seed)")
+    p.add_argument("--order", choices=["input", "priority"], default="input",
+                   help="order of the kept points: as in the input (default; keeps a scan's GPS-time or"
+                   " scan-line order) or from the highest keep priority down")
 
     p = sub.add_parser("score", parents=[common], help="write per-point scores",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -198,18 +242,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help="ratio for scores that need one (LHF)")
 
     p = sub.add_parser("compare", parents=[common], help="run several methods and tabulate them",
-                       description="Run several methods on one input; print a markdown table and, with"
-                       " -o DIR, write compare.md, compare.csv and compare.png (needs matplotlib).")
+                       description="Run several methods on one input; print a markdown table (coverage"
+                       " gaps and the share of sharp features kept) and, with -o DIR, write compare.md,"
+                       " compare.csv and compare.png (kept points in red over the grey cloud; needs"
+                       " matplotlib).")
     with_inputs(p, several=False)
     p.add_argument("-o", "--output", default=None, metavar="DIR", help="output folder")
     p.add_argument("--methods", default=",".join(methods), help="comma-separated methods (default: all)")
     p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help=f"fraction kept (default {DEFAULT_RATIO})")
+    with_picture(p)
 
     p = sub.add_parser("demo", parents=[common], help="all methods on a built-in edge-labelled cloud",
-                       description="Sample a union of boxes with known sharp edges, run every method and"
-                       " print the point counts, the time and the precision of kept edge points.")
+                       description="Sample a union of boxes with known sharp edges, run every method,"
+                       " print the point counts, the time and the precision of kept edge points, and"
+                       " draw the kept points.")
     p.add_argument("--n-points", type=_positive(int), default=20000, help="cloud size (default 20000)")
     p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help=f"fraction kept (default {DEFAULT_RATIO})")
+    p.add_argument("-o", "--output", default=DEMO_PICTURE, metavar="PNG",
+                   help=f"picture of the kept points (default {DEMO_PICTURE} in the current folder; needs"
+                   " matplotlib)")
+    with_picture(p)
     return parser
 
 
@@ -266,6 +318,8 @@ def _expand(paths: list[str]) -> list[str]:
     """Input files: each path, or the supported files of a directory (sorted)."""
     files = []
     for path in paths:
+        if path == "-":
+            raise UsageError("reading standard input (-) is not supported; give a file or directory")
         if os.path.isdir(path):
             found = sorted(entry.path for entry in os.scandir(path)
                            if entry.is_file() and os.path.splitext(entry.name)[1].lower() in INPUT_EXTENSIONS)
@@ -279,10 +333,16 @@ def _expand(paths: list[str]) -> list[str]:
     return files
 
 
+def _refuse_stdout(output: str) -> None:
+    if output == "-":
+        raise UsageError("writing to standard output (-o -) is not supported; give a file or directory")
+
+
 def _targets(inputs: list[str], output: str, fmt: str | None) -> list[str]:
     """The output path of each input, checked writable (directories are created)."""
     from hgjax import io
 
+    _refuse_stdout(output)
     ext = os.path.splitext(output)[1].lower()
     is_file = len(inputs) == 1 and ext and not os.path.isdir(output) and not output.endswith(("/", os.sep))
     if is_file:
@@ -300,24 +360,50 @@ def _targets(inputs: list[str], output: str, fmt: str | None) -> list[str]:
         if clashes:
             raise UsageError(f"several inputs would be written to {', '.join(clashes)}; give inputs with"
                              " distinct names")
-    for target in targets:
-        io.check_writable(target)
+    for directory in sorted({os.path.dirname(io.check_writable(target)) for target in targets}):
+        for temp in io.remove_stale_temporaries(directory):
+            print(f"hgjax: removed {temp}, left by a killed run", file=sys.stderr)
     return targets
 
 
-def _available_memory() -> int:
-    """Bytes of memory available: MemAvailable of /proc/meminfo, else the physical memory."""
+def _cgroup_free(root: str) -> int | None:
+    """Bytes the cgroup memory limit under ``root`` still allows (v2 ``memory.max`` less
+    ``memory.current``, v1 ``memory.limit_in_bytes`` less ``memory.usage_in_bytes``); None
+    where no limit is set."""
+    for limit_name, usage_name in (("memory.max", "memory.current"),
+                                   (os.path.join("memory", "memory.limit_in_bytes"),
+                                    os.path.join("memory", "memory.usage_in_bytes"))):
+        try:
+            with open(os.path.join(root, limit_name)) as fh:
+                limit = int(fh.read().strip())  # "max" (no limit) is a ValueError
+            with open(os.path.join(root, usage_name)) as fh:
+                usage = int(fh.read().strip())
+        except (OSError, ValueError):
+            continue
+        if limit < 2**60:  # cgroup v1 writes "no limit" as a huge number
+            return max(limit - usage, 0)
+    return None
+
+
+def _available_memory(cgroup_root: str = "/sys/fs/cgroup") -> int:
+    """Bytes of memory available: MemAvailable of /proc/meminfo (else the physical memory),
+    and no more than the cgroup memory limit leaves, where one is set (containers, batch
+    schedulers)."""
+    available = None
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    available = int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
-    try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (AttributeError, ValueError, OSError):
-        return FALLBACK_MEMORY
+    if available is None:
+        try:
+            available = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (AttributeError, ValueError, OSError):
+            available = FALLBACK_MEMORY
+    limited = _cgroup_free(cgroup_root)
+    return available if limited is None else min(available, limited)
 
 
 def _is_mesh(path: str) -> bool:
@@ -339,22 +425,27 @@ def _is_mesh(path: str) -> bool:
     return False
 
 
-def _check_samples(samples: int | None, inputs: list[str]) -> None:
-    """Refuse ``--samples`` on a mesh beyond what the memory holds, before sampling."""
+def _check_samples(samples: int | None, inputs: list[str], methods: list[str]) -> None:
+    """Refuse ``--samples`` on a mesh beyond what the memory holds for the costliest of
+    ``methods`` (:data:`BYTES_PER_SAMPLE`), before sampling."""
     meshes = [path for path in inputs if _is_mesh(path)]
     if samples is None or not meshes:
         return
-    available = _available_memory()
-    if samples * BYTES_PER_SAMPLE > available:
-        raise UsageError(f"--samples {samples} needs about {samples * BYTES_PER_SAMPLE / 1e9:.1f} GB to sample"
-                         f" {meshes[0]} and resample it, more than the {available / 1e9:.1f} GB available; use"
-                         f" --samples {available // BYTES_PER_SAMPLE} or fewer")
+    method = max(methods, key=BYTES_PER_SAMPLE.__getitem__)
+    cost, available = BYTES_PER_SAMPLE[method], _available_memory()
+    if samples * cost > available:
+        raise UsageError(f"--samples {samples} needs about {samples * cost / 1e9:.1f} GB to sample {meshes[0]}"
+                         f" and resample it with {method}, more than the {available / 1e9:.1f} GB available;"
+                         f" use --samples {available // cost} or fewer")
 
 
 def _load(path: str, args):
     from hgjax import io
 
-    return io.read_points(path, samples=args.samples, seed=args.seed)
+    start = time.perf_counter()
+    data = io.read_points(path, samples=args.samples, seed=args.seed)
+    _stage(args, f"read {path}", start)
+    return data
 
 
 def _method_params(args, entry) -> dict:
@@ -390,19 +481,30 @@ def _progress(args) -> bool:
     return args.progress and sys.stderr.isatty()
 
 
-def _score(entry, points, ratio, params, progress: bool) -> np.ndarray:
+def _stage(args, name: str, start: float) -> None:
+    """With ``--verbose``, print the seconds since ``start`` spent in stage ``name``."""
+    if args.verbose:
+        print(f"  {name}: {time.perf_counter() - start:.3f} s", file=sys.stderr)
+
+
+def _score(entry, points, ratio, params, progress: bool, args) -> np.ndarray:
     """Per-point scores of a scoring method: neighbourhoods, then the JAX score."""
     import hgjax
 
+    start = time.perf_counter()
     nb = hgjax.neighbourhoods(points, entry.name, **params)
+    _stage(args, "neighbourhoods", start)
     extra = {"ratio": ratio} if "ratio" in entry.params["score"] else {}
     if progress and "progress" in entry.params["score"]:
         extra["progress"] = True
-    return np.asarray(hgjax.score(nb, entry.name, **params, **extra))
+    start = time.perf_counter()
+    scores = np.asarray(hgjax.score(nb, entry.name, **params, **extra))
+    _stage(args, "score", start)
+    return scores
 
 
-def _compute(entry, points, ratio, params, key, progress: bool, voxel_size=None):
-    """(kept indices, scores of every point or None for samplers, seconds).
+def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):
+    """(kept indices in keep-priority order, scores of every point or None for samplers, seconds).
 
     The points are moved to their local frame in float64 first, so that no method, the
     samplers included, ever casts georeferenced coordinates to float32.
@@ -416,9 +518,12 @@ def _compute(entry, points, ratio, params, key, progress: bool, voxel_size=None)
         if voxel_size is not None:
             extra["voxel_size"] = voxel_size
         idx, scores = np.asarray(entry.select(points, ratio, **extra, **params)), None
+        _stage(args, "sample", start)
     else:
-        scores = _score(entry, points, ratio, params, progress)
+        scores = _score(entry, points, ratio, params, progress, args)
+        begin = time.perf_counter()
         idx = np.asarray(hgjax.keep(scores, ratio, method=entry.name, key=key, **params))
+        _stage(args, "keep", begin)
     return idx, scores, time.perf_counter() - start
 
 
@@ -428,11 +533,77 @@ def count_ratio(count: int, n: int) -> float:
     return count / n
 
 
-def _prepare(args) -> tuple[list[str], list[str]]:
-    """Inputs and their checked outputs, before anything is read or computed."""
+def _prepare(args) -> list[tuple[str, str]]:
+    """(input, output) pairs, outputs checked, before anything is read or computed; with
+    ``--skip-existing``, the pairs whose output exists are left out (and said so)."""
     inputs = _expand(args.inputs)
-    _check_samples(args.samples, inputs)
-    return inputs, _targets(inputs, args.output, args.format)
+    _check_samples(args.samples, inputs, [args.method])
+    jobs = list(zip(inputs, _targets(inputs, args.output, args.format)))
+    if args.skip_existing:
+        for path, target in jobs:
+            if os.path.exists(target):
+                print(f"skipped {path}: {target} exists (--skip-existing)", file=sys.stderr)
+        jobs = [(path, target) for path, target in jobs if not os.path.exists(target)]
+    return jobs
+
+
+def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str]], dict[str, str], object]:
+    """Read every input and run ``check(path, target, data)`` on it before any computation.
+
+    Returns:
+      The jobs that passed, the message of each input that failed, and the data of the
+      only input when there is one job (so a single file is read once).
+
+    Raises:
+      UsageError: an input failed and ``--keep-going`` is not set (all failures listed).
+    """
+    good, failed, data = [], {}, None
+    for path, target in jobs:
+        try:
+            data = _load(path, args)
+            check(path, target, data)
+        except (UsageError, ValueError, TypeError, OSError) as err:
+            failed[path] = str(err) if path in str(err) else f"{path}: {err}"
+        else:
+            good.append((path, target))
+    if failed and not args.keep_going:
+        raise UsageError(f"{len(failed)} of {len(jobs)} inputs cannot be processed, nothing was written"
+                         " (--keep-going writes the others):\n  " + "\n  ".join(failed.values()))
+    for message in failed.values():
+        print(f"hgjax {args.command}: skipped: {message}", file=sys.stderr)
+    return good, failed, data if len(jobs) == 1 and good else None
+
+
+def _run_batch(args, jobs, check, process) -> None:
+    """Check every input, then ``process(path, target, data)`` each good one.
+
+    With ``--keep-going`` an input that fails (when checked or computed) is listed and
+    skipped, the others are written, and the run ends with exit code 1."""
+    good, failed, data = _check_inputs(args, jobs, check)
+    for path, target in good:
+        try:
+            process(path, target, data if data is not None else _load(path, args))
+        except (ValueError, TypeError, OSError, RuntimeError, MemoryError) as err:
+            if not args.keep_going:
+                raise
+            failed[path] = f"{path}: {type(err).__name__}: {err}"
+            print(f"hgjax {args.command}: failed: {failed[path]}", file=sys.stderr)
+    if failed:
+        raise BatchFailure(f"{len(failed)} of {len(jobs)} inputs failed: {', '.join(failed)}")
+
+
+def _ratio_of(args, path: str, n: int) -> float | None:
+    if args.count is not None and args.count > n:
+        raise UsageError(f"--count {args.count} is more than the {n} points of {path}")
+    if args.count is not None:
+        return count_ratio(args.count, n)
+    return DEFAULT_RATIO if args.ratio is None and args.voxel_size is None else args.ratio
+
+
+def _score_placeholder(entry, args, n: int) -> np.ndarray | None:
+    """A stand-in for the score column, of the dtype the method writes, to check the output
+    format before computing."""
+    return None if entry.kind is None else np.zeros(n, np.dtype(args.dtype))
 
 
 def cmd_resample(args) -> None:
@@ -442,27 +613,39 @@ def cmd_resample(args) -> None:
     params = _method_params(args, entry)
     if args.voxel_size is not None and args.method != "voxel":
         raise UsageError(f"--voxel-size is for --method voxel; got --method {args.method}")
-    inputs, targets = _prepare(args)
+    jobs = _prepare(args)
     key, progress = _key(args), _progress(args)
-    for path, target in zip(inputs, targets):
-        data = _load(path, args)
+
+    def check(path, target, data):
+        _ratio_of(args, path, len(data))
+        io.check_format(target, data.points, attributes=data.attributes, header=data.header,
+                        scores=_score_placeholder(entry, args, len(data)))
+
+    def process(path, target, data):
         n = len(data)
-        if args.count is not None and args.count > n:
-            raise UsageError(f"--count {args.count} is more than the {n} points of {path}")
-        ratio = count_ratio(args.count, n) if args.count is not None else args.ratio
-        if ratio is None and args.voxel_size is None:
-            ratio = DEFAULT_RATIO
-        idx, scores, seconds = _compute(entry, data.points, ratio, params, key, progress, args.voxel_size)
-        if target.lower().endswith(".npy"):
-            io.write_indices(target, idx)
-        else:
-            kept = data.subset(idx)
-            attributes = dict(kept.attributes)
-            if scores is not None:
-                attributes["score"] = scores[idx]
-            io.write_points(target, kept.points, attributes=attributes, header=data.header)
+        idx, scores, seconds = _compute(entry, data.points, _ratio_of(args, path, n), params, key, progress,
+                                        args, args.voxel_size)
+        if args.order == "input":
+            idx = np.sort(idx)
+        kept = data.subset(idx)
+        start = time.perf_counter()
+        io.write_points(target, kept.points, attributes=kept.attributes,
+                        scores=None if scores is None else scores[idx], header=data.header)
+        _stage(args, "write", start)
         print(f"{args.method}: kept {idx.size} of {n} points of {path} in {seconds:.2f} s -> {target}",
               file=sys.stderr)
+
+    _run_batch(args, jobs, check, process)
+
+
+def _finite_scores(scores: np.ndarray) -> np.ndarray:
+    """Scores as written by ``hgjax score``: +inf (an HKC point whose low band vanishes) becomes the
+    largest finite score and -inf the smallest, so colour ramps (CloudCompare, PDAL) accept the
+    column; with no finite score at all, 0."""
+    finite = scores[np.isfinite(scores)]
+    if finite.size == 0:
+        return np.zeros_like(scores)
+    return np.nan_to_num(scores, nan=0.0, posinf=finite.max(), neginf=finite.min())
 
 
 def cmd_score(args) -> None:
@@ -470,16 +653,24 @@ def cmd_score(args) -> None:
 
     entry = METHODS[args.method]
     params = _method_params(args, entry)
-    inputs, targets = _prepare(args)
+    jobs = _prepare(args)
     progress = _progress(args)
-    for path, target in zip(inputs, targets):
-        data = _load(path, args)
+
+    def check(path, target, data):
+        io.check_format(target, data.points, attributes=data.attributes, header=data.header,
+                        scores=_score_placeholder(entry, args, len(data)))
+
+    def process(path, target, data):
         start = time.perf_counter()
-        scores = _score(entry, data.points, args.ratio, params, progress)
+        scores = _finite_scores(_score(entry, data.points, args.ratio, params, progress, args))
         seconds = time.perf_counter() - start
-        io.write_points(target, data.points, attributes={**data.attributes, "score": scores}, header=data.header)
+        start = time.perf_counter()
+        io.write_points(target, data.points, attributes=data.attributes, scores=scores, header=data.header)
+        _stage(args, "write", start)
         print(f"{args.method}: scored {len(data)} points of {path} in {seconds:.2f} s -> {target}",
               file=sys.stderr)
+
+    _run_batch(args, jobs, check, process)
 
 
 def _coverage(points: np.ndarray, idx: np.ndarray) -> tuple[float, float]:
@@ -501,8 +692,9 @@ def cmd_compare(args) -> None:
     if len(inputs) != 1:
         raise UsageError(f"compare takes one file; {args.inputs[0]} holds {len(inputs)}")
     (path,) = inputs
-    _check_samples(args.samples, inputs)
+    _check_samples(args.samples, inputs, methods)
     if args.output is not None:
+        _refuse_stdout(args.output)
         try:
             os.makedirs(args.output, exist_ok=True)
         except OSError as err:
@@ -511,84 +703,186 @@ def cmd_compare(args) -> None:
             raise UsageError(f"cannot write to {args.output}: the directory is not writable")
     data = _load(path, args)
     res = hgjax.intrinsic_resolution(data.points)
+    unit, unit_name = _gap_unit(data.points, res)
+    variation = _feature_variation(data.points)
     rows, kept = [], {}
     key, progress = _key(args), _progress(args)
     for method in methods:
-        idx, _, seconds = _compute(hgjax.METHODS[method], data.points, args.ratio, {}, key, progress)
+        idx, _, seconds = _compute(hgjax.METHODS[method], data.points, args.ratio, {}, key, progress, args)
         mean, worst = _coverage(data.points, idx)
         kept[method] = idx
-        rows.append([method, idx.size, len(data), f"{seconds:.3f}", f"{mean / res:.3f}", f"{worst / res:.3f}"])
-    header = ["method", "kept", "points", "seconds", "mean gap (res)", "max gap (res)"]
+        share = f"{variation[idx].mean() / variation.mean():.2f}" if variation.mean() > 0 else "-"
+        rows.append([method, idx.size, len(data), f"{seconds:.3f}", f"{mean / unit:.3f}", f"{worst / unit:.3f}",
+                     share])
+    header = ["method", "kept", "points", "seconds", f"mean gap ({unit_name})", f"max gap ({unit_name})",
+              "feature share"]
     table = "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
                       + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
-    print(f"{path}: ratio {args.ratio}, resolution {res:.4g} (gap = distance from a point to the"
-          f" nearest kept point)\n\n{table}")
+    print(f"{path}: ratio {args.ratio}, resolution {res:.4g}. Gap: distance from a point to the nearest kept"
+          " point (small: even coverage). Feature share: mean surface variation of the kept points over"
+          " that of all points (above 1: sharp edges and corners kept preferentially; EA maximises it by"
+          f" definition).\n\n{table}")
     if args.output is None:
         return
     with open(os.path.join(args.output, "compare.md"), "w") as fh:
         fh.write(table + "\n")
     with open(os.path.join(args.output, "compare.csv"), "w", newline="") as fh:
         csv.writer(fh).writerows([header] + rows)
-    written = "compare.md, compare.csv"
-    try:
-        from hgjax.plot import show_resampling
+    picture = _picture(data.points, kept, os.path.join(args.output, "compare.png"), args,
+                       colors=data.attributes.get("colors"), title=os.path.basename(path))
+    print(f"wrote compare.md, compare.csv{', compare.png' * bool(picture)} to {args.output}", file=sys.stderr)
 
-        show_resampling(data.points, kept, colors=data.attributes.get("colors"), title=os.path.basename(path),
-                        path=os.path.join(args.output, "compare.png"))
-        written += ", compare.png"
+
+def _gap_unit(points: np.ndarray, res: float) -> tuple[float, str]:
+    """The unit of coverage gaps: the intrinsic resolution, else (a cloud whose points mostly
+    coincide) the bounding-box diagonal, else 1."""
+    if res > 0:
+        return res, "res"
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    return (diagonal, "diagonal") if diagonal > 0 else (1.0, "units")
+
+
+def _feature_variation(points: np.ndarray) -> np.ndarray:
+    """Surface variation (EA's score) of every point: 0 on planes, up to 1/3 at corners; all 0
+    for a cloud of fewer points than EA's neighbourhoods hold."""
+    import hgjax
+
+    if len(points) < hgjax.scores.ea.DEFAULT_K:
+        return np.zeros(len(points))
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(hgjax.local_frame(points)[0], "ea"), "ea"), np.float64)
+
+
+def _picture(points, kept: dict, path: str, args, **style) -> bool:
+    """Draw the kept points of each method over the grey cloud to ``path``; False, with a note,
+    where matplotlib is missing."""
+    from hgjax.plot import show_resampling
+
+    try:
+        show_resampling(points, kept, view=args.view, zoom=args.zoom, context=True, path=path, **style)
     except ImportError as err:
         print(f"no picture written: {err}", file=sys.stderr)
-    print(f"wrote {written} to {args.output}", file=sys.stderr)
+        return False
+    return True
 
 
 def cmd_demo(args) -> None:
     import hgjax
 
+    folder = os.path.dirname(os.path.abspath(args.output))
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"cannot write the picture {args.output}: {folder} is not a writable folder")
     cloud = hgjax.eval.box_union_cloud(seed=args.seed, n_points=args.n_points)
     edge = np.asarray(cloud.edge_mask)
     print(f"demo cloud: {len(edge)} points on a union of boxes, {int(edge.sum())} labelled edge points,"
           f" keeping {args.ratio:g}")
     print(f"{'method':<8} {'points':>7} {'kept':>6} {'seconds':>8} {'edge precision':>15}")
     key, progress = _key(args), _progress(args)
+    kept = {}
     for method in sorted(hgjax.METHODS):
-        idx, _, seconds = _compute(hgjax.METHODS[method], cloud.points, args.ratio, {}, key, progress)
+        idx, _, seconds = _compute(hgjax.METHODS[method], cloud.points, args.ratio, {}, key, progress, args)
+        kept[method] = idx
         print(f"{method:<8} {len(edge):>7} {idx.size:>6} {seconds:>8.2f} {float(edge[idx].mean()):>15.3f}")
     print(f"(a random subset keeps edge points with precision {edge.mean():.3f} on average)")
+    if _picture(np.asarray(cloud.points), kept, args.output, args,
+                title="hgjax demo: kept points (red) over the cloud"):
+        print(f"wrote the picture to {os.path.abspath(args.output)}")
+    print("next: hgjax resample YOUR_SCAN.ply -o kept.ply --method hkc --ratio 0.2   (or hgjax compare"
+          " YOUR_SCAN.ply -o out/ to pick a method)")
 
 
 COMMANDS = {"resample": cmd_resample, "score": cmd_score, "compare": cmd_compare, "demo": cmd_demo}
 
 
+SIGNAL_EXITS = {"SIGINT": (130, "interrupted"), "SIGTERM": (143, "terminated")}
+"""Exit code and message of a run stopped by a signal."""
+
+
+@contextlib.contextmanager
+def _signals(received: list):
+    """SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated`, once: the name of the
+    first is appended to ``received`` and later ones are ignored, so the clean-up of partial
+    files runs to its end. Signals the parent set to be ignored stay ignored."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        if received:
+            return
+        received.append(signal.Signals(signum).name)
+        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    saved = {}
+    for signum, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
+        if signal.getsignal(signum) is default:
+            saved[signum] = signal.signal(signum, handler)
+    try:
+        yield
+    finally:
+        for signum, previous in saved.items():
+            signal.signal(signum, previous)
+
+
+def _run(argv, received: list) -> int:
+    """Parse ``argv`` and run the command; the exit code of its outcome. A failure after a
+    signal was received is re-raised: the signal, not the failure it caused (a LAZ writer
+    stopped midway), decides the exit code."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # argparse exits 2 on bad arguments, 0 after --help/--version
+        return int(exc.code or 0)
+    try:
+        with _session(args.dtype):
+            COMMANDS[args.command](args)
+    except (UsageError, ValueError, TypeError, ImportError) as err:  # includes hgjax's validation
+        if received:
+            raise
+        print(f"hgjax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except BatchFailure as err:
+        print(f"hgjax {args.command}: {err}", file=sys.stderr)
+        return 1
+    except (OSError, RuntimeError, MemoryError) as err:
+        if received:
+            raise
+        print(f"hgjax {args.command}: failed: {type(err).__name__}: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def main(argv=None) -> int:
     """Run the ``hgjax`` command line.
+
+    SIGINT (Ctrl-C) and SIGTERM stop the run at once: partial output files are removed and
+    the exit code is 130 or 143. Called as the console script (``argv`` None), the process
+    then ends with :func:`os._exit`, so that library threads still running (SciPy's k-d
+    tree workers) cannot crash the interpreter's shutdown.
 
     Args:
       argv: the arguments without the program name (default: ``sys.argv[1:]``).
 
     Returns:
       The exit code: 0 success, 1 failure while computing or writing, 2 invalid arguments
-      or input, 130 interrupted.
+      or input, 130 interrupted, 143 terminated.
 
     Examples:
       >>> main(["demo", "--n-points", "0"])
       2
     """
+    received: list[str] = []
     try:
-        parser = build_parser()
-        try:
-            args = parser.parse_args(argv)
-        except SystemExit as exc:  # argparse exits 2 on bad arguments, 0 after --help/--version
-            return int(exc.code or 0)
-        try:
-            with _session(args.dtype):
-                COMMANDS[args.command](args)
-        except (UsageError, ValueError, TypeError, ImportError) as err:  # includes hgjax's validation
-            print(f"hgjax {args.command}: error: {err}", file=sys.stderr)
-            return 2
-        except (OSError, RuntimeError, MemoryError) as err:
-            print(f"hgjax {args.command}: failed: {type(err).__name__}: {err}", file=sys.stderr)
-            return 1
-    except KeyboardInterrupt:
-        print("hgjax: interrupted", file=sys.stderr)
-        return 130
-    return 0
+        with _signals(received):
+            return _run(argv, received)
+    except BaseException as err:
+        if not (received or isinstance(err, KeyboardInterrupt)):
+            raise
+        code, message = SIGNAL_EXITS[received[0] if received else "SIGINT"]
+        print(f"hgjax: {message}", file=sys.stderr)
+        if argv is None:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
+        return code

@@ -15,12 +15,12 @@ Readers, chosen by the file extension (case-insensitive):
   first three columns are x, y, z and extra columns are kept as ``column_3``, ...
 - ``.npy``: an (N, 3+) numeric array (extra columns as for XYZ) or a structured array with
   fields ``x``, ``y``, ``z``.
-- ``.pcd`` (PCL; needs ``pip install "hgjax[pcd]"``): ``DATA ascii``, ``binary`` and
+- ``.pcd`` (PCL; needs the ``pcd`` extra): ``DATA ascii``, ``binary`` and
   ``binary_compressed``, read through pypcd4. A packed ``rgb``/``rgba`` field becomes
   ``colors`` (in ascii files it may be written as the packed float or, as PCL does, as
   the packed unsigned integer); ``normal_x`` ... become ``normals``; fields named ``_``
   (padding) are skipped; a field with COUNT C > 1 is kept as an (N, C) attribute.
-- ``.las`` / ``.laz`` (LAS 1.0-1.4, every point format; needs ``pip install "hgjax[las]"``),
+- ``.las`` / ``.laz`` (LAS 1.0-1.4, every point format; needs the ``las`` extra),
   read through laspy (LAZ through lazrs): ``points`` are the real coordinates
   X * scale + offset in float64 (exact for every int32 X), every other dimension of the
   point format and every extra dimension is an attribute under its laspy name in its
@@ -43,6 +43,7 @@ partial file and writing onto the file that was read never destroys it midway.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import importlib
@@ -50,6 +51,7 @@ import math
 import os
 import re
 import secrets
+import socket
 import warnings
 from typing import Any, BinaryIO, Callable, Mapping
 
@@ -63,8 +65,10 @@ __all__ = [
     "PointCloudWriteError",
     "PointData",
     "WRITE_EXTENSIONS",
+    "check_format",
     "check_writable",
     "read_points",
+    "remove_stale_temporaries",
     "write_indices",
     "write_points",
 ]
@@ -145,11 +149,12 @@ class PointData:
 
 def _require(extra: str, what: str) -> tuple:
     """Import the optional packages of ``extra`` (e.g. laspy and lazrs for ``las``)."""
+    from hgjax import _validate
+
     try:
         return tuple(importlib.import_module(name) for name in _MODULES[extra])
     except ImportError as err:
-        raise ImportError(f"{what} needs the optional package {err.name!r}:"
-                          f' pip install "hgjax[{extra}]"') from err
+        raise ImportError(f"{what} needs the optional package {err.name!r}: {_validate.install_hint(extra)}") from err
 
 
 # ----------------------------------------------------------------------------- reading
@@ -384,6 +389,8 @@ def _pcd_ascii_fields(fh: BinaryIO, fields: list[tuple], n: int, path: str) -> d
 
     Values are parsed as float64 and then cast, so a packed ``rgb`` float written as PCL
     writes it (the packed unsigned integer) keeps its bits."""
+    if n == 0:
+        raise PointCloudReadError(f"cannot read {path}: the file holds no points (POINTS 0)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # np.loadtxt warns on a body without rows
         table = np.loadtxt(fh, dtype=np.float64, ndmin=2, encoding="ascii")
@@ -428,6 +435,9 @@ def _read_las(path: str) -> tuple[dict[str, np.ndarray], Any]:
         columns["colors"] = np.stack([np.asarray(las[c]) for c in ("red", "green", "blue")], axis=1)
         names = [name for name in names if name not in ("red", "green", "blue")]
     columns.update((name, np.asarray(las[name])) for name in names)
+    if len(las.points) != las.header.point_count:
+        raise PointCloudReadError(f"cannot read {path}: the file holds {len(las.points)} points; its header"
+                                  f" announces {las.header.point_count} (truncated or corrupt)")
     return columns, las.header
 
 
@@ -485,12 +495,65 @@ def check_writable(path) -> str:
     return target
 
 
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<host>[A-Za-z0-9-]*)\.(?P<pid>\d+)\.[0-9a-f]{12}\.tmp$")
+"""The temporary files of :func:`_atomic_write`: ``.NAME.HOST.PID.HEX.tmp``."""
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())
+
+
+def _is_running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def remove_stale_temporaries(directory) -> list[str]:
+    """Remove the temporary files that killed writers (``kill -9``, power loss) left in ``directory``.
+
+    Only files named as :func:`write_points` names its temporaries (``.NAME.HOST.PID.HEX.tmp``)
+    by a process of this host that is no longer running are removed; other files, and the
+    temporaries of running writers or other hosts (a shared file system), are left alone.
+
+    Args:
+      directory: a directory path.
+
+    Returns:
+      The paths removed, sorted.
+
+    Examples:
+      >>> import os, tempfile
+      >>> folder = tempfile.mkdtemp()
+      >>> stale = os.path.join(folder, f".kept.ply.{_host()}.999999999.0123456789ab.tmp")
+      >>> open(stale, "w").close()
+      >>> remove_stale_temporaries(folder) == [stale], os.listdir(folder)
+      (True, [])
+    """
+    removed, host = [], _host()
+    with os.scandir(directory) as entries:
+        for entry in entries:
+            match = _TEMP_NAME.match(entry.name)
+            if (match and match["host"] == host and entry.is_file(follow_symlinks=False)
+                    and not _is_running(int(match["pid"]))):
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(entry.path)
+                    removed.append(entry.path)
+    return sorted(removed)
+
+
 def _atomic_write(target: str, write: Callable[[BinaryIO], None]) -> None:
     """Call ``write`` on a new temporary file next to ``target``, then rename it onto ``target``.
 
     On any exception (or interruption) the temporary file is removed and ``target`` is
-    left as it was."""
-    temp = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{secrets.token_hex(6)}.tmp")
+    left as it was. The temporary file is named ``.NAME.HOST.PID.HEX.tmp`` so that
+    :func:`remove_stale_temporaries` can tell one left by a killed process."""
+    temp = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{_host()}.{os.getpid()}"
+                        f".{secrets.token_hex(6)}.tmp")
     fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -749,19 +812,53 @@ def write_points(path, points, *, attributes: Mapping[str, np.ndarray] | None = 
       [0.5, 1.0, 2.0]
     """
     target = check_writable(path)
+    _atomic_write(target, _writer(path, points, attributes, scores, header, binary, compressed))
+
+
+def _writer(path, points, attributes, scores, header, binary: bool, compressed: bool) -> Callable[[BinaryIO], None]:
+    """The function writing the points to an open file in the format of ``path``'s extension,
+    after every check of the points and attributes against that format."""
     ext = os.path.splitext(os.fspath(path))[1].lower()
     pts, attrs = _validated(points, attributes, scores)
     if ext in (".xyz", ".txt"):
-        write = _text_writer(pts, attrs)
-    elif ext == ".npy":
-        write = _npy_writer(pts, attrs)
-    elif ext == ".pcd":
-        write = _pcd_writer(pts, attrs, binary, compressed)
-    elif ext in (".las", ".laz"):
-        write = _las_writer(pts, attrs, header, ext == ".laz")
-    else:
-        write = _ply_writer(pts, attrs, binary)
-    _atomic_write(target, write)
+        return _text_writer(pts, attrs)
+    if ext == ".npy":
+        return _npy_writer(pts, attrs)
+    if ext == ".pcd":
+        return _pcd_writer(pts, attrs, binary, compressed)
+    if ext in (".las", ".laz"):
+        return _las_writer(pts, attrs, header, ext == ".laz")
+    return _ply_writer(pts, attrs, binary)
+
+
+def check_format(path, points, *, attributes: Mapping[str, np.ndarray] | None = None, scores=None,
+                 header=None) -> None:
+    """Check, before any computation, that :func:`write_points` can write these points to ``path``.
+
+    Runs every check of :func:`write_points` on the points, attributes and header (column
+    names, dtypes, LAS dimensions and value ranges) without writing anything, so an input
+    whose attributes the output format cannot hold (a float ``intensity`` into LAS) is
+    refused before a long computation. A subset of the points passes whenever all of them do.
+
+    Args:
+      path: output file; the extension picks the format, as for :func:`write_points`.
+      points, attributes, scores, header: as for :func:`write_points`.
+
+    Returns:
+      None.
+
+    Raises:
+      PointCloudWriteError, ImportError, TypeError, ValueError: as :func:`write_points` would.
+
+    Examples:
+      >>> import numpy as np
+      >>> check_format("kept.las", np.zeros((2, 3)), attributes={"intensity": np.array([0.5, 1.0])})
+      Traceback (most recent call last):
+      ...
+      ValueError: attribute 'intensity' (float64) does not fit LAS dimension 'intensity' (uint16) without loss; convert or rename it
+    """
+    check_writable(path)
+    _writer(path, points, attributes, scores, header, binary=True, compressed=True)
 
 
 def write_indices(path, indices) -> None:

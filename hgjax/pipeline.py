@@ -306,7 +306,9 @@ def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray
       index).
 
     Raises:
-      TypeError, ValueError: invalid scores, ratio, method, parameters or key.
+      TypeError: ``scores`` is None or not a float array; invalid key or parameters.
+      ValueError: ``scores`` is not (N,) with N >= 1 or holds NaN; invalid ratio, method or
+        parameters. The same checks for every method.
 
     Examples:
       >>> import numpy as np, hgjax
@@ -314,7 +316,7 @@ def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray
       [1, 2]
     """
     entry = _scoring(method)
-    values = np.asarray(scores)
+    values = _validate.check_scores(scores)
     m = _validate.n_keep(values.shape[0], _validate.check_ratio(ratio))
     return entry.select(values, m, key=key, **_split(entry, "select", params))
 

@@ -1,7 +1,7 @@
 """Pictures of a resampling: the original cloud and the kept points, one panel each, in a grid.
 
 Needs matplotlib, which is not a runtime dependency: install the ``plot`` extra
-(``pip install "hgjax[plot]"``). matplotlib is imported only when a function here is
+(``pip install ".[plot]"`` in the source folder). matplotlib is imported only when a function here is
 called, and figures are built without pyplot (no global state, any backend).
 """
 
@@ -14,12 +14,17 @@ import numpy as np
 
 __all__ = ["show_resampling"]
 
+CONTEXT_POINTS = 5000
+"""At most about this many points (an index stride) draw the grey cloud behind kept points."""
+
 
 def _matplotlib():
+    from hgjax import _validate
+
     try:
         from matplotlib.figure import Figure
     except ImportError as err:
-        raise ImportError("hgjax.plot needs matplotlib; install the plot extra: pip install 'hgjax[plot]'") from err
+        raise ImportError(f"hgjax.plot needs matplotlib: {_validate.install_hint('plot')}") from err
     return Figure
 
 
@@ -37,7 +42,8 @@ def _marker_size(n: int) -> float:
 
 def show_resampling(points, kept, *, scores=None, colors=None, view: Sequence[float] = (25.0, -60.0),
                     fig=None, title: str | None = None, path=None, cmap: str = "viridis",
-                    panel_size: float = 4.0, columns: int | None = None):
+                    panel_size: float = 4.0, columns: int | None = None, context: bool = False,
+                    zoom: float = 1.0):
     """Draw the original cloud and the kept points in a grid of panels, with equal axes.
 
     Args:
@@ -56,6 +62,10 @@ def show_resampling(points, kept, *, scores=None, colors=None, view: Sequence[fl
       cmap: matplotlib colour map used with ``scores`` (default ``"viridis"``).
       panel_size: width and height of each panel in inches (default 4).
       columns: panels per row (default ceil(sqrt(panels)), a near-square grid).
+      context: draw the cloud in light grey (every point, or an index stride of about
+        ``CONTEXT_POINTS``) behind the kept points, which are then red in every panel but
+        the original, whatever ``scores`` or ``colors`` say (default False).
+      zoom: magnification about the cloud's centre, > 0 (default 1: the whole cloud).
 
     Returns:
       The ``matplotlib.figure.Figure``, with one 3D axes per panel: the original first.
@@ -74,6 +84,7 @@ def show_resampling(points, kept, *, scores=None, colors=None, view: Sequence[fl
     """
     from hgjax import _validate
 
+    zoom = _validate.check_positive(zoom, "zoom")
     Figure = _matplotlib()
     pts = np.asarray(_validate.check_points(points), dtype=np.float64)
     n = pts.shape[0]
@@ -98,12 +109,17 @@ def show_resampling(points, kept, *, scores=None, colors=None, view: Sequence[fl
     if fig is None:
         fig = Figure(figsize=(panel_size * columns, panel_size * rows + 0.5 * bool(title)))
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-12)
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-12) / zoom
     for i, (label, idx) in enumerate(entries):
         ax = fig.add_subplot(rows, columns, i + 1, projection="3d")
         sub = pts[idx]
         style = dict(s=_marker_size(idx.size), linewidths=0, depthshade=False)
-        if scores is not None:
+        if context and i > 0:
+            grey = pts[::max(1, n // CONTEXT_POINTS)]
+            ax.scatter(grey[:, 0], grey[:, 1], grey[:, 2], color="0.85", s=_marker_size(grey.shape[0]),
+                       linewidths=0, depthshade=False)
+            ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], color="C3", **style)
+        elif scores is not None:
             ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], c=colours[idx], cmap=cmap, vmin=0.0, vmax=1.0, **style)
         elif colours is not None:
             ax.scatter(sub[:, 0], sub[:, 1], sub[:, 2], color=colours[idx], **style)

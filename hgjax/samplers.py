@@ -497,7 +497,7 @@ def fps_backend(backend: str) -> str:
     backend = _validate.check_choice(backend, "backend", FPS_BACKENDS)
     installed = importlib.util.find_spec("fpsample") is not None
     if backend == "fpsample" and not installed:
-        raise ImportError("backend='fpsample' needs the fpsample package: pip install 'hgjax[fps]'")
+        raise ImportError(f"backend='fpsample' needs the fpsample package: {_validate.install_hint('fps')}")
     if backend == "auto":
         return "fpsample" if installed and jax.default_backend() == "cpu" else "jax"
     return backend
@@ -548,6 +548,9 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     if start >= n:
         raise ValueError(f"start must be < N = {n}; got {start}")
     local = spatial.local_frame(pts)[0]  # float64 origin removed before any float32 cast
+    extent = np.abs(local).max()
+    if extent > 0:  # an exact power of two: squared distances neither under- nor overflow
+        local = np.ldexp(local, -np.frexp(extent)[1])
     if fps_backend(backend) == "fpsample":
         return _fps_fpsample(local, m, start)
     p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))

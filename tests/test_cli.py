@@ -59,7 +59,8 @@ def score_calls(monkeypatch):
 
 def test_resample_mesh_to_ply_with_score(tmp_path):
     out = tmp_path / "kept.ply"
-    proc = run("resample", MESH, "-o", out, "--samples", 3000, "--ratio", 0.1, "--method", "hkc", "--quiet")
+    proc = run("resample", MESH, "-o", out, "--samples", 3000, "--ratio", 0.1, "--method", "hkc", "--quiet",
+               "--order", "priority")
     assert proc.returncode == 0, proc.stderr
     assert "kept 300 of 3000" in proc.stderr
     kept = io.read_points(out)
@@ -68,7 +69,7 @@ def test_resample_mesh_to_ply_with_score(tmp_path):
     assert np.all(score[:-1] <= score[1:])  # HKC keeps the smallest beta, best first
 
 
-def test_resample_scan_carries_colour_and_writes_indices(tmp_path, capsys):
+def test_resample_scan_carries_colour(tmp_path, capsys):
     out = tmp_path / "kept.pcd"
     code, _, err = run_here(capsys, "resample", SCAN, "-o", out, "--samples", 4000, "--method", "fps",
                             "--ratio", 0.05)
@@ -79,11 +80,11 @@ def test_resample_scan_carries_colour_and_writes_indices(tmp_path, capsys):
     rows = {tuple(p): c for p, c in zip(src.points.astype(np.float32), src.attributes["colors"].tolist())}
     assert all(rows[tuple(p)] == c for p, c in zip(kept.points.astype(np.float32),
                                                    kept.attributes["colors"].tolist()))
-    code, _, err = run_here(capsys, "resample", SCAN, "-o", tmp_path / "i.npy", "--samples", 4000, "--method",
+    code, _, err = run_here(capsys, "resample", SCAN, "-o", tmp_path / "k.npy", "--samples", 4000, "--method",
                             "uniform", "--ratio", 0.05, "--key", 3)
     assert code == 0, err
-    idx = np.load(tmp_path / "i.npy")
-    assert idx.shape == (200,) and len(np.unique(idx)) == 200
+    kept = io.read_points(tmp_path / "k.npy")
+    assert len(kept) == 200 and len(np.unique(kept.points, axis=0)) == 200
 
 
 def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, score_calls):
@@ -93,7 +94,7 @@ def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, s
     assert [m for m, _ in score_calls] == ["gfr"]
     points = io.read_points(LAMPPOST).points
     scores = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "gfr"), "gfr"))
-    idx = hgjax.keep(scores, 0.1, method="gfr", mode="top")
+    idx = np.sort(hgjax.keep(scores, 0.1, method="gfr", mode="top"))  # written in input order
     kept = io.read_points(tmp_path / "k.ply")
     np.testing.assert_array_equal(kept.points, points[idx])
     np.testing.assert_allclose(kept.attributes["score"], scores[idx], rtol=1e-6)
@@ -152,10 +153,10 @@ def test_parameter_errors_exit_2(capsys, tmp_path, args, message):
 @pytest.mark.parametrize("method", ["hkc", "gfr", "voxel"])
 def test_count_keeps_exactly_m_points(capsys, tmp_path, method):
     for count in (1, 333, 1771):
-        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "i.npy", "--count", count,
+        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.npy", "--count", count,
                                 "--method", method)
         assert code == 0, err
-        assert np.unique(np.load(tmp_path / "i.npy")).size == count
+        assert len(io.read_points(tmp_path / "k.npy")) == count
 
 
 def test_count_ratio_is_exact_for_every_size():
@@ -174,13 +175,13 @@ def test_voxel_size_is_one_pass_at_that_size(capsys, tmp_path):
                             "--voxel-size", 0.5)
     assert code == 0, err
     expected = hgjax.voxel_sample(points, voxel_size=0.5)
-    np.testing.assert_array_equal(np.load(tmp_path / "i.npy"), expected)
+    np.testing.assert_array_equal(io.read_points(tmp_path / "i.npy").points, points[np.sort(expected)])
     assert expected.size < points.shape[0] // 2
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "j.npy", "--method", "voxel",
                             "--voxel-size", 0.5, "--count", 100)
     assert code == 0, err
-    np.testing.assert_array_equal(np.load(tmp_path / "j.npy"), hgjax.voxel_sample(points, 100 / len(points),
-                                                                                   voxel_size=0.5))
+    expected = hgjax.voxel_sample(points, 100 / len(points), voxel_size=0.5)
+    np.testing.assert_array_equal(io.read_points(tmp_path / "j.npy").points, points[np.sort(expected)])
 
 
 def test_score_command(tmp_path, capsys):
@@ -202,13 +203,18 @@ def test_score_float64(tmp_path):
     assert score.dtype == np.float64
 
 
-def test_demo_runs_every_method():
-    proc = run("demo", "--n-points", 2000, "--quiet")
+def test_demo_runs_every_method_and_draws_them(tmp_path):
+    import matplotlib.image
+
+    proc = run("demo", "--n-points", 2000, "--quiet", "-o", tmp_path / "demo.png")
     assert proc.returncode == 0, proc.stderr
     for method in hgjax.METHODS:
         assert f"\n{method} " in proc.stdout
     assert " 2000    400 " in proc.stdout
     assert proc.stderr == ""
+    assert f"wrote the picture to {tmp_path / 'demo.png'}" in proc.stdout
+    assert proc.stdout.splitlines()[-1].startswith("next: hgjax resample ")
+    assert matplotlib.image.imread(tmp_path / "demo.png").shape[1] > 1000
 
 
 def test_version_and_help(capsys):
@@ -273,7 +279,7 @@ def test_output_onto_the_input(capsys, tmp_path):
     code, _, err = run_here(capsys, "resample", path, "-o", path, "--method", "lhf", "--ratio", 0.25,
                             "--dtype", "float64")
     assert code == 0, err
-    idx = hgjax.resample(source.points, 0.25, method="lhf")
+    idx = np.sort(hgjax.resample(source.points, 0.25, method="lhf"))
     kept = io.read_points(path)
     np.testing.assert_array_equal(kept.points, source.points[idx])
     np.testing.assert_array_equal(kept.attributes["colors"], source.attributes["colors"][idx])
@@ -291,11 +297,13 @@ def test_write_failure_exits_1(tmp_path, capsys, monkeypatch):
 def test_too_many_samples_are_refused_up_front(capsys, tmp_path, monkeypatch):
     start = time.perf_counter()
     code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "x.ply", "--samples", 10**9)
-    assert code == 2 and "--samples 1000000000 needs about 2048.0 GB" in err and "or fewer" in err
+    cost = cli.BYTES_PER_SAMPLE["hkc"]
+    assert code == 2 and f"--samples 1000000000 needs about {cost:.1f} GB" in err and "or fewer" in err
     assert time.perf_counter() - start < 5
     monkeypatch.setattr(cli, "_available_memory", lambda: 2**30)
     code, _, err = run_here(capsys, "compare", MESH, "--samples", 10**6)
-    assert code == 2 and f"use --samples {2**30 // cli.BYTES_PER_SAMPLE} or fewer" in err
+    costliest = max(cli.BYTES_PER_SAMPLE.values())  # compare runs every method
+    assert code == 2 and f"use --samples {2**30 // costliest} or fewer" in err
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "x.ply", "--samples", 10**6)
     assert code == 0, err  # a point cloud is only subset: nothing is sampled
     code, _, err = run_here(capsys, "resample", DATA / "meshes" / "bunny.ply", "-o", tmp_path / "x.ply",
@@ -370,7 +378,7 @@ def test_show_resampling_panels_equal_axes_and_errors(monkeypatch):
     with pytest.raises(ValueError, match="columns must be"):
         show_resampling(pts, np.arange(3), columns=0)
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
-    with pytest.raises(ImportError, match=r"hgjax\[plot\]"):
+    with pytest.raises(ImportError, match=r'pip install "\.\[plot\]"'):
         show_resampling(pts, np.arange(3))
 
 

@@ -150,8 +150,8 @@ def test_las_scale_rule():
 def test_missing_las_packages_name_the_extra(tmp_path, monkeypatch):
     _make_las(tmp_path / "in.las", "1.2", 3, [])
     monkeypatch.setitem(__import__("sys").modules, "lazrs", None)
-    with pytest.raises(ImportError, match=r'pip install "hgjax\[las\]"'):
+    with pytest.raises(ImportError, match=r'pip install "\.\[las\]"'):
         io.read_points(tmp_path / "in.las")
-    with pytest.raises(ImportError, match=r'pip install "hgjax\[las\]"'):
+    with pytest.raises(ImportError, match=r'pip install "\.\[las\]"'):
         io.check_writable(tmp_path / "out.laz")
     assert len(io.read_points(SCAN)) == 1771  # other formats do not need the extra

@@ -14,7 +14,7 @@ from scipy.stats import spearmanr
 
 import hgjax
 from hgjax import spectrum
-from hgjax.scores import ea, hkc, hkf, lhf, voxel
+from hgjax.scores import _common, ea, hkc, hkf, lhf, voxel
 
 
 import naive
@@ -263,8 +263,8 @@ def test_lhf_invariant_is_scale_free_bitwise(dtype):
         np.testing.assert_array_equal(gamma(jnp.asarray(np.ldexp(sig, k), dtype)), want)
 
 
-def test_lhf_unit_scale_is_an_exact_power_of_two(dtype):
-    unit_scale = lhf._unit_scale
+def test_unit_scale_is_an_exact_power_of_two(dtype):
+    unit_scale = _common.unit_scale
     sig = np.random.default_rng(20).normal(size=(8, 3)).astype(dtype)
     for k in (-100, -30, 0, 30, 100):
         s = np.ldexp(sig, k).astype(dtype)

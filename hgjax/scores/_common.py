@@ -1,4 +1,4 @@
-"""Pieces shared by the per-method score modules: variant check, safe arithmetic, soft map."""
+"""Pieces shared by the per-method score modules: variant check, safe arithmetic, exact scaling, soft map."""
 
 from __future__ import annotations
 
@@ -44,3 +44,25 @@ def band_ratio(high2: jax.Array, low2: jax.Array) -> jax.Array:
     """sqrt(high2) / (sqrt(high2) + sqrt(low2)) from squared band energies; 0 when both vanish."""
     h, l = safe_sqrt(high2), safe_sqrt(low2)
     return safe_div(h, h + l, 0.0)
+
+
+def _pow2(k, dtype):
+    """2.0 ** k in ``dtype`` for an integer array k in the normal exponent range (exact bits)."""
+    info = jnp.finfo(dtype)
+    return jax.lax.bitcast_convert_type((k + (info.maxexp - 1)) << info.nmant, dtype)
+
+
+def unit_scale(s):
+    """s times the power of two that brings max|s| into [1/2, 1) (an all-zero s stays 0).
+
+    Exact, so every rounding after it scales with it. The exponent comes from a max over the
+    exponent bits (one integer reduction: XLA would recompute a frexp chain in every fusion
+    that reads the scale); a subnormal max|s| is brought to [2^-p, 1) with p the mantissa
+    bits. Two factors, because 2^e alone can overflow.
+    """
+    info = jnp.finfo(s.dtype)
+    bits = jnp.int64 if info.bits == 64 else jnp.int32
+    field = (jax.lax.bitcast_convert_type(jax.lax.stop_gradient(s), bits) >> info.nmant) & (2 * info.maxexp - 1)
+    e = (info.maxexp - 2) - jnp.max(field)  # max|s| in [2^(E - bias), 2^(E - bias + 1))
+    h = e >> 1
+    return s * _pow2(h, s.dtype) * _pow2(e - h, s.dtype)

@@ -98,7 +98,9 @@ def variation(offsets, valid):
         conditioned), padding rows masked by ``valid`` (K,).
 
     Returns:
-      Scalar c in [0, 1/3]; 0 when all valid points coincide.
+      Scalar c in [0, 1/3]; 0 when all valid points coincide. Scale-free: the offsets are
+      first scaled by an exact power of two (:func:`hgjax.scores._common.unit_scale`), so
+      no square under- or overflows at any extent of the cloud.
 
     Examples:
       >>> import jax.numpy as jnp, hgjax
@@ -106,7 +108,7 @@ def variation(offsets, valid):
       >>> float(hgjax.scores.ea.variation(flat, jnp.ones(4, bool)))
       0.0
     """
-    x = jnp.where(valid[:, None], offsets, 0)
+    x = _common.unit_scale(jnp.where(valid[:, None], offsets, 0))
     count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
     mean = jnp.sum(x, axis=0) / count
     y = jnp.where(valid[:, None], x - mean[None, :], 0)

@@ -92,28 +92,6 @@ def _null_factor(rank, n, dtype):
     return jnp.asarray([_haar_l1_factor(n - r) for r in range(3)], dtype=dtype)[rank]
 
 
-def _pow2(k, dtype):
-    """2.0 ** k in ``dtype`` for an integer array k in the normal exponent range (exact bits)."""
-    info = jnp.finfo(dtype)
-    return jax.lax.bitcast_convert_type((k + (info.maxexp - 1)) << info.nmant, dtype)
-
-
-def _unit_scale(s):
-    """s times the power of two that brings max|s| into [1/2, 1) (an all-zero s stays 0).
-
-    Exact, so every rounding after it scales with it. The exponent comes from a max over the
-    exponent bits (one integer reduction: XLA would recompute a frexp chain in every fusion
-    that reads the scale); a subnormal max|s| is brought to [2^-p, 1) with p the mantissa
-    bits. Two factors, because 2^e alone can overflow.
-    """
-    info = jnp.finfo(s.dtype)
-    bits = jnp.int64 if info.bits == 64 else jnp.int32
-    field = (jax.lax.bitcast_convert_type(jax.lax.stop_gradient(s), bits) >> info.nmant) & (2 * info.maxexp - 1)
-    e = (info.maxexp - 2) - jnp.max(field)  # max|s| in [2^(E - bias), 2^(E - bias + 1))
-    h = e >> 1
-    return s * _pow2(h, s.dtype) * _pow2(e - h, s.dtype)
-
-
 def _row_sum(x):
     """Sum over the last axis, written out as adds for short axes (XLA CPU reductions are slow there)."""
     if x.shape[-1] > 32:
@@ -211,7 +189,7 @@ def gram_bands(s) -> GramBands:
     info = jnp.finfo(s.dtype)
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it; squares and 1 / det then neither underflow nor overflow.
-    s = _unit_scale(s)
+    s = _common.unit_scale(s)
     q = jnp.asarray(_PLANE, s.dtype)  # NumPy float64 scalars would promote a float32 s under x64
     # Small products written out elementwise: XLA fuses them, batched dots of this size are slow.
     x0, x1, x2 = s[:, 0], s[:, 1], s[:, 2]

@@ -1,0 +1,71 @@
+"""Library contracts found by fuzzing (issue 24): scale-free FPS, EA and PCA-AC, one check of
+``scores`` for every method, ``chunk_size`` named, an empty ASCII PCD named."""
+
+import numpy as np
+import pytest
+
+import hgjax
+from hgjax import io
+
+SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return hgjax.eval.box_union_cloud(seed=0, n_points=1000).points
+
+
+@pytest.mark.parametrize("backend", ["fpsample", "jax"])
+def test_fps_is_scale_free(cloud, backend):
+    if backend == "fpsample":
+        pytest.importorskip("fpsample")
+    want = hgjax.farthest_point_sample(cloud, 0.2, backend=backend)
+    for extent in (1e-40, 1e-25, 1e30):
+        idx = hgjax.farthest_point_sample(cloud * extent, 0.2, backend=backend)
+        assert np.unique(idx).size == 200, extent
+        np.testing.assert_array_equal(idx, want)
+
+
+@pytest.mark.parametrize("method", ["ea", "pca_ac"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_ea_and_pca_ac_are_scale_free(cloud, method, dtype):
+    points = cloud.astype(dtype)
+    want = np.asarray(hgjax.score(hgjax.neighbourhoods(points, method), method))
+    assert np.isfinite(want).all() and want.max() > 0
+    for k in (-80, 70, 100):  # extents about 8e-25, 1.2e21 and 1.3e30: squares under- or overflow
+        scaled = np.ldexp(points, k).astype(dtype)
+        np.testing.assert_array_equal(np.asarray(hgjax.score(hgjax.neighbourhoods(scaled, method), method)), want)
+        np.testing.assert_array_equal(hgjax.resample(scaled, 0.2, method=method, key=None),
+                                      hgjax.resample(points, 0.2, method=method))
+
+
+@pytest.mark.parametrize("method", SCORING)
+@pytest.mark.parametrize("scores, error, message", [
+    (None, TypeError, "scores must be a float array of shape \\(N,\\); got None"),
+    (np.zeros((4, 2)), ValueError, "scores must have shape \\(N,\\); got \\(4, 2\\)"),
+    (np.zeros(0), ValueError, "scores must hold at least one score"),
+    (np.arange(4), TypeError, "scores must be a float array; got dtype int64"),
+    (np.array([0.1, "a"], dtype=object), TypeError, "scores must be a float array; got dtype object"),
+    (np.array([0.1, np.nan, 0.3, 0.2]), ValueError, "scores contains NaN at 1 of 4 points"),
+])
+def test_keep_checks_scores_the_same_way_for_every_method(method, scores, error, message):
+    import jax
+
+    with pytest.raises(error, match=message):
+        hgjax.keep(scores, 0.5, method=method, key=jax.random.key(0))
+
+
+@pytest.mark.parametrize("chunk_size, error", [(0, ValueError), (-5, ValueError), (2.5, TypeError)])
+def test_chunk_size_is_named(cloud, chunk_size, error):
+    nb = hgjax.neighbourhoods(cloud, "ea")
+    with pytest.raises(error, match="chunk_size must be"):
+        hgjax.score(nb, "ea", chunk_size=chunk_size)
+
+
+def test_an_empty_ascii_pcd_is_an_error_naming_the_file(tmp_path):
+    pytest.importorskip("pypcd4")
+    path = tmp_path / "empty.pcd"
+    path.write_text("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 0\nHEIGHT 1\n"
+                    "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n")
+    with pytest.raises(io.PointCloudReadError, match=f"cannot read {path}: the file holds no points"):
+        io.read_points(path)
