@@ -286,7 +286,8 @@ def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]
     if method in CUBE:
         _validate.check_min_points(n, 2, "HKC/HKF")
     elif method != "gfr":
-        _validate.check_min_points(n, build["k"], f"k={build['k']} nearest neighbours")
+        what = f"LHF lengths={score['lengths']}" if method == "lhf" else f"k={build['k']} nearest neighbours"
+        _validate.check_min_points(n, build["k"], what)
     bmin, bmax = _bounds(pts)
     origin = (bmin + bmax) / 2
     lo, hi = bmin - origin, bmax - origin
@@ -449,6 +450,8 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
         raise ValueError(f"method {method!r} cannot run in tiles (tile={tile!r}): {GLOBAL_ONLY[method]};"
                          " pass tile=None")
     pipeline._split(entry, "build", params)  # unknown names raise
+    if "tau" in params:  # a soft-score parameter resample does not use: still checked
+        _validate.check_traced_positive(params["tau"], "tau")
     if method == "gfr" and params.get("variant") == "reference":
         if distributed:
             raise ValueError(f"method 'gfr' with variant='reference' cannot run in tiles (tile={tile!r}): its squared"

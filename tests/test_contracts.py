@@ -69,3 +69,15 @@ def test_an_empty_ascii_pcd_is_an_error_naming_the_file(tmp_path):
                     "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n")
     with pytest.raises(io.PointCloudReadError, match=f"cannot read {path}: the file holds no points"):
         io.read_points(path)
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda p: hgjax.resample(p, 0.2, method="ea", dedupe="yes"), TypeError, "dedupe must be True or False"),
+    (lambda p: hgjax.resample(p, 0.2, method="lhf", tau=-1), ValueError, "tau must be a finite number > 0"),
+    (lambda p: hgjax.resample(p, 0.2, method="lhf", lengths=(8, 100000)), ValueError, r"LHF lengths=\(8, 100000\)"),
+    (lambda p: hgjax.neighbourhoods(p, "lhf", lengths=(8, 100000)), ValueError, r"LHF lengths=\(8, 100000\)"),
+    (lambda p: hgjax.score(None, "ea"), TypeError, "nb must be hgjax.Neighbourhoods"),
+])
+def test_parameters_are_named_in_their_errors(call, error, match):
+    with pytest.raises(error, match=match):
+        call(np.random.default_rng(0).random((100, 3)))

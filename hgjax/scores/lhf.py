@@ -431,6 +431,7 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
     lengths = _validate.check_lengths(lengths)
     variant = _common.check_variant(variant)
     dedupe = variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe")
+    _validate.check_min_points(_validate.check_points(points).shape[0], max(lengths), f"LHF lengths={lengths}")
     nb = spatial.knn(points, max(lengths), dedupe=dedupe, capacity=capacity)
     return dataclasses.replace(nb, params=spatial.record({"lengths": lengths, "variant": variant, "dedupe": dedupe}))
 
