@@ -27,9 +27,9 @@ sampling, isotropic noise 0 to 1 spacing, rotated): bench/edge_detectors.py repo
 the labelled clouds, on which nothing was tuned.
 
 Degenerate neighbourhoods: where all points coincide C_k = 0 and S = 0; collinear or coplanar
-points give finite S. The normal enters through ``stop_gradient`` (its derivative is singular
-where l0 is degenerate), so gradients with respect to the points flow through c_k, the means
-and the radius and are finite on every cloud; the score is its own smooth twin, as EA's is.
+points give finite S. The normal's derivative (:func:`smallest_eigenvector`) is exact where
+l0 is simple and finite where it is degenerate, so gradients with respect to the points are
+finite on every cloud; the score is its own smooth twin, as EA's is.
 """
 
 from __future__ import annotations
@@ -40,11 +40,13 @@ import jax.numpy as jnp
 from hgjax import _stream, spatial
 from hgjax.scores import _common, ea
 
-__all__ = ["BAND_SCALES", "LOW", "SCALES", "neighbourhoods", "score", "sharpness", "soft_score"]
+__all__ = ["BAND_SCALES", "LOW", "SCALES", "neighbourhoods", "normal_high_pass", "score", "sharpness",
+           "smallest_eigenvector", "soft_score"]
 
 SCALES = (8, 16, 32)  # surface variation scales; K = max(SCALES) neighbours per query
 BAND_SCALES = (16, 32)  # scales of the normal high-pass
 LOW = 4  # points averaged into the denoised copy of the point
+GAP = 1e-6  # relative eigenvalue gap below which the normal's derivative leaves a term out
 
 
 def _prefix(offsets, valid, k: int):
@@ -57,11 +59,46 @@ def _prefix(offsets, valid, k: int):
     return mean, y.T @ y / count, keep
 
 
+@jax.custom_jvp
+def smallest_eigenvector(cov):
+    """Unit eigenvector (3,) of the smallest eigenvalue of a symmetric 3 x 3 ``cov`` (its sign
+    is arbitrary), by :func:`hgjax.scores.ea` 's cyclic Jacobi.
+
+    The derivative is first-order perturbation theory, dn = sum_j v_j (v_j^T dC n) / (l0 - l_j)
+    over the other eigenpairs, with the terms of an eigenvalue within ``GAP`` x trace of l0
+    left out: exact where l0 is simple, finite where it is degenerate (there n is one vector
+    of its eigenspace, and the eigenspace, not n, is what varies smoothly).
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores import mss
+      >>> mss.smallest_eigenvector(jnp.diag(jnp.array([2.0, 0.5, 1.0]))).tolist()
+      [0.0, 1.0, 0.0]
+    """
+    lam, vec = ea._jacobi(cov, vectors=True)
+    return vec[:, jnp.argmin(lam)]
+
+
+@smallest_eigenvector.defjvp
+def _smallest_eigenvector_jvp(primals, tangents):
+    (cov,), (dcov,) = primals, tangents
+    lam, vec = ea._jacobi(cov, vectors=True)
+    i = jnp.argmin(lam)
+    normal = vec[:, i]
+    tol = GAP * jnp.abs(jnp.trace(cov))
+    dn = jnp.zeros_like(normal)
+    for j in range(3):
+        gap = lam[i] - lam[j]
+        far = (j != i) & (jnp.abs(gap) > tol)
+        coef = jnp.where(far, (vec[:, j] @ dcov @ normal) / jnp.where(far, gap, 1), 0)
+        dn = dn + coef * vec[:, j]
+    return normal, dn
+
+
 def normal_high_pass(offsets, valid, k: int, low_mean):
     """h_k = |n_k . (m_k - m_low)| / r_k of one neighbourhood (0 when the k points coincide)."""
     mean, cov, _ = _prefix(offsets, valid, k)
-    lam, vec = ea._jacobi(jax.lax.stop_gradient(cov), vectors=True)
-    normal = vec[:, jnp.argmin(lam)]
+    normal = smallest_eigenvector(cov)
     radius = _common.safe_sqrt(jnp.trace(cov))
     return _common.safe_div(jnp.abs(normal @ (mean - low_mean)), radius, 0.0)
 
