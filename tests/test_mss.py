@@ -4,6 +4,8 @@ finite gradients of its smooth twin on degenerate clouds."""
 
 from __future__ import annotations
 
+import pathlib
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -115,9 +117,16 @@ def overlap(a, b):
     return len(np.intersect1d(a, b)) / len(a)
 
 
-@pytest.mark.parametrize("regime", ["random", "grid"])
-def test_kept_set_is_invariant_to_rotation_translation_scale_and_permutation(regime):
-    p = box_cloud(3000, seed=3, regime=regime).points
+FANDISK = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "fandisk.obj"
+
+
+@pytest.mark.parametrize("cloud", ["boxes", "fandisk"])
+def test_kept_set_is_invariant_to_rotation_translation_scale_and_permutation(cloud):
+    # Random surface samples: on a lattice, tied neighbour distances and tied scores make any
+    # kept set depend on rounding (bench/results/rotation_overlap.md measures the shared clouds).
+    if cloud == "fandisk" and not FANDISK.exists():
+        pytest.skip("shared data not available")
+    p = box_cloud(3000, seed=3).points if cloud == "boxes" else hgjax.io.read_points(FANDISK, samples=4000).points
     base = hgjax.resample(p, 0.2, method="mss")
     rot = Rotation.random(random_state=np.random.default_rng(11)).as_matrix()
     assert overlap(base, hgjax.resample(p @ rot.T, 0.2, method="mss")) >= 0.95
@@ -125,9 +134,8 @@ def test_kept_set_is_invariant_to_rotation_translation_scale_and_permutation(reg
     np.testing.assert_array_equal(hgjax.resample(p * 4.0, 0.2, method="mss"), base)  # a power of two: exact
     assert overlap(base, hgjax.resample(p * 3.7, 0.2, method="mss")) >= 0.95
     perm = np.random.default_rng(12).permutation(len(p))
-    if regime == "random":  # no tied neighbour distances: the scores permute bitwise
-        np.testing.assert_array_equal(host_score(p[perm]), host_score(p)[perm])
-    assert overlap(base, perm[hgjax.resample(p[perm], 0.2, method="mss")]) >= 0.95
+    np.testing.assert_array_equal(host_score(p[perm]), host_score(p)[perm])  # no ties: scores permute bitwise
+    assert overlap(base, perm[hgjax.resample(p[perm], 0.2, method="mss")]) == 1.0
 
 
 def test_finds_the_edges_of_a_box_union_better_than_ea():
