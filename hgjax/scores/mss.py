@@ -27,7 +27,7 @@ sampling, isotropic noise 0 to 1 spacing, rotated): bench/edge_detectors.py repo
 the labelled clouds, on which nothing was tuned.
 
 Degenerate neighbourhoods: where all points coincide C_k = 0 and S = 0; collinear or coplanar
-points give finite S. The normal's derivative (:func:`smallest_eigenvector`) is exact where
+points give finite S. The normal's derivative (:func:`smallest_eigenpair`) is exact where
 l0 is simple and finite where it is degenerate, so gradients with respect to the points are
 finite on every cloud; the score is its own smooth twin, as EA's is.
 """
@@ -40,8 +40,8 @@ import jax.numpy as jnp
 from hgjax import _stream, spatial
 from hgjax.scores import _common, ea
 
-__all__ = ["BAND_SCALES", "LOW", "SCALES", "neighbourhoods", "normal_high_pass", "score", "sharpness",
-           "smallest_eigenvector", "soft_score"]
+__all__ = ["BAND_SCALES", "LOW", "SCALES", "neighbourhoods", "score", "sharpness", "smallest_eigenpair",
+           "soft_score"]
 
 SCALES = (8, 16, 32)  # surface variation scales; K = max(SCALES) neighbours per query
 BAND_SCALES = (16, 32)  # scales of the normal high-pass
@@ -50,21 +50,22 @@ GAP = 1e-6  # relative eigenvalue gap below which the normal's derivative leaves
 
 
 def _prefix(offsets, valid, k: int):
-    """Mean (3,), covariance (3, 3) and mask of the first k rows (the k nearest points)."""
-    keep = valid & (jnp.arange(valid.shape[0]) < k)
-    x = jnp.where(keep[:, None], offsets, 0)
+    """Mean (3,) and covariance (3, 3) of the first k rows (the k nearest points)."""
+    keep = valid[:k]
+    x = jnp.where(keep[:, None], offsets[:k], 0)
     count = jnp.maximum(jnp.sum(keep), 1).astype(x.dtype)
     mean = jnp.sum(x, axis=0) / count
     y = jnp.where(keep[:, None], x - mean[None, :], 0)
-    return mean, y.T @ y / count, keep
+    return mean, y.T @ y / count
 
 
 @jax.custom_jvp
-def smallest_eigenvector(cov):
-    """Unit eigenvector (3,) of the smallest eigenvalue of a symmetric 3 x 3 ``cov`` (its sign
-    is arbitrary), by :func:`hgjax.scores.ea` 's cyclic Jacobi.
+def smallest_eigenpair(cov):
+    """Smallest eigenvalue l0 and a unit eigenvector n (3,) of it (sign arbitrary) of a
+    symmetric 3 x 3 ``cov``, by one run of :mod:`hgjax.scores.ea` 's cyclic Jacobi.
 
-    The derivative is first-order perturbation theory, dn = sum_j v_j (v_j^T dC n) / (l0 - l_j)
+    The derivatives are first-order perturbation theory: dl0 = n^T dC n (as
+    :func:`hgjax.scores.ea.smallest_eigenvalue`) and dn = sum_j v_j (v_j^T dC n) / (l0 - l_j)
     over the other eigenpairs, with the terms of an eigenvalue within ``GAP`` x trace of l0
     left out: exact where l0 is simple, finite where it is degenerate (there n is one vector
     of its eigenspace, and the eigenspace, not n, is what varies smoothly).
@@ -72,15 +73,17 @@ def smallest_eigenvector(cov):
     Examples:
       >>> import jax.numpy as jnp
       >>> from hgjax.scores import mss
-      >>> mss.smallest_eigenvector(jnp.diag(jnp.array([2.0, 0.5, 1.0]))).tolist()
-      [0.0, 1.0, 0.0]
+      >>> l0, n = mss.smallest_eigenpair(jnp.diag(jnp.array([2.0, 0.5, 1.0])))
+      >>> float(l0), n.tolist()
+      (0.5, [0.0, 1.0, 0.0])
     """
     lam, vec = ea._jacobi(cov, vectors=True)
-    return vec[:, jnp.argmin(lam)]
+    i = jnp.argmin(lam)
+    return lam[i], vec[:, i]
 
 
-@smallest_eigenvector.defjvp
-def _smallest_eigenvector_jvp(primals, tangents):
+@smallest_eigenpair.defjvp
+def _smallest_eigenpair_jvp(primals, tangents):
     (cov,), (dcov,) = primals, tangents
     lam, vec = ea._jacobi(cov, vectors=True)
     i = jnp.argmin(lam)
@@ -92,19 +95,13 @@ def _smallest_eigenvector_jvp(primals, tangents):
         far = (j != i) & (jnp.abs(gap) > tol)
         coef = jnp.where(far, (vec[:, j] @ dcov @ normal) / jnp.where(far, gap, 1), 0)
         dn = dn + coef * vec[:, j]
-    return normal, dn
-
-
-def normal_high_pass(offsets, valid, k: int, low_mean):
-    """h_k = |n_k . (m_k - m_low)| / r_k of one neighbourhood (0 when the k points coincide)."""
-    mean, cov, _ = _prefix(offsets, valid, k)
-    normal = smallest_eigenvector(cov)
-    radius = _common.safe_sqrt(jnp.trace(cov))
-    return _common.safe_div(jnp.abs(normal @ (mean - low_mean)), radius, 0.0)
+    return (lam[i], normal), (normal @ dcov @ normal, dn)
 
 
 def sharpness(offsets, valid):
     """MSS score of ONE neighbourhood: mean_k 3 c_k + mean_k h_k (module docstring).
+
+    One covariance and one Jacobi run per scale serve both c_k and, at the band scales, h_k.
 
     Args:
       offsets: (K, 3) the k nearest points minus the point, nearest first (row 0 is the
@@ -123,10 +120,18 @@ def sharpness(offsets, valid):
       0.0
     """
     x = jnp.where(valid[:, None], offsets, 0)
-    variation = sum(3 * ea.variation(x[:k], valid[:k]) for k in SCALES) / len(SCALES)
     low_mean = _prefix(x, valid, LOW)[0]
-    high = sum(normal_high_pass(x, valid, k, low_mean) for k in BAND_SCALES) / len(BAND_SCALES)
-    return variation + high
+    variation, high = 0.0, 0.0
+    for k in SCALES:
+        mean, cov = _prefix(x, valid, k)
+        trace = jnp.trace(cov)
+        if k in BAND_SCALES:
+            l0, normal = smallest_eigenpair(cov)
+            high = high + _common.safe_div(jnp.abs(normal @ (mean - low_mean)), _common.safe_sqrt(trace), 0.0)
+        else:
+            l0 = ea.smallest_eigenvalue(cov)
+        variation = variation + _common.safe_div(3 * jnp.maximum(l0, 0), trace, 0.0)
+    return variation / len(SCALES) + high / len(BAND_SCALES)
 
 
 def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) -> spatial.Neighbourhoods:
