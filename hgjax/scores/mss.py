@@ -6,7 +6,7 @@ serves every prefix k <= K. For each scale k the covariance C_k of the k nearest
 eigenvalues l0 <= l1 <= l2 and the eigenvector n_k of l0 (the local normal). Two signals:
 
 * surface variation c_k = l0 / (l0 + l1 + l2) (Pauly, Keiser, Gross, "Multi-scale feature
-  extraction on point-sampled surfaces", Eurographics 2003, Eq. (2); EA's score at one k),
+  extraction on point-sampled surfaces", Eurographics 2003; EA's score at one k),
   at every scale of ``SCALES``;
 * normal high-pass h_k = |n_k . (m_k - m_low)| / r_k at every scale of ``BAND_SCALES``:
   m_k is the mean of the k nearest points (the low-pass of the k-nearest graph), m_low that
