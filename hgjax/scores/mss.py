@@ -70,6 +70,12 @@ def smallest_eigenpair(cov):
     left out: exact where l0 is simple, finite where it is degenerate (there n is one vector
     of its eigenspace, and the eigenspace, not n, is what varies smoothly).
 
+    Args:
+      cov: (3, 3) symmetric.
+
+    Returns:
+      (l0, n): scalar l0 and (3,) unit n, in the dtype of ``cov``.
+
     Examples:
       >>> import jax.numpy as jnp
       >>> from hgjax.scores import mss
