@@ -20,7 +20,7 @@ import jax
 import numpy as np
 
 from hgjax import _validate, samplers, spatial, tiles
-from hgjax.scores import ea, gfr, hkc, hkf, lhf, pca_ac, voxel
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, pca_ac, voxel
 from hgjax.select import ExactSum, soft_select, top_k, weighted_sample
 
 __all__ = ["METHODS", "Method", "keep", "neighbourhoods", "resample", "score", "soft_resample", "soft_score",
@@ -137,6 +137,10 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     _method("pca_ac", "knn", True, False,
             "PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
             DICTA, ea.neighbourhoods, ea.score, ea.soft_score, _pca_ac_select),
+    _method("mss", "knn", True, False,
+            "multi-scale sharpness: surface variation at 8/16/32 neighbours plus the normal graph high-pass",
+            "Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", mss.neighbourhoods, mss.score,
+            mss.soft_score, _top(True)),
     _method("uniform", None, None, True, "uniformly random subset (needs key)", "random down-sampling",
             None, None, None, samplers.uniform_sample),
     _method("voxel", None, None, False, "one point per voxel of a grid sized to reach the count",

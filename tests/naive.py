@@ -205,3 +205,24 @@ def gfr_naive(points, max_nn=100, radius_factor=None):
             w[t, j] = w[j, t] = np.exp(-(qq * qq) / two_v) if two_v > 0 else 0.0
     lap = np.diag(w.sum(axis=1)) - w
     return np.linalg.norm(lap @ p, axis=1)
+
+
+def mss(points, scales=(8, 16, 32), band_scales=(16, 32), low=4):
+    """MSS sharpness (hgjax.scores.mss): mean_k 3 l0 / trace C_k + mean_k |n_k . (m_k - m_low)| / r_k,
+    from brute-force k-nearest rows and one ``np.linalg.eigh`` per scale."""
+    p = np.asarray(points, dtype=np.float64)
+    rows = knn_rows(p, max(scales))
+    out = np.empty(len(p))
+    for i in range(len(p)):
+        x = p[rows[i]] - p[i]
+        variation, high = [], []
+        for k in scales:
+            lam = np.linalg.eigvalsh(np.cov(x[:k].T, bias=True))
+            variation.append(3 * max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0)
+        for k in band_scales:
+            cov = np.cov(x[:k].T, bias=True)
+            lam, v = np.linalg.eigh(cov)
+            shift = x[:k].mean(axis=0) - x[:low].mean(axis=0)
+            high.append(abs(v[:, 0] @ shift) / np.sqrt(np.trace(cov)) if np.trace(cov) > 0 else 0.0)
+        out[i] = np.mean(variation) + np.mean(high)
+    return out

@@ -93,7 +93,7 @@ def test_the_pipeline_is_exported():
                  "working_dtype", "PrecisionWarning", "local_frame"):
         assert name in hgjax.__all__, name
     assert not hasattr(hgjax, "soft")  # hgjax.soft is gone: its pieces live in the method modules
-    assert set(hgjax.scores.__all__) == {"ea", "gfr", "hkc", "hkf", "lhf", "pca_ac", "voxel"}
+    assert set(hgjax.scores.__all__) == {"ea", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac", "voxel"}
 
 
 def _modules():

@@ -1,0 +1,193 @@
+"""Every scoring method as an edge detector: MCC keeping exactly E points and average precision.
+
+Columns (issue 22):
+
+* (a) the five labelled clouds of ../shared/data/labelled with their edge-only labels, and the
+  PCEDNet clouds again with edge + near-edge points as positives;
+* (b) the same clouds with Gaussian noise of 0.25 / 0.5 / 1 spacing (spacing = intrinsic
+  resolution), isotropic, and along the normals (estimated by PCA of the 16 nearest points of
+  the clean cloud, the same for every method); labels unchanged;
+* (c) box unions (``hgjax.eval.synthetic_set``, random and grid sampling, noise p = 0 / 0.2 /
+  0.5 / 1 spacing), labels within one spacing of a sharp edge;
+* (d) the published figures of PCEDNet's supplement that the issue quotes, beside ours.
+
+Every method runs with its defaults (GFR with ``mode="top"``, its deterministic ranking). MCC:
+keep exactly E = the number of positives (``hgjax.keep`` at ratio E / N). AP: the full keep
+order (``hgjax.keep`` at ratio 1) as the ranking. Nothing is tuned here; the labelled clouds
+are only reported.
+
+Usage (from the repository root):
+  python bench/edge_detectors.py                      # writes bench/results/edge_detectors.md
+  python bench/edge_detectors.py --quick --out /tmp/x # smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+import time
+
+import jax
+import numpy as np
+from scipy.spatial import cKDTree
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import hgjax  # noqa: E402
+import _report  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+METHODS = ("mss", "ea", "pca_ac", "gfr", "hkc", "hkf", "lhf")
+LABELLED = ROOT.parent / "shared" / "data" / "labelled"
+NOISES = (0.25, 0.5, 1.0)
+SYNTHETIC_NOISES = (0.0, 0.2, 0.5, 1.0)
+SYNTHETIC = {"random": {"n_shapes": 6, "n_points": 6000}, "grid": {"n_shapes": 6, "n_points": 8000}}
+QUICK_SYNTHETIC = {"random": {"n_shapes": 1, "n_points": 2000}, "grid": {"n_shapes": 1, "n_points": 2000}}
+NOISE_SEED = 2022
+# PCEDNet supplement (Himeur et al., ACM TOG 41(1), 2022), mean MCC over the shipped models of each
+# set, as quoted in issue 22. Per-model figures were not available to us.
+PUBLISHED = {
+    "EC-Net": (".465", ".346", ".310"),
+    "covariance detector": (".441", "-", ".383"),
+    "PCEDNet": (".689", ".357", ".380"),
+    "PCEDNet, best variant": (".826", ".394", ".477"),
+}
+
+
+def detect(points, positives, method):
+    """(MCC keeping exactly E, AP) of one method's default ranking on one labelled cloud."""
+    e, n = int(positives.sum()), len(points)
+    params = {"mode": "top"} if method == "gfr" else {}
+    nb = hgjax.neighbourhoods(points, method)
+    extra = {"ratio": e / n} if method == "lhf" else {}
+    scores = np.asarray(hgjax.score(nb, method, **extra))
+    kept = hgjax.keep(scores, e / n, method=method, **params)
+    order = hgjax.keep(scores, 1.0, method=method, **params)
+    rank = np.empty(n)
+    rank[order] = np.arange(n, 0, -1)
+    m = hgjax.eval.edge_metrics(points, positives, kept, scores=rank, resolution=1.0)
+    assert m["n_kept"] == e
+    return m["mcc"], m["average_precision"]
+
+
+def pca_normals(points, k=16):
+    _, idx = cKDTree(points).query(points, k=k)
+    x = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    return np.linalg.eigh(np.einsum("nki,nkj->nij", x, x))[1][:, :, 0]
+
+
+def noisy(points, p, kind, spacing, normals, seed):
+    rng = np.random.default_rng([NOISE_SEED, seed])
+    if kind == "iso":
+        return points + p * spacing * rng.standard_normal(points.shape)
+    return points + p * spacing * rng.standard_normal((len(points), 1)) * normals
+
+
+def md(header, rows):
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + [
+        "| " + " | ".join(str(x) for x in r) + " |" for r in rows]
+
+
+def cell(v):
+    return f"{v[0]:.3f} / {v[1]:.3f}"
+
+
+def bold_best(rows, first=1):
+    """Bold the best MCC and the best AP of every column (rows: [name, (mcc, ap), ...])."""
+    out = [[r[0]] for r in rows]
+    for j in range(first, len(rows[0])):
+        best = [max(r[j][i] for r in rows) for i in (0, 1)]
+        for r, o in zip(rows, out):
+            parts = [f"**{r[j][i]:.3f}**" if r[j][i] >= best[i] - 1e-12 else f"{r[j][i]:.3f}" for i in (0, 1)]
+            o.append(" / ".join(parts))
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="tiny smoke run")
+    parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
+    args = parser.parse_args(argv)
+    t0 = time.time()
+    files = sorted(LABELLED.glob("*.gt.ply"))[: 2 if args.quick else None]
+    noises = NOISES[:1] if args.quick else NOISES
+    real = {}  # column -> {method: (mcc, ap)}
+    for f in files:
+        cloud = hgjax.eval.load_labelled(f)
+        pts, spacing = cloud.points, cloud.resolution
+        cols = {f"{cloud.name}": (pts, cloud.edge_mask)}
+        if cloud.name.startswith("pced"):
+            near = hgjax.eval.load_labelled(f, scheme="pcednet")
+            rgb_near = _near_edge(f)
+            cols[f"{cloud.name} edge+near"] = (pts, near.edge_mask | rgb_near)
+        normals = pca_normals(pts)
+        for kind in ("iso", "normal"):
+            for i, p in enumerate(noises):
+                cols[f"{cloud.name} {kind} {p}"] = (noisy(pts, p, kind, spacing, normals, i + 10 * (kind == "normal")),
+                                                    cloud.edge_mask)
+        for col, (q, pos) in cols.items():
+            real[col] = {m: detect(q, pos, m) for m in METHODS}
+        print(f"{cloud.name}: {time.time() - t0:.0f} s", flush=True)
+    synthetic = {}
+    for regime, size in (QUICK_SYNTHETIC if args.quick else SYNTHETIC).items():
+        for p in SYNTHETIC_NOISES[:2] if args.quick else SYNTHETIC_NOISES:
+            clouds = hgjax.eval.synthetic_set(regime=regime, noise=p, **size)
+            res = [{m: detect(c.points, c.edge_mask, m) for m in METHODS} for c in clouds]
+            synthetic[f"{regime} p={p}"] = {m: tuple(np.mean([r[m] for r in res], axis=0)) for m in METHODS}
+            print(f"{regime} p={p}: {time.time() - t0:.0f} s", flush=True)
+
+    names = [f.name.removesuffix(".gt.ply") for f in files]
+    clean_cols = [c for c in real if c in names or c.endswith("edge+near")]
+    mean = lambda cols, m: tuple(np.mean([real[c][m] for c in cols], axis=0))  # noqa: E731
+    noise_cols = {f"{kind} {p}": [f"{n} {kind} {p}" for n in names] for kind in ("iso", "normal") for p in noises}
+    table = ["## (a) labelled clouds, clean: MCC at E / AP", ""]
+    table += md(["method"] + clean_cols + [f"mean (edge-only, {len(names)} clouds)"],
+                bold_best([[m] + [real[c][m] for c in clean_cols] + [mean(names, m)] for m in METHODS]))
+    table += ["", "## (b) labelled clouds with noise (std = p spacings): MCC at E / AP, mean over the clouds", ""]
+    table += md(["method"] + list(noise_cols), bold_best([[m] + [mean(cs, m) for cs in noise_cols.values()]
+                                                           for m in METHODS]))
+    table += ["", "Per cloud:", ""]
+    noisy_cols = [c for c in real if c not in clean_cols]
+    table += md(["method"] + noisy_cols, bold_best([[m] + [real[c][m] for c in noisy_cols] for m in METHODS]))
+    table += ["", "## (c) box unions (`synthetic_set`, axis-aligned): MCC at E / AP, mean over the shapes", ""]
+    table += md(["method"] + list(synthetic), bold_best([[m] + [synthetic[c][m] for c in synthetic]
+                                                          for m in METHODS]))
+    table += ["", "## (d) published detectors (PCEDNet supplement, mean MCC per set as quoted in issue 22)", "",
+              "Per-model figures for abc 7033, CubeFractal2 and TwoPlane90 were not available to us, so the "
+              "published per-set means stand beside our per-model MCC; they are not like for like (different "
+              "models, and PCEDNet's MCC protocol thresholds its classifier instead of keeping exactly E).", ""]
+    ours = {n: real[n]["mss"][0] for n in names if n.startswith("pced")}
+    table += md(["detector", "ABC (mean)", "noisy ABC (mean)", "SHREC (mean)"],
+                [[k, *v] for k, v in PUBLISHED.items()])
+    table += [""] + md(["hgjax mss (this run)"] + list(ours), [["MCC at E"] + [f"{v:.3f}" for v in ours.values()]])
+    wins = {c: all(a >= b for a, b in zip(real[c]["mss"], real[c]["ea"])) for c in real}
+    table += ["", f"Run time {time.time() - t0:.0f} s (2 shared cores)."]
+    paragraphs = [
+        "MCC keeping exactly E points (E = the number of positives) and average precision of the full keep order, "
+        "for every scoring method with its defaults (GFR `mode=\"top\"`). Bold: best of the column. Labelled "
+        "clouds: PCEDNet colours near-edge points (255,196,93); in the edge-only columns they count as non-edge "
+        "(as in bench/results/edge_defaults.md), in the `edge+near` columns as positives. Noise: std = p x the "
+        "intrinsic resolution, isotropic or along PCA normals of the clean cloud (16 neighbours), one fixed seed "
+        "per column; labels unchanged. Box unions: `hgjax.eval.synthetic_set(regime, noise=p)` "
+        f"({', '.join(f'{r}: {s}' for r, s in (QUICK_SYNTHETIC if args.quick else SYNTHETIC).items())}).",
+        "MSS (`hgjax.scores.mss`) was designed on rotated box unions only; nothing in this file was tuned on "
+        f"the labelled clouds. MSS >= EA in MCC and AP: {sum(map(bool, wins.values()))} of {len(wins)} "
+        "labelled columns (a, b); see the tables for the synthetic ones.",
+    ]
+    _report.write(args.out / "edge_detectors.md", "edge_detectors.py", argv, title="Edge detectors: every scoring "
+                  "method, labelled and synthetic clouds", paragraphs=paragraphs, table=table)
+
+
+def _near_edge(path):
+    """(N,) bool: PCEDNet's near-edge colour (255, 196, 93) in a labelled PLY."""
+    import trimesh
+
+    rgb = np.asarray(trimesh.load(path, file_type="ply").colors)[:, :3].astype(int)
+    return (rgb == np.array(hgjax.eval.synthetic.LABEL_NEAR_EDGE)).all(axis=1)
+
+
+if __name__ == "__main__":
+    main()
