@@ -798,10 +798,12 @@ SIGNAL_EXITS = {"SIGINT": (130, "interrupted"), "SIGTERM": (143, "terminated")}
 
 
 @contextlib.contextmanager
-def _signals(received: list):
+def _signals(received: list, exit_now: bool = False):
     """SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated`, once: the name of the
     first is appended to ``received`` and later ones are ignored, so the clean-up of partial
-    files runs to its end. Signals the parent set to be ignored stay ignored."""
+    files runs to its end. With ``exit_now`` (the console script) the handler removes the
+    partial files and ends the process itself. Signals the parent set to be ignored stay
+    ignored."""
     import signal
     import threading
 
@@ -813,6 +815,17 @@ def _signals(received: list):
         if received:
             return
         received.append(signal.Signals(signum).name)
+        if exit_now:
+            # Unwinding would free arrays that library threads (SciPy's k-d tree workers) may
+            # still read: remove the partial files and end the process here instead.
+            from hgjax import io
+
+            for temp in list(io.OPEN_TEMPORARIES):
+                with contextlib.suppress(OSError):
+                    os.unlink(temp)
+            code, message = SIGNAL_EXITS[received[0]]
+            os.write(2, f"hgjax: {message}\n".encode())
+            os._exit(code)
         raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     saved = {}
@@ -874,7 +887,7 @@ def main(argv=None) -> int:
     """
     received: list[str] = []
     try:
-        with _signals(received):
+        with _signals(received, exit_now=argv is None):
             return _run(argv, received)
     except BaseException as err:
         if not (received or isinstance(err, KeyboardInterrupt)):

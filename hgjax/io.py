@@ -555,6 +555,7 @@ def _atomic_write(target: str, write: Callable[[BinaryIO], None]) -> None:
     temp = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{_host()}.{os.getpid()}"
                         f".{secrets.token_hex(6)}.tmp")
     fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    OPEN_TEMPORARIES.add(temp)
     try:
         with os.fdopen(fd, "wb") as fh:
             write(fh)
@@ -565,6 +566,13 @@ def _atomic_write(target: str, write: Callable[[BinaryIO], None]) -> None:
         if os.path.exists(temp):
             os.unlink(temp)
         raise
+    finally:
+        OPEN_TEMPORARIES.discard(temp)
+
+
+OPEN_TEMPORARIES: set[str] = set()
+"""The temporary files :func:`_atomic_write` is writing now (the command line removes them
+when a signal ends the process at once)."""
 
 
 def _native_column(values: np.ndarray) -> np.ndarray:
