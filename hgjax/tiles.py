@@ -38,11 +38,11 @@ import jax
 import numpy as np
 
 from hgjax import _stream, _validate, samplers, select, spatial
-from hgjax.scores import ea, gfr, hkc, hkf, lhf, voxel
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, voxel
 
 __all__ = ["Plan", "plan", "resample", "tile_scores"]
 
-TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "uniform", "voxel")
+TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "mss", "uniform", "voxel")
 GLOBAL_ONLY = {
     "pca_ac": "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into"
               " tiles",
@@ -195,6 +195,8 @@ def _scoring_params(method: str, params: dict) -> tuple[dict, dict]:
         return ({"variant": variant, "radius_factor": factor, "dedupe": True, "r": None,
                  "max_nn": _validate.check_int(params.get("max_nn", gfr.MAX_NN), "max_nn", minimum=1)},
                 {"mode": _validate.check_choice(params.get("mode", "random"), "mode", gfr.MODES)})
+    if method == "mss":
+        return {"k": max(mss.SCALES), "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
     k = _validate.check_int(params.get("k", ea.DEFAULT_K), "k", minimum=2)
     return {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
 
@@ -398,7 +400,7 @@ def _kernel_scores(plan_: Plan, points, rows, idx, row_args, stream: dict) -> np
         return run(hkf._kernel(p["kernel_size"], p["variant"]), True)
     if method == "lhf":
         return run(lhf._kernel(p["lengths"], p["variant"], p["solver"]), False)
-    return run(ea.variation, False)
+    return run(mss.sharpness if method == "mss" else ea.variation, False)
 
 
 def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None, key=None,

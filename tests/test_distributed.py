@@ -14,7 +14,7 @@ from hgjax import tiles
 
 distributed = pytest.importorskip("distributed")
 
-CASES = [("ea", {}), ("lhf", {}), ("hkc", {}), ("gfr", {"key": jax.random.key(1)}), ("gfr", {"mode": "top"}),
+CASES = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("gfr", {"key": jax.random.key(1)}), ("gfr", {"mode": "top"}),
          ("uniform", {"key": jax.random.key(2)}), ("voxel", {})]
 
 

@@ -11,7 +11,7 @@ import hgjax
 from hgjax import select, spatial, tiles
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
-VARIANTS = [("ea", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
+VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
             ("hkc", {"variant": "reference"}), ("lhf", {"variant": "reference", "lengths": (4, 8)})]
 
 
