@@ -34,6 +34,16 @@ def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:
     return jnp.where(ok, num / jnp.where(ok, den, 1), empty)
 
 
+SWITCH_CLIP = 40.0  # |argument| beyond which a soft switch is flat (sigmoid(40) = 1 - 4e-18)
+
+
+def switch_argument(x: jax.Array, tau) -> jax.Array:
+    """x / tau clipped to +-SWITCH_CLIP: a soft switch's argument whose derivative stays finite
+    however small tau is (the flat tails then contribute 0, not 0 x inf)."""
+    inside = jnp.abs(x) < SWITCH_CLIP * tau
+    return jnp.where(inside, x / jnp.where(inside, tau, 1), jnp.sign(x) * SWITCH_CLIP)
+
+
 def safe_sqrt(x: jax.Array) -> jax.Array:
     """sqrt(x) for x > 0 and 0 elsewhere, with finite gradients at 0."""
     ok = x > 0

@@ -355,8 +355,8 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     out = []
     for n in lengths:
         bands = gram_bands(signal[:n])
-        high = jax.nn.sigmoid((0.5 - bands.ratio) / tau)
-        pair = jnp.exp(-jnp.square((1 - bands.ratio) / tau))
+        high = jax.nn.sigmoid(_common.switch_argument(0.5 - bands.ratio, tau))
+        pair = jnp.exp(-jnp.square(_common.switch_argument(1 - bands.ratio, tau)))
         out.append(band_l1_ratio(bands, high, pair))
     return jnp.stack(out)
 

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate, spatial
+from hgjax.scores import _common
 
 __all__ = ["default_d_factor", "local_signal", "low_high", "neighbourhoods", "soft_local_signal"]
 
@@ -168,7 +169,7 @@ def soft_local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, tau: j
     """
     h = (kernel_size - 1) // 2
     faces = (jnp.arange(-h, h + 2, dtype=offsets.dtype) - 0.5) * d  # (k + 1,) bin faces
-    cdf = jax.nn.sigmoid((offsets[:, :, None] - faces[None, None, :]) / (tau * d))  # (K, 3, k + 1)
+    cdf = jax.nn.sigmoid(_common.switch_argument(offsets[:, :, None] - faces[None, None, :], tau * d))  # (K, 3, k + 1)
     member = jnp.where(valid[:, None, None], cdf[:, :, :-1] - cdf[:, :, 1:], 0)  # (K, 3, k)
     return jnp.einsum("ki,kj,kl->ijl", member[:, 0], member[:, 1], member[:, 2]).reshape(-1)
 
