@@ -76,12 +76,13 @@ exit codes:
 DEFAULT_RATIO = 0.2
 DEMO_PICTURE = "hgjax-demo.png"
 SEED_LIMIT = 2**32
-BYTES_PER_SAMPLE = {"ea": 2048, "fps": 2048, "gfr": 4096, "hkc": 2048, "hkf": 2048, "lhf": 2048, "pca_ac": 2048,
-                    "uniform": 2048, "voxel": 2048}
+BYTES_PER_SAMPLE = {"ea": 2048, "fps": 2048, "gfr": 4096, "hkc": 2048, "hkf": 2048, "lhf": 2048, "mss": 4096,
+                    "pca_ac": 2048, "uniform": 2048, "voxel": 2048}
 """Peak memory per point sampled on a mesh and resampled, by method: ~190 bytes to sample
 fandisk.obj plus the method's own cost (measured: ~1700 for HKC; 2.9-3.7 KB in all for GFR),
 rounded up. The other methods are given HKC's cost: HKF, LHF and EA peaked at or below HKC
-at 2e5 samples; PCA-AC and the samplers were not measured beyond 5e4. ``--samples`` is
+at 2e5 samples; PCA-AC and the samplers were not measured beyond 5e4; MSS (32 neighbours,
+twice EA's) is given GFR's, unmeasured. ``--samples`` is
 refused above the available memory divided by the cost of the costliest method of the run."""
 FALLBACK_MEMORY = 8 * 2**30
 """Memory assumed where neither /proc/meminfo nor ``os.sysconf`` tells."""
