@@ -133,4 +133,4 @@ def test_float_parameter_sweeps_do_not_recompile():
             nb = hgjax.neighbourhoods(p, "hkc", d_factor=d_factor, capacity=256)
             new |= widths(nb) - seen
             hgjax.score(nb, "hkc")
-    assert kernel._cache_size() - compiled == len(events) <= len(new)
+    assert kernel._cache_size() - compiled <= len(new) and len(events) <= len(new)
