@@ -97,7 +97,7 @@ def test_fps_backend_choice(monkeypatch):
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name: None if name == "fpsample" else real(name))
     assert samplers.fps_backend("auto") == "jax"
-    with pytest.raises(ImportError, match="hgjax\\[fps\\]"):
+    with pytest.raises(ImportError, match=r'pip install "\.\[fps\]"'):
         samplers.fps_backend("fpsample")
     p = np.array([[0.0, 0, 0], [1, 0, 0], [4, 0, 0], [2, 0, 0]])
     assert hgjax.farthest_point_sample(p, 0.75).tolist() == [0, 2, 3]
