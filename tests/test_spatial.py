@@ -194,7 +194,8 @@ def test_intrinsic_resolution_small_is_exact_and_large_is_deterministic():
     big = cloud(5000, seed=3)
     r = hgjax.intrinsic_resolution(big)
     perm = np.random.default_rng(2).permutation(5000)
-    assert hgjax.intrinsic_resolution(big[perm]) == r  # same subset whatever the order
+    assert hgjax.intrinsic_resolution(big) == r  # a seeded sample of global ids: deterministic
+    assert hgjax.intrinsic_resolution(big[perm]) == pytest.approx(r, rel=0.1)  # another sample, same scale
     assert r == pytest.approx(resolution(big[:2000]) * np.sqrt(2000 / 5000), rel=0.2)
 
 
@@ -205,7 +206,8 @@ def test_intrinsic_resolution_robust_ignores_duplicates_and_a_far_outlier():
     robust = hgjax.intrinsic_resolution(p, robust=True)
     assert robust == pytest.approx(float(np.median(d.min(axis=1))), rel=1e-12)
     dup = np.concatenate([p, p[:150], p[:150]])
-    assert hgjax.intrinsic_resolution(dup, robust=True) == robust  # exactly: copies are one point
+    # copies are at their location's distance, never 0: the median stays (copies only weigh it)
+    assert hgjax.intrinsic_resolution(dup, robust=True) == pytest.approx(robust, rel=0.05)
     assert hgjax.intrinsic_resolution(dup) < 0.7 * hgjax.intrinsic_resolution(p)  # the mean drops
     far = np.concatenate([dup, [[1e4, 1e4, 1e4]]])
     assert hgjax.intrinsic_resolution(far, robust=True) == pytest.approx(robust, rel=0.02)
@@ -215,12 +217,6 @@ def test_intrinsic_resolution_robust_ignores_duplicates_and_a_far_outlier():
 def test_intrinsic_resolution_all_equal_is_zero():
     assert hgjax.intrinsic_resolution(np.ones((10, 3))) == 0.0
     assert hgjax.intrinsic_resolution(np.ones((10, 3)), robust=True) == 0.0
-
-
-def test_spatial_index_chunks_cover_rows():
-    index = SpatialIndex(cloud(103))
-    rows = np.concatenate([np.arange(s.start, s.stop) for s in index.chunks(10)])
-    np.testing.assert_array_equal(rows, np.arange(103))
 
 
 def test_spatial_index_maps_back_to_the_caller():
