@@ -369,7 +369,7 @@ def test_bad_tau_and_temperature_raise_value_error_naming_them(name, value):
             call()
     if name == "tau":
         with pytest.raises(ValueError, match="tau"):
-            hgjax.soft_score(nb, "lhf", ratio=RATIO, tau=value)
+            hgjax.soft_score(hgjax.neighbourhoods(pts, "lhf"), "lhf", ratio=RATIO, tau=value)
 
 
 @pytest.mark.parametrize("method", METHODS)
