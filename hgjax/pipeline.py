@@ -104,9 +104,7 @@ def _gfr_select(scores, m, *, key=None, mode="random"):
         return top_k(scores, m, largest=True)
     _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
     values = np.asarray(scores, dtype=np.float64)
-    n, total = values.shape[0], ExactSum.of(values).value()
-    pi = 0.8 * values / total + 0.2 / n if total > 0 else np.full(n, 1.0 / n)
-    return weighted_sample(key, pi, m)
+    return weighted_sample(key, gfr.inclusion(values, ExactSum.of(values).value(), values.shape[0]), m)
 
 
 def _pca_ac_select(scores, m, *, key=None, n_clusters=pca_ac.DEFAULT_N_CLUSTERS):

@@ -325,11 +325,17 @@ def weighted_sample(key: jax.Array, weights, m: int) -> np.ndarray:
         raise ValueError("weights must be finite, >= 0 and not all zero")
     if key is None:
         raise ValueError("key must be a jax.random key, e.g. jax.random.key(0); got None")
-    g = point_gumbel(key, np.arange(w.shape[0]))
-    with np.errstate(divide="ignore"):
-        perturbed = np.where(w > 0, np.log(w.astype(np.float64)) + g, -np.inf)
     # Zero-weight points come last, in index order (stable).
-    return top_k(perturbed, m, largest=True)
+    return top_k(gumbel_log_weights(key, w, np.arange(w.shape[0])), m, largest=True)
+
+
+def gumbel_log_weights(key, weights: np.ndarray, gids: np.ndarray) -> np.ndarray:
+    """(N,) float64 log w + Gumbel noise of each point's id (:func:`point_gumbel`); -inf where w = 0.
+
+    The largest m of them are a weighted sample without replacement (Gumbel-top-k).
+    """
+    with np.errstate(divide="ignore"):
+        return np.where(weights > 0, np.log(np.asarray(weights, dtype=np.float64)) + point_gumbel(key, gids), -np.inf)
 
 
 @jax.custom_jvp

@@ -608,19 +608,19 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16) -> tuple[n
     k = min(k, index.n - 1)
     if k < 1:
         return np.ones(rows.size), np.zeros(rows.size)
-    nbrs, reach = _chunked_knn(index, k + 1, rows)
+    nbrs, reach = chunked_knn(index, k + 1, rows)
     need = np.unique(nbrs)
     extra = need[~np.isin(need, rows)]
     rk = np.zeros(index.n)
     rk[rows] = reach
     if extra.size:
-        rk[extra] = _chunked_knn(index, k + 1, extra)[1]
+        rk[extra] = chunked_knn(index, k + 1, extra)[1]
     spacing = np.sqrt(np.pi / k * (rk[nbrs] ** 2).mean(axis=1))
     reach = reach + rk[nbrs].max(axis=1)
     return np.where(spacing > 0, spacing, 1.0), reach
 
 
-def _chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`SpatialIndex.knn` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
     parts = [index.knn(k, rows[start:start + QUERY_ROWS]) for start in range(0, rows.size, QUERY_ROWS)]
     if not parts:

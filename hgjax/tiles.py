@@ -181,19 +181,14 @@ def _scoring_params(method: str, params: dict) -> tuple[dict, dict]:
             score["variant"] = build["variant"]
         return build, score
     if method == "lhf":
-        lengths = _validate.check_lengths(params.get("lengths", lhf.DEFAULT_LENGTHS))
-        variant = lhf._common.check_variant(params.get("variant", "invariant"))
-        dedupe = params.get("dedupe")
-        dedupe = variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe")
+        b = lhf.build_params(**{k: params[k] for k in ("lengths", "variant", "dedupe") if k in params})
         solver = _validate.check_choice(params.get("solver", "gram"), "solver", lhf.SOLVERS)
-        return ({"k": max(lengths), "dedupe": dedupe},
-                {"lengths": lengths, "variant": variant, "solver": solver})
+        return ({"k": max(b["lengths"]), "dedupe": b["dedupe"]},
+                {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
     if method == "gfr":
-        variant = _validate.check_choice(params.get("variant", "invariant"), "variant", gfr.GFR_VARIANTS)
-        factor = params.get("radius_factor")
-        factor = gfr.RADIUS_FACTOR if factor is None else _validate.check_positive(factor, "radius_factor")
-        return ({"variant": variant, "radius_factor": factor, "dedupe": True, "r": None,
-                 "max_nn": _validate.check_int(params.get("max_nn", gfr.MAX_NN), "max_nn", minimum=1)},
+        variant, factor, max_nn = gfr.graph_params(params.get("variant", "invariant"), params.get("radius_factor"),
+                                                   params.get("max_nn", gfr.MAX_NN))
+        return ({"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn},
                 {"mode": _validate.check_choice(params.get("mode", "random"), "mode", gfr.MODES)})
     if method == "mss":
         return {"k": max(mss.SCALES), "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
@@ -364,9 +359,7 @@ def tile_scores(cloud: _Cloud, cell, plan_: Plan, stream: dict | None = None) ->
             idx, scale, reach = voxel.build_rows(index, rows, plan_.build)
             row_args = (scale.astype(plan_.dtype),)
         else:
-            parts = [index.knn(plan_.build["k"], rows[s:s + spatial.QUERY_ROWS])
-                     for s in range(0, rows.size, spatial.QUERY_ROWS)]
-            idx, reach = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+            idx, reach = spatial.chunked_knn(index, plan_.build["k"], rows)
             row_args = ()
         if cloud.covers(cell, halo, index.points[rows], reach):
             break
@@ -515,9 +508,7 @@ def _exact_sum(part) -> select.ExactSum:
 def _gfr_keys(part, total: float, n: int, key_data: np.ndarray):
     """GFR's Gumbel-top-k keys: log pi + Gumbel(key, gid), pi = 0.8 s / sum(s) + 0.2 / N (Chen et al.)."""
     gids, s = part
-    pi = 0.8 * s.astype(np.float64) / total + 0.2 / n if total > 0 else np.full(s.size, 1.0 / n)
-    with np.errstate(divide="ignore"):
-        perturbed = np.where(pi > 0, np.log(pi) + select.point_gumbel(key_data, gids), -np.inf)
+    perturbed = select.gumbel_log_weights(key_data, gfr.inclusion(s, total, n), gids)
     return select.order_keys(perturbed, largest=True), gids
 
 

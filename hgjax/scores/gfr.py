@@ -76,6 +76,13 @@ def _sq_dist(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
 
 
+def inclusion(scores, total: float, n: int) -> np.ndarray:
+    """(N,) float64 sampling weights pi = 0.8 score / total + 0.2 / n of GFR's default selection
+    (Chen et al. 2018), uniform 1 / n when the scores sum to 0; ``total`` the exact sum of all n scores."""
+    values = np.asarray(scores, dtype=np.float64)
+    return 0.8 * values / total + 0.2 / n if total > 0 else np.full(values.shape[0], 1.0 / n)
+
+
 def squared_radius(radius_factor: float, stats: spatial.SampleStats) -> float:
     """The invariant graph's squared radius (radius_factor x resolution)^2.
 
@@ -194,6 +201,25 @@ def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
     return _split_keys(np.concatenate(rows) * m + np.concatenate(cols), m)
 
 
+def graph_params(variant: str, radius_factor: float | None, max_nn: int) -> tuple[str, float | None, int]:
+    """Validated (variant, radius_factor, max_nn) of :func:`graph` (the invariant factor defaulted).
+
+    Raises:
+      TypeError, ValueError: unknown variant, invalid radius_factor or max_nn, or
+        radius_factor given with the reference variant.
+    """
+    variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
+    max_nn = _validate.check_int(max_nn, "max_nn", minimum=1)
+    if variant == "reference":
+        if radius_factor is not None:
+            raise ValueError("radius_factor applies to variant='invariant' only; the reference radius is"
+                             " min(10 minNN, 2 maxNN)")
+    else:
+        radius_factor = RADIUS_FACTOR if radius_factor is None else _validate.check_positive(
+            radius_factor, "radius_factor")
+    return variant, radius_factor, max_nn
+
+
 def graph(points, *, variant: str = "invariant", radius_factor: float | None = None,
           max_nn: int = MAX_NN) -> tuple[np.ndarray, np.ndarray | None]:
     """The GFR graph W0 as padded neighbour rows (host, SciPy; not jittable).
@@ -231,15 +257,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
       >>> idx.tolist(), first
       ([[1, 2], [2, 4], [4, 4], [4, 4]], None)
     """
-    variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
-    max_nn = _validate.check_int(max_nn, "max_nn", minimum=1)
-    if variant == "reference":
-        if radius_factor is not None:
-            raise ValueError("radius_factor applies to variant='invariant' only; the reference radius is"
-                             " min(10 minNN, 2 maxNN)")
-    else:
-        radius_factor = RADIUS_FACTOR if radius_factor is None else _validate.check_positive(
-            radius_factor, "radius_factor")
+    variant, radius_factor, max_nn = graph_params(variant, radius_factor, max_nn)
     pts = np.asarray(points)
     n = pts.shape[0]
     empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))

@@ -428,12 +428,23 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
       >>> lhf.neighbourhoods(np.random.default_rng(0).random((100, 3)), lengths=(4, 8)).idx.shape
       (100, 8)
     """
+    params = build_params(lengths=lengths, variant=variant, dedupe=dedupe)
+    lengths = params["lengths"]
+    _validate.check_min_points(_validate.check_points(points).shape[0], max(lengths), f"LHF lengths={lengths}")
+    nb = spatial.knn(points, max(lengths), dedupe=params["dedupe"], capacity=capacity)
+    return dataclasses.replace(nb, params=spatial.record(params))
+
+
+def build_params(*, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None) -> dict:
+    """Validated build parameters of LHF: lengths, variant and dedupe (default: True for "invariant").
+
+    Raises:
+      TypeError, ValueError: invalid arguments.
+    """
     lengths = _validate.check_lengths(lengths)
     variant = _common.check_variant(variant)
     dedupe = variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe")
-    _validate.check_min_points(_validate.check_points(points).shape[0], max(lengths), f"LHF lengths={lengths}")
-    nb = spatial.knn(points, max(lengths), dedupe=dedupe, capacity=capacity)
-    return dataclasses.replace(nb, params=spatial.record({"lengths": lengths, "variant": variant, "dedupe": dedupe}))
+    return {"lengths": lengths, "variant": variant, "dedupe": dedupe}
 
 
 @functools.lru_cache(maxsize=None)
