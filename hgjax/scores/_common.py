@@ -35,13 +35,20 @@ def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:
 
 
 SWITCH_CLIP = 40.0  # |argument| beyond which a soft switch is flat (sigmoid(40) = 1 - 4e-18)
+SWITCH_TAU_FLOOR = 2.0**-40  # softness below which a switch is as sharp as at the floor
 
 
 def switch_argument(x: jax.Array, tau) -> jax.Array:
-    """x / tau clipped to +-SWITCH_CLIP: a soft switch's argument whose derivative stays finite
-    however small tau is (the flat tails then contribute 0, not 0 x inf)."""
-    inside = jnp.abs(x) < SWITCH_CLIP * tau
-    return jnp.where(inside, x / jnp.where(inside, tau, 1), jnp.sign(x) * SWITCH_CLIP)
+    """x / max(tau, 2^-40) clipped to +-SWITCH_CLIP: a soft switch's argument for |x| of order 1.
+
+    Its derivatives stay finite however small tau is: the tau derivative -x / tau^2 is at most
+    |x| 2^80, so the flat tails contribute 0 rather than 0 x inf. Below the floor the switch
+    keeps its sharpness at the floor and its tau derivative is 0. The floor is a constant
+    rather than a comparison of |x| with tau: with that comparison XLA CPU compiles a JVP of
+    LHF's eigenvalue ratio that drops a tangent term under ``jit`` (its reshape-mover and
+    algebraic-simplifier passes together).
+    """
+    return jnp.clip(x / jnp.maximum(tau, SWITCH_TAU_FLOOR), -SWITCH_CLIP, SWITCH_CLIP)
 
 
 def safe_sqrt(x: jax.Array) -> jax.Array:

@@ -168,8 +168,8 @@ def soft_local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, tau: j
       [1.0, 1.0]
     """
     h = (kernel_size - 1) // 2
-    faces = (jnp.arange(-h, h + 2, dtype=offsets.dtype) - 0.5) * d  # (k + 1,) bin faces
-    cdf = jax.nn.sigmoid(_common.switch_argument(offsets[:, :, None] - faces[None, None, :], tau * d))  # (K, 3, k + 1)
+    faces = jnp.arange(-h, h + 2, dtype=offsets.dtype) - 0.5  # (k + 1,) bin faces in units of d
+    cdf = jax.nn.sigmoid(_common.switch_argument(offsets[:, :, None] / d - faces[None, None, :], tau))  # (K, 3, k + 1)
     member = jnp.where(valid[:, None, None], cdf[:, :, :-1] - cdf[:, :, 1:], 0)  # (K, 3, k)
     return jnp.einsum("ki,kj,kl->ijl", member[:, 0], member[:, 1], member[:, 2]).reshape(-1)
 
