@@ -33,6 +33,10 @@ refused with a tile size.
 from __future__ import annotations
 
 import dataclasses
+import glob
+import json
+import os
+import tempfile
 
 import jax
 import numpy as np
@@ -40,7 +44,7 @@ import numpy as np
 from hgjax import _stream, _validate, samplers, select, spatial
 from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, voxel
 
-__all__ = ["Plan", "plan", "resample", "tile_scores"]
+__all__ = ["Plan", "SurveyResult", "plan", "resample", "resample_files", "tile_scores"]
 
 TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "mss", "uniform", "voxel")
 GLOBAL_ONLY = {
@@ -52,6 +56,7 @@ CUBE = ("hkc", "hkf")
 HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K)
 GFR_KEEP_POINTS = 4_000_000  # up to this N, GFR keeps each tile's graph between its two passes
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
+MANIFEST = "hgjax-manifest.json"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -607,3 +612,208 @@ def _voxel_part(cloud: _Cloud, cell, grid) -> tuple[np.ndarray, np.ndarray]:
 
 def _count(part) -> int:
     return int(part[1].size)
+
+
+@dataclasses.dataclass(frozen=True)
+class SurveyResult:
+    """What :func:`resample_files` did.
+
+    Attributes:
+      written: output paths written, in input order.
+      skipped: output paths left as they were (``skip_existing``).
+      failures: {input path: error message} of the inputs that could not be read or written.
+      manifest: path of the manifest JSON, or None when nothing was resampled.
+    """
+
+    written: list
+    skipped: list
+    failures: dict
+    manifest: str | None
+
+
+def _survey_paths(paths) -> list[str]:
+    """Files of ``paths`` (files or glob patterns), in the order given, each once."""
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    found = []
+    for p in paths:
+        p = os.fspath(p)
+        matches = sorted(glob.glob(p)) if glob.has_magic(p) else [p]
+        if not matches:
+            raise ValueError(f"paths: the pattern {p!r} matches no file")
+        found += [m for m in matches if m not in found]
+    if not found:
+        raise ValueError("paths must name at least one file; got none")
+    return found
+
+
+def _point_count(path: str) -> int:
+    """The number of points of a file: a LAS/LAZ header alone, any other format read whole."""
+    from hgjax import io
+
+    if os.path.splitext(path)[1].lower() not in (".las", ".laz"):
+        return len(io.read_points(path))
+    if not os.path.isfile(path):
+        raise io.PointCloudNotFoundError(f"cannot read {path}: no such file")
+    laspy, _ = io._require("las", f"reading {path}")
+    try:
+        with laspy.open(path) as f:
+            return int(f.header.point_count)
+    except Exception as err:
+        raise io.PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
+
+
+def _fill(disk: np.memmap, start: int, path: str, n: int) -> None:
+    """Copy the float64 coordinates of ``path`` into ``disk[start:start + n]`` (LAS/LAZ in chunks)."""
+    from hgjax import io
+
+    if os.path.splitext(path)[1].lower() not in (".las", ".laz"):
+        pts = io.read_points(path).points
+        if pts.shape[0] != n:
+            raise io.PointCloudReadError(f"cannot read {path}: it changed while being read")
+        disk[start:start + n] = pts
+        return
+    laspy, _ = io._require("las", f"reading {path}")
+    at = start
+    try:
+        with laspy.open(path) as f:
+            for chunk in f.chunk_iterator(PASS_ROWS):
+                disk[at:at + len(chunk)] = np.stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], 1)
+                at += len(chunk)
+    except Exception as err:
+        raise io.PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
+    if at - start != n or not np.isfinite(disk[start:at]).all():
+        raise io.PointCloudReadError(f"cannot read {path}: the file holds {at - start} points; its header"
+                                     f" announces {n} (truncated or corrupt)")
+
+
+def _jsonable(value):
+    if isinstance(value, jax.Array) and jax.dtypes.issubdtype(value.dtype, jax.dtypes.prng_key):
+        return np.asarray(jax.random.key_data(value)).tolist()
+    if isinstance(value, (np.ndarray, jax.Array, np.generic)):
+        return np.asarray(value).tolist()
+    return repr(value)
+
+
+def _run_record(paths, method, ratio, tile, key, params) -> dict:
+    """The part of the manifest that decides whether an earlier run's outputs can be kept."""
+    inputs = [{"path": os.path.abspath(p), "bytes": os.path.getsize(p) if os.path.exists(p) else None,
+               "mtime_ns": os.stat(p).st_mtime_ns if os.path.exists(p) else None} for p in paths]
+    return json.loads(json.dumps({"method": method, "ratio": ratio, "tile": tile, "key": key, "params": params,
+                                  "inputs": inputs}, default=_jsonable))
+
+
+def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None,
+                   key=None, keep_going: bool = False, skip_existing: bool = False, **params) -> SurveyResult:
+    """Resample a survey of files as one cloud, writing the kept points of each file beside the others.
+
+    Global ids run in file order, then point order within each file, and the kept ids are
+    exactly those of :func:`resample` on the concatenated cloud. Every input is checked
+    (LAS/LAZ headers, then all coordinates) before any output is written. The coordinates
+    are copied, one file and one chunk of a LAS/LAZ file at a time, into a float64 memmap in
+    a hidden temporary directory of ``out_dir``; :func:`resample` reads its tiles from it,
+    and Dask workers open it by name (they must see ``out_dir``'s file system). The client
+    never holds the survey's coordinates in memory; it holds one int64 tile id per point
+    and, while writing, one input file with its attributes.
+
+    Args:
+      paths: files or glob patterns (each pattern's matches sorted), any format
+        :func:`hgjax.io.read_points` reads; never modified.
+      out_dir: directory of the outputs (created if missing): one file per input, same name.
+      ratio: fraction of the whole survey kept, in (0, 1].
+      method, tile, client, key, **params: as :func:`resample`.
+      keep_going: an unreadable input is reported in the result and left out of the survey
+        instead of raising; an output that cannot be written is reported likewise.
+      skip_existing: keep outputs that exist when the manifest in ``out_dir`` records the
+        same method, ratio, tile, key, parameters and inputs (paths, sizes, modification
+        times); only missing outputs are written.
+
+    Returns:
+      :class:`SurveyResult`. Each output holds its input's kept points in input order, with
+      every attribute, and a LAS/LAZ output keeps its input's header (point format, scale,
+      offset, extra dimensions). ``out_dir/hgjax-manifest.json`` records the run, the
+      number of points N and kept M, and each output's count; outputs and manifest are
+      written atomically.
+
+    Raises:
+      ValueError: ``paths`` matches no file, or an output would be one of the inputs.
+      hgjax.io.PointCloudReadError: an input cannot be read (without ``keep_going``), before
+        any output is written.
+      TypeError, ValueError: as :func:`resample`.
+    """
+    from hgjax import __version__, io
+
+    keep_going = _validate.check_bool(keep_going, "keep_going")
+    skip_existing = _validate.check_bool(skip_existing, "skip_existing")
+    files = _survey_paths(paths)
+    out_dir = os.fspath(out_dir)
+    targets = {p: os.path.join(out_dir, os.path.basename(p)) for p in files}
+    if len(set(targets.values())) < len(files):
+        raise ValueError("paths: two inputs have the same file name, so their outputs in out_dir would collide")
+    clash = [p for p in files if os.path.abspath(targets[p]) == os.path.abspath(p)]
+    if clash:
+        raise ValueError(f"out_dir: the output of {clash[0]} would overwrite it; choose another directory")
+    record = _run_record(files, method, ratio, tile, key, params)
+    manifest = os.path.join(out_dir, MANIFEST)
+    done = set()
+    if skip_existing and os.path.isfile(manifest):
+        with open(manifest) as fh:
+            old = json.load(fh)
+        if old.get("run") == record:
+            done = {p for p in files if os.path.exists(targets[p])}
+    if done and len(done) == len(files):
+        return SurveyResult([], [targets[p] for p in files], {}, manifest)
+    failures, counts = {}, {}
+    for p in files:
+        try:
+            counts[p] = _point_count(p)
+        except io.PointCloudReadError as err:
+            if not keep_going:
+                raise
+            failures[p] = str(err)
+    os.makedirs(out_dir, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
+        raw = os.path.join(work, "xyz.f8")
+        upper = sum(counts.values())
+        disk = np.memmap(raw, dtype=np.float64, mode="w+", shape=(max(upper, 1), 3))
+        starts, n = {}, 0
+        for p, count in counts.items():
+            try:
+                _fill(disk, n, p, count)
+            except io.PointCloudReadError as err:
+                if not keep_going:
+                    raise
+                failures[p] = str(err)
+                continue
+            starts[p], n = n, n + count
+        disk.flush()
+        del disk
+        if n == 0:
+            raise io.PointCloudReadError(f"no input could be read: {failures}")
+        cloud = np.memmap(raw, dtype=np.float64, mode="r", shape=(n, 3))
+        kept = np.sort(resample(cloud, ratio, method=method, tile=tile, client=client, key=key, **params))
+        del cloud
+    written, skipped, outputs = [], [], {}
+    for p, start in starts.items():
+        local = kept[np.searchsorted(kept, start):np.searchsorted(kept, start + counts[p])] - start
+        outputs[p] = {"output": os.path.abspath(targets[p]), "points": counts[p], "kept": int(local.size)}
+        if p in done:
+            skipped.append(targets[p])
+            continue
+        try:
+            data = io.read_points(p)
+            if len(data) != counts[p]:
+                raise io.PointCloudReadError(f"cannot read {p}: it changed while being resampled")
+            kept_data = data.subset(local)
+            io.write_points(targets[p], kept_data.points, attributes=kept_data.attributes, header=kept_data.header)
+        except (io.PointCloudReadError, io.PointCloudWriteError, OSError, ValueError) as err:
+            if not keep_going:
+                raise
+            failures[p] = str(err)
+            continue
+        written.append(targets[p])
+    body = {"hgjax": __version__, "run": record, "n": n, "m": int(kept.size), "outputs": list(outputs.values()),
+            "failures": failures}
+    text = json.dumps(body, indent=2, default=_jsonable).encode()
+    io._atomic_write(os.path.abspath(manifest), lambda fh: fh.write(text))
+    return SurveyResult(written, skipped, failures, manifest)

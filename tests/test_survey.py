@@ -1,0 +1,122 @@
+"""resample_files: a survey of LAS/LAZ tiles resampled as one cloud, in process and on a 2-worker LocalCluster."""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import hgjax
+from hgjax import io, tiles
+
+laspy = pytest.importorskip("laspy")
+
+OFFSET = np.array([500000.0, 4000000.0, 0.0])
+
+
+def _survey(directory, ext=".las", n_files=4, n=3000):
+    """Four LAS/LAZ tiles of one surface with UTM-like offsets and an extra dimension; returns (paths, cloud)."""
+    base = hgjax.eval.box_union_cloud(seed=7, n_points=n_files * n).points * 50
+    paths, parts = [], []
+    for i in range(n_files):
+        header = laspy.LasHeader(point_format=3, version="1.2")
+        header.offsets, header.scales = OFFSET, np.array([0.01, 0.01, 0.001])
+        header.add_extra_dims([laspy.ExtraBytesParams("height", np.float32)])
+        las = laspy.LasData(header)
+        xyz = base[i * n:(i + 1) * n] + OFFSET
+        las.x, las.y, las.z = xyz.T
+        las.intensity = np.arange(n, dtype=np.uint16) + i
+        las["height"] = np.float32(xyz[:, 2] - OFFSET[2])
+        path = os.path.join(directory, f"tile{i}{ext}")
+        las.write(path)
+        paths.append(path)
+        parts.append(io.read_points(path).points)
+    return paths, np.concatenate(parts)
+
+
+def _kept_ids(paths, out_dir):
+    """Global ids of the output points (each output is a subset of its input, in input order)."""
+    ids, start = [], 0
+    for p in paths:
+        src, out = io.read_points(p), io.read_points(os.path.join(out_dir, os.path.basename(p)))
+        rows = {tuple(r): i for i, r in enumerate(src.points)}
+        local = np.array([rows[tuple(r)] for r in out.points], dtype=np.int64)
+        assert (np.diff(local) > 0).all()
+        np.testing.assert_array_equal(out.attributes["intensity"], src.attributes["intensity"][local])
+        np.testing.assert_array_equal(out.attributes["height"], src.attributes["height"][local])
+        np.testing.assert_array_equal(out.header.scales, src.header.scales)
+        np.testing.assert_array_equal(out.header.offsets, src.header.offsets)
+        ids.append(local + start)
+        start += len(src)
+    return np.concatenate(ids)
+
+
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
+        yield c
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_survey_equals_the_concatenated_cloud(tmp_path, ext):
+    paths, cloud = _survey(tmp_path, ext)
+    before = [Path(p).read_bytes() for p in paths]
+    result = tiles.resample_files(str(tmp_path / f"*{ext}"), tmp_path / "kept", 0.2, method="hkc", tile=30.0)
+    want = np.sort(tiles.resample(cloud, 0.2, method="hkc", tile=30.0))
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), want)
+    assert [Path(p).read_bytes() for p in paths] == before
+    assert result.failures == {} and len(result.written) == 4
+    manifest = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())
+    assert manifest["m"] == want.size and sum(o["kept"] for o in manifest["outputs"]) == want.size
+    assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
+
+
+def test_survey_on_a_local_cluster(tmp_path, client):
+    paths, cloud = _survey(tmp_path)
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0, client=client)
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
+                                  np.sort(hgjax.resample(cloud, 0.2, method="ea")))
+
+
+def test_a_point_on_a_tile_edge_is_owned_once(tmp_path):
+    paths, cloud = _survey(tmp_path, n_files=2, n=1500)
+    lo = cloud.min(axis=0)
+    edge = lo + 20.0  # exactly on a grid plane of tile=20 in every axis (0.01 and 0.001 steps)
+    las = laspy.read(paths[0])
+    las.x[0], las.y[0], las.z[0] = edge
+    las.write(paths[0])
+    paths, cloud = paths, np.concatenate([io.read_points(p).points for p in paths])
+    result = tiles.resample_files(paths, tmp_path / "kept", 1.0, method="ea", tile=20.0)
+    assert sum(len(io.read_points(p)) for p in result.written) == cloud.shape[0]
+
+
+def test_a_corrupt_file_is_named_before_any_output(tmp_path):
+    paths, _ = _survey(tmp_path, n_files=3, n=1500)
+    with open(paths[1], "r+b") as fh:
+        fh.truncate(os.path.getsize(paths[1]) // 2)
+    with pytest.raises(io.PointCloudReadError, match="tile1.las"):
+        tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0)
+    assert not os.path.exists(tmp_path / "kept") or os.listdir(tmp_path / "kept") == []
+    result = tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0, keep_going=True)
+    assert list(result.failures) == [paths[1]] and len(result.written) == 2
+    good = [paths[0], paths[2]]
+    cloud = np.concatenate([io.read_points(p).points for p in good])
+    np.testing.assert_array_equal(_kept_ids(good, tmp_path / "kept"), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
+
+
+def test_skip_existing_resumes(tmp_path):
+    paths, _ = _survey(tmp_path, n_files=2, n=1500)
+    out = tmp_path / "kept"
+    tiles.resample_files(paths, out, 0.2, method="ea", tile=30.0)
+    first = (out / "tile0.las").read_bytes()
+    os.unlink(out / "tile1.las")
+    result = tiles.resample_files(paths, out, 0.2, method="ea", tile=30.0, skip_existing=True)
+    assert result.skipped == [str(out / "tile0.las")] and result.written == [str(out / "tile1.las")]
+    assert (out / "tile0.las").read_bytes() == first
+    again = tiles.resample_files(paths, out, 0.2, method="ea", tile=30.0, skip_existing=True)
+    assert again.written == [] and len(again.skipped) == 2
+    changed = tiles.resample_files(paths, out, 0.3, method="ea", tile=30.0, skip_existing=True)
+    assert len(changed.written) == 2
