@@ -46,6 +46,7 @@ examples:
   hgjax resample scans/ -o kept/ --format pcd      every point file of scans/, one output each
   hgjax resample part.stl -o kept.npy --samples 50000 --method lhf
   hgjax resample tiles/ -o kept/ --format laz --keep-going --skip-existing   resume a batch
+  hgjax resample survey/*.laz -o kept/ --tile 500 --workers 2   one survey in tiles, on 2 Dask workers
   hgjax resample scan.ply -o grid.ply --method voxel --voxel-size 0.05
   hgjax score scan.pcd -o scored.ply --method lhf -p lengths=10,30
   hgjax compare bunny.ply -o out/ --methods hkc,hkf,lhf,fps
@@ -234,6 +235,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--order", choices=["input", "priority"], default="input",
                    help="order of the kept points: as in the input (default; keeps a scan's GPS-time or"
                    " scan-line order) or from the highest keep priority down")
+    survey = p.add_argument_group("survey", "with any of these, the inputs are one cloud resampled in tiles"
+                                  " (hgjax.tiles.resample_files): -o is a directory with one output per"
+                                  " input in its format and hgjax-manifest.json")
+    survey.add_argument("--tile", type=_positive(float), default=None, metavar="T",
+                        help="tile edge in the points' units (default: one tile)")
+    survey.add_argument("--workers", type=_positive(int), default=None, metavar="W",
+                        help="run the tiles on a local Dask cluster of W single-threaded processes")
+    survey.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run the tiles on the Dask cluster of this scheduler (its workers must see"
+                        " the inputs and -o)")
 
     p = sub.add_parser("score", parents=[common], help="write per-point scores",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -614,6 +625,9 @@ def cmd_resample(args) -> None:
     params = _method_params(args, entry)
     if args.voxel_size is not None and args.method != "voxel":
         raise UsageError(f"--voxel-size is for --method voxel; got --method {args.method}")
+    if (args.tile, args.workers, args.scheduler) != (None, None, None):
+        _resample_survey(args, params)
+        return
     jobs = _prepare(args)
     key, progress = _key(args), _progress(args)
 
@@ -637,6 +651,57 @@ def cmd_resample(args) -> None:
               file=sys.stderr)
 
     _run_batch(args, jobs, check, process)
+
+
+@contextlib.contextmanager
+def _dask_client(args):
+    """The Dask client of ``--workers`` (a local cluster, closed at the end) or ``--scheduler``."""
+    try:
+        import distributed
+    except ImportError:
+        raise ImportError("--workers and --scheduler need dask.distributed: pip install 'hgjax[distributed]'")\
+            from None
+    if args.scheduler is not None:
+        with distributed.Client(args.scheduler) as client:
+            yield client
+        return
+    with distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        yield client
+
+
+def _resample_survey(args, params: dict) -> None:
+    """``resample`` with --tile, --workers or --scheduler: every input one cloud (:func:`hgjax.tiles.resample_files`)."""
+    from hgjax import tiles
+
+    if args.workers is not None and args.scheduler is not None:
+        raise UsageError("give --workers (a local cluster) or --scheduler (an existing one), not both")
+    refused = {"--count": args.count, "--format": args.format, "--samples": args.samples,
+               "--voxel-size": args.voxel_size, "--order priority": args.order == "priority" or None}
+    given = [name for name, value in refused.items() if value is not None]
+    if given:
+        raise UsageError(f"{', '.join(given)} cannot be used with --tile/--workers/--scheduler (a survey keeps"
+                         " --ratio of all its points, in each input's format and order)")
+    _refuse_stdout(args.output)
+    if os.path.splitext(args.output)[1] and not os.path.isdir(args.output):
+        raise UsageError(f"-o {args.output}: with --tile/--workers/--scheduler, -o is a directory")
+    inputs = _expand(args.inputs)
+    ratio = DEFAULT_RATIO if args.ratio is None else args.ratio
+    start = time.perf_counter()
+    with contextlib.ExitStack() as stack:
+        client = None if args.workers is None and args.scheduler is None else stack.enter_context(_dask_client(args))
+        result = tiles.resample_files(inputs, args.output, ratio, method=args.method, tile=args.tile, client=client,
+                                      key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
+                                      **params)
+    _stage(args, "survey", start)
+    for target in result.skipped:
+        print(f"skipped {target}: it exists and the manifest matches (--skip-existing)", file=sys.stderr)
+    for message in result.failures.values():
+        print(f"hgjax resample: failed: {message}", file=sys.stderr)
+    print(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs to {args.output}"
+          f" ({result.manifest})", file=sys.stderr)
+    if result.failures:
+        raise BatchFailure(f"{len(result.failures)} of {len(inputs)} inputs failed: {', '.join(result.failures)}")
 
 
 def _finite_scores(scores: np.ndarray) -> np.ndarray:

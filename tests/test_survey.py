@@ -120,3 +120,38 @@ def test_skip_existing_resumes(tmp_path):
     assert again.written == [] and len(again.skipped) == 2
     changed = tiles.resample_files(paths, out, 0.3, method="ea", tile=30.0, skip_existing=True)
     assert len(changed.written) == 2
+
+
+def test_cli_survey_on_two_workers(tmp_path, capsys):
+    from hgjax import cli
+
+    paths, cloud = _survey(tmp_path, n_files=2, n=1500)
+    out = tmp_path / "kept"
+    code = cli.main(["resample", *paths, "-o", str(out), "--method", "ea", "--ratio", "0.2", "--tile", "30",
+                     "--workers", "2"])
+    assert code == 0, capsys.readouterr().err
+    np.testing.assert_array_equal(_kept_ids(paths, out), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
+    assert (out / tiles.MANIFEST).exists()
+
+
+@pytest.mark.parametrize("extra,message", [(["--workers", "0"], "--workers"),
+                                           (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "not both"),
+                                           (["--tile", "30", "--count", "10"], "--count")])
+def test_cli_survey_bad_arguments(tmp_path, capsys, extra, message):
+    from hgjax import cli
+
+    paths, _ = _survey(tmp_path, n_files=2, n=100)
+    assert cli.main(["resample", *paths, "-o", str(tmp_path / "kept"), *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "kept").exists()
+
+
+def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
+    from hgjax import cli
+
+    paths, _ = _survey(tmp_path, n_files=2, n=1500)
+    (tmp_path / "bad.las").write_bytes(b"not a las file")
+    code = cli.main(["resample", *paths, str(tmp_path / "bad.las"), "-o", str(tmp_path / "kept"), "--method", "ea",
+                     "--tile", "30", "--keep-going"])
+    assert code == 1 and "bad.las" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path / "kept")) == ["hgjax-manifest.json", "tile0.las", "tile1.las"]
