@@ -128,7 +128,7 @@ def test_cli_survey_on_two_workers(tmp_path, capsys):
     paths, cloud = _survey(tmp_path, n_files=2, n=1500)
     out = tmp_path / "kept"
     code = cli.main(["resample", *paths, "-o", str(out), "--method", "ea", "--ratio", "0.2", "--tile", "30",
-                     "--workers", "2"])
+                     "--dtype", "float64", "--workers", "2"])
     assert code == 0, capsys.readouterr().err
     np.testing.assert_array_equal(_kept_ids(paths, out), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
     assert (out / tiles.MANIFEST).exists()
