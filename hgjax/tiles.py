@@ -57,6 +57,7 @@ HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K)
 GFR_KEEP_POINTS = 4_000_000  # up to this N, GFR keeps each tile's graph between its two passes
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
 MANIFEST = "hgjax-manifest.json"
+TASK_BYTES = 32  # per neighbour of a core point in a tile task: an int64 index and three float64 offsets
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,20 +233,41 @@ class _Dask(_Here):
     retried after a worker died computes the same bits.
     """
 
-    def __init__(self, cloud: _Cloud, client):
-        self.cloud, self.client = cloud, client
+    def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
+        self.cloud, self.client, self.k = cloud, client, k
         self.shared = client.scatter(cloud, broadcast=True)
         self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
+        self.cells = {}  # task key -> the tile it computes or derives from
 
     def tiles(self, fn, *args, cells=None) -> list:
-        return [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True)
-                for cell in (cells or list(self.cloud.members))]
+        cells = cells or list(self.cloud.members)
+        futures = [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True) for cell in cells]
+        self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
+        return futures
 
     def each(self, fn, parts, *args) -> list:
-        return [self.client.submit(_task, self.x64, fn, part, *args, pure=True) for part in parts]
+        futures = [self.client.submit(_task, self.x64, fn, part, *args, pure=True) for part in parts]
+        self.cells.update((f.key, self.cells[p.key]) for f, p in zip(futures, parts) if p.key in self.cells)
+        return futures
 
     def gather(self, values) -> list:
-        return self.client.gather(values)
+        from distributed import KilledWorker
+
+        try:
+            return self.client.gather(values)
+        except KilledWorker as err:
+            raise RuntimeError(self.killed(err.task)) from err
+
+    def killed(self, task) -> str:
+        """The message of a task whose workers died: its tile and the memory that tile needs at least."""
+        cell = self.cells.get(task)
+        if cell is None:
+            return f"Dask workers died running task {task!r} (out of memory?)"
+        r = self.cloud.members[cell].size
+        need = r * self.k * TASK_BYTES
+        return (f"Dask workers died running tile {cell} (task {task!r}): its {r} core points' neighbourhoods need"
+                f" at least {need / 2**20:.1f} MiB ({r} x K={self.k} x {TASK_BYTES} bytes) plus the halo's; give"
+                f" each worker more memory or pass a smaller tile")
 
 
 def _task(x64: bool, fn, *args):
@@ -254,8 +276,8 @@ def _task(x64: bool, fn, *args):
         return fn(*args)
 
 
-def _runner(cloud: _Cloud, client) -> _Here:
-    return _Here(cloud) if client is None else _Dask(cloud, client)
+def _runner(cloud: _Cloud, client, k: int = ea.DEFAULT_K) -> _Here:
+    return _Here(cloud) if client is None else _Dask(cloud, client, k)
 
 
 def plan(points, ratio: float, *, method: str, tile: float | None = None, client=None,
@@ -274,7 +296,7 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
       (plan, cloud): the :class:`Plan` and the tiled cloud it was made for.
     """
     plan_, cloud = _base(points, ratio, method, tile, params)
-    return _resolved(plan_, _runner(cloud, client)), cloud
+    return _resolved(plan_, _runner(cloud, client, _reach_k(plan_.build))), cloud
 
 
 def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]:
@@ -467,7 +489,7 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     if method == "gfr" and params.get("mode", "random") == "random":
         key = _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
     plan_, cloud = _base(points, ratio, method, tile, params)
-    runner = _runner(cloud, client)
+    runner = _runner(cloud, client, _reach_k(plan_.build))
     plan_ = _resolved(plan_, runner)
     parts = _gfr_scores(runner, plan_, stream) if method == "gfr" else runner.tiles(tile_scores, plan_, stream)
     if method == "lhf":
