@@ -2,6 +2,8 @@
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -122,14 +124,13 @@ def test_skip_existing_resumes(tmp_path):
     assert len(changed.written) == 2
 
 
-def test_cli_survey_on_two_workers(tmp_path, capsys):
-    from hgjax import cli
-
+def test_cli_survey_on_two_workers(tmp_path):
     paths, cloud = _survey(tmp_path, n_files=2, n=1500)
     out = tmp_path / "kept"
-    code = cli.main(["resample", *paths, "-o", str(out), "--method", "ea", "--ratio", "0.2", "--tile", "30",
-                     "--dtype", "float64", "--workers", "2"])
-    assert code == 0, capsys.readouterr().err
+    run = subprocess.run([sys.executable, "-m", "hgjax", "resample", *paths, "-o", str(out), "--method", "ea",
+                          "--ratio", "0.2", "--tile", "30", "--dtype", "float64", "--workers", "2"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
     np.testing.assert_array_equal(_kept_ids(paths, out), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
     assert (out / tiles.MANIFEST).exists()
 
