@@ -9,15 +9,24 @@ compilations (counted with the rest); a new N after that must compile nothing.
     python bench/compile.py [--methods hkc hkf lhf ea gfr pca_ac] [--repeats 3]
 
 Writes bench/results/compile.md.
+
+``--grad`` instead times the compilation of a soft-resampling loss, sum(c * soft_weights),
+forward against ``jax.value_and_grad`` (gradients with respect to the points), for each method
+of ``--methods`` on one box-union cloud of N = 2000: ``jax.jit(f).lower(points).compile()``
+after ``jax.clear_caches()``, medians of ``--repeats``. Writes bench/results/compile_grad.md.
+
+    python bench/compile.py --grad --methods lhf hkc ea --repeats 3
 """
 
 import argparse
+import dataclasses
 import os
 import pathlib
 import statistics
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import hgjax
@@ -36,8 +45,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--methods", nargs="+", default=["hkc", "hkf", "lhf", "ea", "gfr", "pca_ac"])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--grad", action="store_true", help="forward against value_and_grad compile times")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
+    if args.grad:
+        return grad_compiles(args)
     clouds = {n: hgjax.eval.box_union_cloud(seed=int(n), n_points=int(n)).points for n in SIZES}
     warm_up = hgjax.eval.box_union_cloud(seed=1, n_points=WARM_UP).points
     rows = []
@@ -76,6 +88,37 @@ def main():
     for method, _, ratios in rows:
         lines.append(f"- {method}: " + ", ".join(f"{n}: {r:.3f}" for n, _, r in ratios))
     out.write_text("\n".join(lines) + "\n")
+
+
+def _compile_seconds(fn, points) -> float:
+    jax.clear_caches()
+    start = time.perf_counter()
+    jax.jit(fn).lower(points).compile()
+    return time.perf_counter() - start
+
+
+def grad_compiles(args) -> None:
+    """Compile seconds of a soft-resampling loss, forward and value_and_grad, per method."""
+    cloud = jnp.asarray(hgjax.eval.box_union_cloud(seed=0, n_points=2000).points)
+    c = jnp.asarray(np.random.default_rng(0).random(cloud.shape[0]))
+    rows = []
+    for method in args.methods:
+        nb = hgjax.neighbourhoods(np.asarray(cloud), method)
+        loss = lambda p, nb=nb, method=method: jnp.sum(  # noqa: E731
+            c * hgjax.soft_weights(dataclasses.replace(nb, points=p), 0.2, method=method))
+        forward = statistics.median(_compile_seconds(loss, cloud) for _ in range(args.repeats))
+        grad = statistics.median(_compile_seconds(jax.value_and_grad(loss), cloud) for _ in range(args.repeats))
+        rows.append((method, forward, grad))
+        print(method, "forward", round(forward, 2), "value_and_grad", round(grad, 2), flush=True)
+    lines = ["# Compile time of a soft-resampling loss: forward against value_and_grad", "",
+             f"Command: `python bench/compile.py --grad --methods {' '.join(args.methods)} --repeats {args.repeats}`"
+             f" (jax {jax.__version__}, {os.cpu_count()} cores, float64).", "",
+             "loss(points) = sum(c * soft_weights(nb with points, 0.2, method)) on a box-union cloud of N = 2000;"
+             " seconds of `jax.jit(f).lower(points).compile()` after `jax.clear_caches()`, medians of"
+             f" {args.repeats}. Target (issue 23): LHF's value_and_grad at most 4x its forward.", "",
+             "| method | forward s | value_and_grad s | grad / forward |", "|---|---|---|---|"]
+    lines += [f"| {m} | {f:.2f} | {g:.2f} | {g / f:.2f} |" for m, f, g in rows]
+    (pathlib.Path(__file__).parent / "results" / "compile_grad.md").write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
