@@ -153,7 +153,7 @@ class GramBands(NamedTuple):
     top: jax.Array  #: mu2 = max eigenvalue of R; 0 for a signal without structure.
 
 
-def gram_bands(s) -> GramBands:
+def gram_bands(s, *, unrolled: bool = True) -> GramBands:
     """Eigenspace L1 sums of the invariant LHF (Eq. (14)) through a closed-form 2 x 2 Gram.
 
     Row-centring is the projection of each row onto the plane orthogonal to (1, 1, 1), so
@@ -180,6 +180,9 @@ def gram_bands(s) -> GramBands:
 
     Args:
       s: (n, 3) local signal (Eq. (13)).
+      unrolled: sums over the n rows written out as adds (the hard kernel) or as reductions
+        (the differentiated soft path: value_and_grad through the written-out adds compiled
+        7x slower than its forward; bench/results/compile_grad.md). Static.
 
     Returns:
       :class:`GramBands` of scalars in the dtype of ``s``, for s scaled by a power of two
@@ -187,6 +190,7 @@ def gram_bands(s) -> GramBands:
     """
     n = s.shape[0]
     info = jnp.finfo(s.dtype)
+    row_sum = _row_sum if unrolled else functools.partial(jnp.sum, axis=-1)
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it; squares and 1 / det then neither underflow nor overflow.
     s = _common.unit_scale(s)
@@ -198,7 +202,7 @@ def gram_bands(s) -> GramBands:
     m = (x0 + x1 + x2) / 3  # (n,) row means: s = s_n + m 1^T
 
     # Pass 1: G = [[a, b], [b, c]] and vm; y^T s = y^T s_n + vm 1^T = G Q^T + vm 1^T.
-    a, c, b, vm0, vm1 = (_row_sum(u * v) for u, v in ((y0, y0), (y1, y1), (y0, y1), (y0, m), (y1, m)))
+    a, c, b, vm0, vm1 = (row_sum(u * v) for u, v in ((y0, y0), (y1, y1), (y0, y1), (y0, m), (y1, m)))
     # Eigenvectors of G in closed form: with d = (a - c) / 2, r = sqrt(d^2 + b^2) and rho =
     # b / (r + |d|) (|rho| <= 1), w_l = (1, rho) for d >= 0 and (rho, 1) for d < 0, normalised;
     # w_s = w_l turned by 90 degrees. Everything below is invariant to the sign of w. No
@@ -224,7 +228,7 @@ def gram_bands(s) -> GramBands:
 
     # Pass 2: z_s = y w_s.
     z_s = cos * y1 - sin * y0
-    mu_s, vm_s, zx0, zx1, zx2 = (_row_sum(z_s * v) for v in (z_s, m, x0, x1, x2))
+    mu_s, vm_s, zx0, zx1, zx2 = (row_sum(z_s * v) for v in (z_s, m, x0, x1, x2))
     top = jnp.maximum(mu_s, mu_l)
     nz_s = mu_s > tol * top
     inv_s = jnp.where(nz_s, 1 / jnp.where(nz_s, mu_s, 1), 0)
@@ -249,12 +253,12 @@ def gram_bands(s) -> GramBands:
     res = m - (y0 * g0 + y1 * g1)
     rank = nz_s.astype(jnp.int32) + nz_l.astype(jnp.int32)
     first_small = mu_s <= mu_l
-    l1_s, l1_l = _row_sum(jnp.abs(p_s)), _row_sum(jnp.abs(p_l))  # L1 over the 3 columns
+    l1_s, l1_l = row_sum(jnp.abs(p_s)), row_sum(jnp.abs(p_l))  # L1 over the 3 columns
     return GramBands(
-        null=3 * _null_factor(rank, n, s.dtype) * _common.safe_sqrt(_row_sum(res * res)),
+        null=3 * _null_factor(rank, n, s.dtype) * _common.safe_sqrt(row_sum(res * res)),
         small=jnp.where(first_small, l1_s, l1_l),
         large=jnp.where(first_small, l1_l, l1_s),
-        pair=_haar_l1_factor(2) * _row_sum(_common.safe_sqrt(norms)),
+        pair=_haar_l1_factor(2) * row_sum(_common.safe_sqrt(norms)),
         ratio=ratio,
         equal=nz_s & (jnp.abs(mu_l - mu_s) <= tol * top),
         top=top,
@@ -354,7 +358,7 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     signal = jnp.where(valid[:, None], offsets, 0)
     out = []
     for n in lengths:
-        bands = gram_bands(signal[:n])
+        bands = gram_bands(signal[:n], unrolled=False)
         high = jax.nn.sigmoid(_common.switch_argument(0.5 - bands.ratio, tau))
         pair = jnp.exp(-jnp.square(_common.switch_argument(1 - bands.ratio, tau)))
         out.append(band_l1_ratio(bands, high, pair))
