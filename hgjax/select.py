@@ -211,7 +211,7 @@ def kth_pair(parts, m: int, *, run=None) -> tuple[int, int]:
     return prefix, int(ids[need - 1])
 
 
-def top_pairs(parts, m: int, *, run=None) -> np.ndarray:
+def top_pairs(parts, m: int, *, run=None, boundary: bool = False):
     """Global ids of the m smallest (key, global id) pairs over several parts, in that order.
 
     Exact: the threshold is :func:`kth_pair`'s, and each part contributes the ids at or
@@ -221,15 +221,27 @@ def top_pairs(parts, m: int, *, run=None) -> np.ndarray:
       parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
       m: number kept, 1 <= m <= sum n_i.
       run: as :func:`kth_pair`.
+      boundary: also return the threshold, the m-th (key, global id) pair.
 
     Returns:
-      (m,) int64 ids, highest priority (smallest key) first, equal keys by id.
+      (m,) int64 ids, highest priority (smallest key) first, equal keys by id; with
+      ``boundary``, (ids, (key, gid)).
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.select import top_pairs
+      >>> parts = [(np.array([5, 1], np.uint64), np.array([0, 1])), (np.array([1, 9], np.uint64), np.array([2, 3]))]
+      >>> ids, last = top_pairs(parts, 3, boundary=True)
+      >>> ids.tolist(), last
+      ([1, 2, 0], (5, 0))
     """
     run = run or _local(parts)
-    kept = run(kept_pairs, *kth_pair(parts, m, run=run))
+    last = kth_pair(parts, m, run=run)
+    kept = run(kept_pairs, *last)
     keys = np.concatenate([k for k, _ in kept])
     gids = np.concatenate([g for _, g in kept]).astype(np.int64)
-    return gids[np.lexsort((gids, keys))]
+    ids = gids[np.lexsort((gids, keys))]
+    return (ids, last) if boundary else ids
 
 
 @functools.lru_cache(maxsize=None)

@@ -89,6 +89,12 @@ class Plan:
     score: dict
     halo: float
 
+    def record(self) -> dict:
+        """The plan as JSON values (arrays as lists, the dtype by name), as a survey's manifest holds it."""
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        fields["dtype"] = np.dtype(self.dtype).name
+        return json.loads(json.dumps(fields, default=_jsonable))
+
 
 class _Cloud:
     """Points by global id, and the global ids of each tile (host; the points are never copied whole)."""
@@ -461,12 +467,39 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
       >>> bool((a == hgjax.resample(pts, 0.2, method="ea")).all())
       True
     """
+    run = _resample(points, ratio, method, tile, client, key, return_scores, params)
+    return (run.idx, run.scores) if return_scores else run.idx
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """One run of :func:`resample`: the kept ids, and what decided them (for a survey's manifest).
+
+    Attributes:
+      idx: (M,) kept global ids, highest priority first.
+      scores: (N,) scores, or None unless asked for (and for the samplers).
+      plan: the :class:`Plan`, or None for the methods that run on the whole cloud at once.
+      selection: the global statistics of the selection: LHF's order statistics Gamma_a,
+        Gamma_b (Eqs. (15)-(16)), GFR's exact score sum; empty for the others.
+      threshold: the last kept (value, global id) pair, the value being the score (GFR's
+        random mode: the Gumbel-perturbed log weight), or None without a plan.
+    """
+
+    idx: np.ndarray
+    scores: np.ndarray | None = None
+    plan: Plan | None = None
+    selection: dict = dataclasses.field(default_factory=dict)
+    threshold: dict | None = None
+
+
+def _resample(points, ratio, method: str, tile, client, key, return_scores: bool, params: dict) -> _Run:
+    """:func:`resample`'s work, returning the :class:`_Run` that a survey's manifest records."""
     from hgjax import pipeline  # the registry imports this module
 
     entry = pipeline._entry(method)
     return_scores = _validate.check_bool(return_scores, "return_scores")
     if return_scores and entry.kind is None:
-        return resample(points, ratio, method=method, tile=tile, client=client, key=key, **params), None
+        return _resample(points, ratio, method, tile, client, key, False, params)
     distributed = tile is not None or client is not None
     if distributed and method in GLOBAL_ONLY:
         raise ValueError(f"method {method!r} cannot run in tiles (tile={tile!r}): {GLOBAL_ONLY[method]};"
@@ -478,13 +511,13 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
         if distributed:
             raise ValueError(f"method 'gfr' with variant='reference' cannot run in tiles (tile={tile!r}): its squared"
                              " radius comes from the min and max nearest distance of the whole cloud; pass tile=None")
-        return pipeline._whole(points, ratio, entry, key, params, return_scores)
+        return _Run(*_whole_run(pipeline._whole(points, ratio, entry, key, params, return_scores), return_scores))
     if method == "uniform":
-        return samplers.uniform_sample(points, ratio, key=key)
+        return _Run(samplers.uniform_sample(points, ratio, key=key))
     if method == "voxel" and distributed:
-        return _voxel(points, ratio, tile, params.get("voxel_size"), client)
+        return _Run(_voxel(points, ratio, tile, params.get("voxel_size"), client))
     if method not in TILED or entry.kind is None:
-        return pipeline._whole(points, ratio, entry, key, params, return_scores)
+        return _Run(*_whole_run(pipeline._whole(points, ratio, entry, key, params, return_scores), return_scores))
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
     if method == "gfr" and params.get("mode", "random") == "random":
         key = _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
@@ -492,20 +525,29 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     runner = _runner(cloud, client, _reach_k(plan_.build))
     plan_ = _resolved(plan_, runner)
     parts = _gfr_scores(runner, plan_, stream) if method == "gfr" else runner.tiles(tile_scores, plan_, stream)
+    selection = {}
     if method == "lhf":
-        parts = _lhf_combine(runner, parts, plan_.m)
+        parts, selection["gamma_a"], selection["gamma_b"] = _lhf_combine(runner, parts, plan_.m)
+    largest = bool(entry.largest)
     if method == "gfr" and plan_.score["mode"] == "random":
-        total = sum(runner.gather(runner.each(_exact_sum, parts)), select.ExactSum()).value()
+        selection["score_sum"] = total = sum(runner.gather(runner.each(_exact_sum, parts)), select.ExactSum()).value()
         keyed = runner.each(_gfr_keys, parts, total, plan_.n, np.asarray(jax.random.key_data(key)))
+        largest = True
     else:
-        keyed = runner.each(_keys, parts, bool(entry.largest))
-    idx = select.top_pairs(keyed, plan_.m, run=runner.run(keyed))
-    if not return_scores:
-        return idx
-    scores = np.empty(plan_.n, dtype=plan_.dtype)
-    for gids, values in runner.gather(parts):
-        scores[gids] = values
-    return idx, scores
+        keyed = runner.each(_keys, parts, largest)
+    idx, (last_key, last_gid) = select.top_pairs(keyed, plan_.m, run=runner.run(keyed), boundary=True)
+    threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
+    scores = None
+    if return_scores:
+        scores = np.empty(plan_.n, dtype=plan_.dtype)
+        for gids, values in runner.gather(parts):
+            scores[gids] = values
+    return _Run(idx, scores, plan_, selection, threshold)
+
+
+def _whole_run(result, return_scores: bool) -> tuple:
+    """(idx, scores) of :func:`hgjax.pipeline._whole`'s result."""
+    return result if return_scores else (result, None)
 
 
 def _keys(part, largest: bool, column: int | None = None):
@@ -515,12 +557,12 @@ def _keys(part, largest: bool, column: int | None = None):
 
 
 def _lhf_combine(runner: _Here, parts, m: int):
-    """LHF's gamma (Eqs. (15)-(16)) per tile, from the two global order statistics Gamma_a, Gamma_b."""
+    """LHF's gamma (Eqs. (15)-(16)) per tile, and the two global order statistics Gamma_a, Gamma_b it used."""
     big = []
     for col in range(2):
         keyed = runner.each(_keys, parts, True, col)
         big.append(select.key_value(select.kth_pair(keyed, m, run=runner.run(keyed))[0], largest=True))
-    return runner.each(_lhf_mix, parts, big[0], big[1])
+    return runner.each(_lhf_mix, parts, big[0], big[1]), big[0], big[1]
 
 
 def _lhf_mix(part, big_a: float, big_b: float):
@@ -754,8 +796,11 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
       :class:`SurveyResult`. Each output holds its input's kept points in input order, with
       every attribute, and a LAS/LAZ output keeps its input's header (point format, scale,
       offset, extra dimensions). ``out_dir/hgjax-manifest.json`` records the run, the
-      number of points N and kept M, and each output's count; outputs and manifest are
-      written atomically.
+      number of points N and kept M, each output's count, and under ``resolved`` what
+      decided the kept set: the :class:`Plan` (origin, bounds, resolved build and score
+      parameters, halo), the selection's global statistics (LHF's Gamma_a and Gamma_b,
+      GFR's score sum) and the threshold (the last kept score and its global id), so a
+      rerun can be checked against it; outputs and manifest are written atomically.
 
     Raises:
       ValueError: ``paths`` matches no file, or an output would be one of the inputs.
@@ -813,8 +858,9 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
         if n == 0:
             raise io.PointCloudReadError(f"no input could be read: {failures}")
         cloud = np.memmap(raw, dtype=np.float64, mode="r", shape=(n, 3))
-        kept = np.sort(resample(cloud, ratio, method=method, tile=tile, client=client, key=key, **params))
+        run = _resample(cloud, ratio, method, tile, client, key, False, dict(params))
         del cloud
+    kept = np.sort(run.idx)
     written, skipped, outputs = [], [], {}
     for p, start in starts.items():
         local = kept[np.searchsorted(kept, start):np.searchsorted(kept, start + counts[p])] - start
@@ -834,8 +880,10 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
             failures[p] = str(err)
             continue
         written.append(targets[p])
-    body = {"hgjax": __version__, "run": record, "n": n, "m": int(kept.size), "outputs": list(outputs.values()),
-            "failures": failures}
+    resolved = {"plan": None if run.plan is None else run.plan.record(), "selection": run.selection,
+                "threshold": run.threshold}
+    body = {"hgjax": __version__, "run": record, "resolved": resolved, "n": n, "m": int(kept.size),
+            "outputs": list(outputs.values()), "failures": failures}
     text = json.dumps(body, indent=2, default=_jsonable).encode()
     io._atomic_write(os.path.abspath(manifest), lambda fh: fh.write(text))
     return SurveyResult(written, skipped, failures, manifest)

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -74,6 +75,25 @@ def test_survey_equals_the_concatenated_cloud(tmp_path, ext):
     manifest = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())
     assert manifest["m"] == want.size and sum(o["kept"] for o in manifest["outputs"]) == want.size
     assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
+
+
+@pytest.mark.parametrize("method", ["lhf", "gfr"])
+def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
+    paths, cloud = _survey(tmp_path, n_files=2, n=2000)
+    key = jax.random.key(3) if method == "gfr" else None
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=30.0, key=key)
+    resolved = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())["resolved"]
+    plan, _ = tiles.plan(cloud, 0.2, method=method, tile=30.0)
+    idx, scores = tiles.resample(cloud, 0.2, method=method, tile=30.0, key=key, return_scores=True)
+    assert resolved["plan"] == plan.record()
+    assert resolved["plan"]["n"] == cloud.shape[0] and resolved["plan"]["m"] == idx.size
+    np.testing.assert_array_equal(resolved["plan"]["origin"], plan.origin)
+    assert resolved["threshold"]["gid"] == idx[-1]
+    if method == "lhf":
+        assert resolved["threshold"]["value"] == float(scores[idx[-1]])
+        assert set(resolved["selection"]) == {"gamma_a", "gamma_b"}
+    else:  # GFR's random mode keeps by perturbed log weight: its sum is what the weights need
+        assert resolved["selection"]["score_sum"] == pytest.approx(float(np.sum(scores, dtype=np.float64)), rel=1e-12)
 
 
 def test_survey_on_a_local_cluster(tmp_path, client):
