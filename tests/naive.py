@@ -64,6 +64,29 @@ def hkf(points, d_factor=1.3, k=3):
     return out
 
 
+def hkc_invariant_point(p, i, d, k=3):
+    """hgjax's default beta of point i: the kernel turned into the local frame, energies
+    averaged over the frame's 8 axis-sign choices (each with the paper's projector)."""
+    o = p - p[i]
+    ball = o[np.linalg.norm(o, axis=1) < np.sqrt(3) * k * d / 2]
+    y = ball / d - (ball / d).mean(axis=0)
+    _, frame = np.linalg.eigh(y.T @ y)
+    c, lam, v = _kernel_spectrum(d, k)
+    high2 = low2 = 0.0
+    for signs in itertools.product((1.0, -1.0), repeat=3):
+        q = (ball @ frame) * np.array(signs)
+        s = np.array([np.all(np.abs(q - cj) < d / 2, axis=1).sum() for cj in c], dtype=np.float64)
+        high = v @ np.diag(1 - lam) @ v.T @ s
+        high2, low2 = high2 + high @ high / 8, low2 + (s - high) @ (s - high) / 8
+    return np.sqrt(high2) / np.sqrt(low2) if low2 > 1e-18 * (high2 + low2) else np.inf
+
+
+def hkc_invariant(points, d_factor=1.3, k=3):
+    p = np.asarray(points, dtype=np.float64)
+    d = d_factor * resolution(p)
+    return np.array([hkc_invariant_point(p, i, d, k) for i in range(len(p))])
+
+
 def knn_rows(points, n):
     p = np.asarray(points, dtype=np.float64)
     d = np.linalg.norm(p[:, None] - p[None], axis=-1)

@@ -5,6 +5,7 @@ per-neighbourhood kernels take ``offsets`` (K, 3) = neighbours minus the point a
 """
 
 import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
@@ -66,11 +67,13 @@ def _close(got, want, dtype):
 def _naive(name, cloud):
     p = CLOUDS[cloud]
     if name == "hkc":
+        return naive.hkc_invariant(p, d_factor=D_FACTOR)
+    if name == "hkc_reference":
         return naive.hkc(p, d_factor=D_FACTOR)
     if name == "hkf_reference":
         return naive.hkf(p)  # same d as the library call below: same R, same LAPACK basis
     if name == "hkf_invariant":
-        b = naive.hkc(p, d_factor=D_FACTOR)
+        b = naive.hkc_invariant(p, d_factor=D_FACTOR)
         with np.errstate(invalid="ignore"):
             return np.where(np.isinf(b), 1.0, b / (1 + b))
     if name == "lhf3_reference":
@@ -102,6 +105,7 @@ def lhf_single(p, n, **params):
 
 FAST = {
     "hkc": lambda p, **kw: host_score(p, "hkc", d_factor=D_FACTOR, **kw),
+    "hkc_reference": lambda p, **kw: host_score(p, "hkc", variant="reference", d_factor=D_FACTOR, **kw),
     "hkf_reference": lambda p, **kw: host_score(p, "hkf", variant="reference", **kw),
     "hkf_invariant": lambda p, **kw: host_score(p, "hkf", d_factor=D_FACTOR, **kw),
     "lhf3_reference": lambda p, **kw: lhf_single(p, 3, variant="reference"),
@@ -111,7 +115,11 @@ FAST = {
 }
 KNN = ("lhf", "ea")  # exact-grid kNN rows are ambiguous: these run on the jittered grid
 
-CASES = [(name, cloud) for name in sorted(FAST) for cloud in ("random", "grid") if not (name.startswith(KNN) and cloud == "grid")]
+# The invariant HKC/HKF turn the kernel into the local frame, which the flat faces of the grid
+# leave undetermined inside their plane (equal in-plane eigenvalues): random cloud only.
+FRAME = ("hkc", "hkf_invariant")
+CASES = [(name, cloud) for name in sorted(FAST) for cloud in ("random", "grid")
+         if not ((name.startswith(KNN) or name in FRAME) and cloud == "grid")]
 CASES += [(name, "jittered_grid") for name in sorted(FAST) if name.startswith(KNN)]
 
 
@@ -339,21 +347,57 @@ def test_vmap_equals_loop_per_neighbourhood():
     np.testing.assert_allclose(batched, looped, rtol=1e-13)
 
 
-def test_hkc_variants_differ_only_in_neighbourhoods_and_hkf_invariant_is_beta_over_one_plus_beta():
+def test_hkc_reference_d_factor_and_hkf_invariant_is_beta_over_one_plus_beta():
     p = random_cloud(300, seed=11)
     res = naive.resolution(p)
     beta = host_score(p, "hkc", resolution=res, d_factor=D_FACTOR)
-    # Same resolution and d: the same cubes (no duplicates, no cube near the 256 cap), same beta.
-    np.testing.assert_array_equal(beta, host_score(p, "hkc", variant="reference", d_factor=D_FACTOR))
     # The reference variant's default d factor is 1.3 (REFERENCE.md).
     np.testing.assert_array_equal(host_score(p, "hkc", variant="reference"),
-                                  host_score(p, "hkc", resolution=res, d_factor=1.3))
+                                  host_score(p, "hkc", variant="reference", resolution=res, d_factor=1.3))
     assert not np.array_equal(host_score(p, "hkc", variant="reference"), beta)
     sigma = host_score(p, "hkf", resolution=res, d_factor=D_FACTOR)
     with np.errstate(invalid="ignore"):
         want = np.where(np.isinf(beta), 1, beta / (1 + beta))
     np.testing.assert_allclose(sigma, want, rtol=1e-12)
     assert np.isfinite(beta).any() and not np.allclose(want, want[0])
+
+
+def test_kernel_band_energies_turn_with_axis_permutations_not_sign_flips():
+    """The paper's low band (row-centred along (1, 1, 1)) is invariant under permutations of the
+    kernel's axes but not under sign flips; the invariant energies are its average over the 8 flips."""
+    c = voxel.integer_offsets(3)
+    where = {tuple(x): j for j, x in enumerate(c)}
+    rng = np.random.default_rng(23)
+    changed = False
+    for _ in range(5):
+        s = rng.integers(0, 4, size=27).astype(np.float64)
+        ref = lambda m: np.asarray(voxel.band_energies(jnp.asarray(s[[where[tuple(x @ m)] for x in c]]), 3,  # noqa: E731
+                                                       "reference"))
+        base = ref(np.eye(3))
+        for perm in ([1, 2, 0], [1, 0, 2], [2, 1, 0]):
+            np.testing.assert_allclose(ref(np.eye(3)[perm]), base, rtol=1e-12)
+        flips = np.array([ref(np.diag(f)) for f in itertools.product((1.0, -1.0), repeat=3)])
+        changed |= np.ptp(flips[:, 1]) > 1e-3  # a flip changes the low band (unless C^T s lies on an axis)
+        np.testing.assert_allclose(np.asarray(voxel.band_energies(jnp.asarray(s), 3, "invariant")),
+                                   flips.mean(axis=0), rtol=1e-12)
+    assert changed
+
+
+@pytest.mark.parametrize("method", ["hkc", "hkf"])
+def test_hkc_hkf_default_is_rotation_translation_and_scale_invariant(method, dtype):
+    """Default HKC/HKF scores of a noisy box union under a random similarity: equal to rounding
+    (a point whose neighbour lies within rounding of a voxel face may change one count), the kept
+    set unchanged; the reference variant's axis-aligned cube does change."""
+    p = hgjax.eval.box_union_cloud(seed=3, n_points=4000, noise=0.1).points.astype(dtype)
+    rot = Rotation.random(random_state=np.random.default_rng(22)).as_matrix()
+    q = (3.7 * p.astype(np.float64) @ rot.T + [5.0, -2.0, 1.0]).astype(dtype)
+    a, b = host_score(p, method), host_score(q, method)
+    same = np.isclose(a, b, rtol=1e-4 if dtype == np.float32 else 1e-9, atol=0) | (np.isinf(a) & np.isinf(b))
+    assert same.mean() >= 0.99
+    kept_a, kept_b = hgjax.resample(p, 0.2, method=method), hgjax.resample(q, 0.2, method=method)
+    assert len(np.intersect1d(kept_a, kept_b)) / len(kept_a) >= 0.99
+    ref_a, ref_b = (hgjax.resample(x, 0.2, method=method, variant="reference") for x in (p, q))
+    assert len(np.intersect1d(ref_a, ref_b)) / len(ref_a) < 0.9
 
 
 def test_scores_keep_float32():
