@@ -46,7 +46,7 @@ DEFAULT = "default"
 SWEEPS = {
     "hkc": ("d_factor", (0.9, 1.0, 1.1, 1.3, 1.6, 2.0, 2.5)),
     "hkf": ("d_factor", (0.9, 1.0, 1.1, 1.3, 1.6, 2.0, 2.5)),
-    "lhf": ("lengths", ((3, 6), (4, 8), (6, 12), (8, 16), (12, 24))),
+    "lhf": ("lengths", ((3, 6), (4, 8), (6, 12), (8, 16), (12, 24), (16, 32))),
     "gfr": ("radius_factor", (3.0, 6.0, 8.0, 10.0, 12.0, 16.0)),
     "ea": ("k", (8, 12, 16, 24, 32)),
 }
@@ -54,7 +54,7 @@ SWEEPS = {
 RULES = {
     "hkc": "d = f x local spacing, f = `voxel.default_d_factor(irregularity)`: {regular} up to irregularity "
            "{lo}, {irregular} from {hi}, linear in between (irregularity = CV of nearest-neighbour distances, "
-           "`hgjax.spatial.irregularity`).",
+           "`hgjax.spatial.SampleStats.irregularity`).",
     "hkf": "shares HKC's neighbourhoods and d rule (`voxel.neighbourhoods`).",
     "lhf": "lengths = {lhf} (`lhf.DEFAULT_LENGTHS`, one constant for every cloud): the only pair of the sweep "
            "within 0.05 of the best pair in all three regimes (the grid and random regimes favour long pairs, "
@@ -75,7 +75,7 @@ def rule_text(method):
 
 
 def irregularity(points):
-    return spatial.irregularity(spatial.SpatialIndex(np.asarray(points, dtype=np.float64), dedupe=True))
+    return spatial.sample_stats(spatial.SpatialIndex(np.asarray(points, dtype=np.float64), dedupe=True)).irregularity()
 
 
 def kept_metrics(cloud, idx):
@@ -99,9 +99,11 @@ def score_cloud(cloud, ratio, methods=tuple(SWEEPS)):
             if m in methods:
                 run(m, nb, f)
     if "lhf" in methods:
-        nb = hgjax.neighbourhoods(p, "lhf", lengths=max(SWEEPS["lhf"][1], key=max))  # knn rows are prefixes
+        # kNN rows are prefixes: lhf.score scores every shorter pair on the longest pair's rows
+        # (hgjax.score refuses lengths other than those the rows were built for).
+        nb = hgjax.neighbourhoods(p, "lhf", lengths=max(SWEEPS["lhf"][1], key=max))
         for ln in SWEEPS["lhf"][1]:
-            run("lhf", nb, ln, {"lengths": ln})
+            out["lhf", ln] = kept_metrics(cloud, hgjax.keep(lhf.score(nb, ratio=ratio, lengths=ln), ratio, method="lhf"))
         run("lhf", hgjax.neighbourhoods(p, "lhf"), DEFAULT)
     for rf in SWEEPS["gfr"][1] + (DEFAULT,) if "gfr" in methods else ():
         run("gfr", hgjax.neighbourhoods(p, "gfr", **({} if rf == DEFAULT else {"radius_factor": rf})), rf,

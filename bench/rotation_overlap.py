@@ -9,6 +9,7 @@ default.
 Usage (from the repository root):
   python bench/rotation_overlap.py                        # bench/results/rotation_overlap.md
   python bench/rotation_overlap.py --quick --out /tmp/x   # two clouds
+  python bench/rotation_overlap.py --methods hkc,lhf --out /tmp/x
 """
 
 from __future__ import annotations
@@ -46,22 +47,26 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="two clouds")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset (default: all)")
     args = parser.parse_args(argv)
+    methods = args.methods.split(",")
+    if set(methods) - set(METHODS):
+        parser.error(f"unknown methods {sorted(set(methods) - set(METHODS))}; expected some of {list(METHODS)}")
     t0 = time.time()
     rows = []
     for i, (name, p) in enumerate(clouds(args.quick)):
         rot = Rotation.random(random_state=np.random.default_rng([22, i])).as_matrix()
         row = [f"{name} ({len(p)})"]
-        for m in METHODS:
+        for m in methods:
             params = {"mode": "top"} if m == "gfr" else {}
             a = hgjax.resample(p, RATIO, method=m, **params)
             b = hgjax.resample(p @ rot.T, RATIO, method=m, **params)
             row.append(len(np.intersect1d(a, b)) / len(a))
         rows.append(row)
-        print(name, f"{time.time() - t0:.0f} s", " ".join(f"{m} {v:.3f}" for m, v in zip(METHODS, row[1:])), flush=True)
-    table = ["| cloud (N) | " + " | ".join(METHODS) + " |", "|" + "---|" * (len(METHODS) + 1)]
+        print(name, f"{time.time() - t0:.0f} s", " ".join(f"{m} {v:.3f}" for m, v in zip(methods, row[1:])), flush=True)
+    table = ["| cloud (N) | " + " | ".join(methods) + " |", "|" + "---|" * (len(methods) + 1)]
     table += ["| " + r[0] + " | " + " | ".join(f"{v:.3f}" for v in r[1:]) + " |" for r in rows]
-    low = [min(r[1 + j] for r in rows) for j in range(len(METHODS))]
+    low = [min(r[1 + j] for r in rows) for j in range(len(methods))]
     table += ["| **min** | " + " | ".join(f"**{v:.3f}**" for v in low) + " |", "",
               f"Run time {time.time() - t0:.0f} s (2 shared cores)."]
     _report.write(args.out / "rotation_overlap.md", "rotation_overlap.py", argv,

@@ -295,8 +295,9 @@ class SpatialIndex:
         return idx.astype(np.int32), reach
 
     def cube(self, half_width, rows: slice | np.ndarray = slice(None), *, capacity: int = 32,
-             max_count: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """All points within the axis-aligned cube of ``half_width`` (Chebyshev distance < h).
+             max_count: int | None = None, norm: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """All points within the axis-aligned cube of ``half_width`` (Chebyshev distance < h),
+        or with ``norm=2`` within the ball of that radius (Euclidean distance < h).
 
         Rows that fill the query are queried again with twice the columns, until every row
         holds all its points: nothing is ever truncated. With ``max_count``, a row whose cube
@@ -309,10 +310,11 @@ class SpatialIndex:
           rows: which sorted-frame rows to query (default all).
           capacity: initial number of columns queried.
           max_count: the most points a cube may hold (shrinking it), or None.
+          norm: the Minkowski norm of the distance, ``np.inf`` (cube) or 2 (ball).
 
         Returns:
-          (idx, half): idx (R, W) int32 indices (sorted frame) by increasing Chebyshev
-          distance, padded with n, W the fullest row's count; half (R,) the half-widths used.
+          (idx, half): idx (R, W) int32 indices (sorted frame) by increasing distance,
+          padded with n, W the fullest row's count; half (R,) the half-widths (radii) used.
         """
         row_ids = self.row_ids(rows)
         queries = self.points[row_ids]
@@ -322,7 +324,7 @@ class SpatialIndex:
         while todo.size:
             if max_count is not None:
                 k = min(k, max_count)
-            dist, idx = self._cube_query(queries[todo], k, h[todo])
+            dist, idx = self._cube_query(queries[todo], k, h[todo], norm)
             full = dist[:, -1] < h[todo]
             if k == max_count:  # shrink the full cubes to exclude their max_count-th point
                 h[todo[full]] = dist[full, -1]
@@ -336,8 +338,8 @@ class SpatialIndex:
             todo, k = todo[~done], min(2 * k, self.n)
         return out, h
 
-    def _cube_query(self, queries: np.ndarray, k: int, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(R, k) Chebyshev k-nearest distances and indices, each row searched within about its own h.
+    def _cube_query(self, queries: np.ndarray, k: int, h: np.ndarray, norm: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R, k) k-nearest distances (Minkowski ``norm``) and indices, each row searched within about its own h.
 
         cKDTree takes one distance bound per call; a batch's largest h lets every row of a cloud
         whose density varies (a scan: near and far from the sensor) search far past its own cube.
@@ -348,7 +350,7 @@ class SpatialIndex:
         dist, idx = np.empty((h.size, k)), np.empty((h.size, k), dtype=np.intp)
         for g in np.array_split(np.argsort(h, kind="stable"), groups):
             g = np.sort(g)
-            d, i = self.tree.query(queries[g], k=k, p=np.inf, distance_upper_bound=float(h[g].max()), workers=-1)
+            d, i = self.tree.query(queries[g], k=k, p=norm, distance_upper_bound=float(h[g].max()), workers=-1)
             dist[g], idx[g] = d.reshape(g.size, k), i.reshape(g.size, k)
         return dist, idx
 

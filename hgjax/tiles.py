@@ -188,10 +188,7 @@ def _scoring_params(method: str, params: dict) -> tuple[dict, dict]:
     if method in CUBE:
         build = voxel.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
                                                               "dedupe") if k in params})
-        score = {"kernel_size": build["kernel_size"]}
-        if method == "hkf":
-            score["variant"] = build["variant"]
-        return build, score
+        return build, {"kernel_size": build["kernel_size"], "variant": build["variant"]}
     if method == "lhf":
         b = lhf.build_params(**{k: params[k] for k in ("lengths", "variant", "dedupe") if k in params})
         solver = _validate.check_choice(params.get("solver", "gram"), "solver", lhf.SOLVERS)
@@ -421,7 +418,7 @@ def _kernel_scores(plan_: Plan, points, rows, idx, row_args, stream: dict) -> np
     run = lambda fn, narrow: _stream.map_rows(fn, points, rows, idx, row_args=row_args, dtype=plan_.dtype,  # noqa: E731
                                               narrow=narrow, **stream)
     if method == "hkc":
-        return run(hkc._kernel(p["kernel_size"]), True)
+        return run(hkc._kernel(p["kernel_size"], p["variant"]), True)
     if method == "hkf":
         return run(hkf._kernel(p["kernel_size"], p["variant"]), True)
     if method == "lhf":

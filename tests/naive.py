@@ -64,6 +64,29 @@ def hkf(points, d_factor=1.3, k=3):
     return out
 
 
+def hkc_invariant_point(p, i, d, k=3):
+    """hgjax's default beta of point i: the kernel turned into the local frame, energies
+    averaged over the frame's 8 axis-sign choices (each with the paper's projector)."""
+    o = p - p[i]
+    ball = o[np.linalg.norm(o, axis=1) < np.sqrt(3) * k * d / 2]
+    y = ball / d - (ball / d).mean(axis=0)
+    _, frame = np.linalg.eigh(y.T @ y)
+    c, lam, v = _kernel_spectrum(d, k)
+    high2 = low2 = 0.0
+    for signs in itertools.product((1.0, -1.0), repeat=3):
+        q = (ball @ frame) * np.array(signs)
+        s = np.array([np.all(np.abs(q - cj) < d / 2, axis=1).sum() for cj in c], dtype=np.float64)
+        high = v @ np.diag(1 - lam) @ v.T @ s
+        high2, low2 = high2 + high @ high / 8, low2 + (s - high) @ (s - high) / 8
+    return np.sqrt(high2) / np.sqrt(low2) if low2 > 1e-18 * (high2 + low2) else np.inf
+
+
+def hkc_invariant(points, d_factor=1.3, k=3):
+    p = np.asarray(points, dtype=np.float64)
+    d = d_factor * resolution(p)
+    return np.array([hkc_invariant_point(p, i, d, k) for i in range(len(p))])
+
+
 def knn_rows(points, n):
     p = np.asarray(points, dtype=np.float64)
     d = np.linalg.norm(p[:, None] - p[None], axis=-1)
@@ -111,34 +134,39 @@ def eigenspaces(lam, tol):
 
 
 def lhf_invariant_signal(s, lam, v):
-    """Haar-expected L1 band ratio of one signal s (n, 3) from ANY eigenbasis (lam, v) of R.
+    """Rotation-invariant gamma of one signal s (n, 3) from ANY eigenbasis (lam, v) of R = s_c s_c^T.
 
-    Each eigenspace E of dimension d contributes d c_d sum_k ||V_E^T s_k||_2, the expected
-    L1 norm of Eq. (14)'s coefficients over a random orthonormal basis of E.
+    s_c = s minus its column means (the neighbourhood centroid). Eq. (14) with the L2 norm of
+    each coefficient row ||(V^T s)[j]||_2 in place of its L1 norm (the L1 averaged over random
+    rotations of the cloud, up to the common factor 3/2), and the null eigenspace (the first
+    d = max(n - 3, 1) columns) averaged over its bases: d c_d ||V_null^T s||_F.
     """
     n = len(s)
     if np.abs(lam).max() == 0:
         return 0.0
     lam = np.abs(lam) / np.abs(lam).max()
     t = int(np.argmax(np.diff(lam)) + 1)
-    high = total = 0.0
-    for g in eigenspaces(lam, 8 * n * np.finfo(np.float64).eps):
-        a = haar_l1_factor(len(g)) * np.linalg.norm(v[:, g].T @ s, axis=0).sum()
-        total += a
-        high += a if g[0] < t else 0.0
+    rows = np.linalg.norm(v.T @ s, axis=1)
+    d = max(n - 3, 1)
+    null = haar_l1_factor(d) * np.linalg.norm(rows[:d])
+    high, total = null + rows[d:t].sum(), null + rows[d:].sum()
     return high / total if total > 0 else 0.0
 
 
+def lhf_invariant_spectrum(s):
+    """(lam, V) of R = s_c s_c^T for one signal, s_c column-centred (NumPy eigh)."""
+    sc = s - s.mean(axis=0)
+    return np.linalg.eigh(sc @ sc.T)
+
+
 def lhf_single_invariant(points, n):
-    """Haar-expected L1 band ratio (hgjax's invariant LHF) through one n x n eigh per point."""
+    """Rotation-invariant LHF gamma (hgjax's default) through one n x n eigh per point."""
     p = np.asarray(points, dtype=np.float64)
     rows = knn_rows(p, n)
     out = np.empty(len(p))
     for i in range(len(p)):
         s = p[rows[i]] - p[i]
-        sn = s - s.mean(axis=1, keepdims=True)
-        lam, v = np.linalg.eigh(sn @ sn.T)
-        out[i] = lhf_invariant_signal(s, lam, v)
+        out[i] = lhf_invariant_signal(s, *lhf_invariant_spectrum(s))
     return out
 
 

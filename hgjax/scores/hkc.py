@@ -8,11 +8,19 @@ s_oi = V diag(1 - lam) V^T s_i (Eq. (10)), and the local smoothness is
 
 Lower beta means sharper; resampling keeps the smallest. Because 1 - lam is constant on
 each eigenspace, beta does not depend on the eigensolver's basis: it is computed through the
-exact low-band projector (R / lambda_max). The variants differ only in their neighbourhoods
-(:func:`hgjax.scores.voxel.neighbourhoods`: d = 1.3 x the global resolution for
-``"reference"``, 2.5 x the local resolution for ``"invariant"``). beta is +inf where the low
-band is exactly zero (signals symmetric about the centre, e.g. interior points of an
-axis-aligned flat face).
+exact low-band projector (R / lambda_max). The variants
+(:func:`hgjax.scores.voxel.neighbourhoods`):
+
+* ``"reference"``: the axis-aligned cube of the paper, d = 1.3 x the global resolution.
+* ``"invariant"`` (default): d from the local spacing; the cube is turned into the point's
+  local frame (:func:`hgjax.scores.voxel.oriented`, the eigenvectors of the covariance of a
+  Euclidean ball that holds the cube in every orientation), and the band energies are
+  averaged over the 8 sign choices of the frame's axes
+  (:func:`hgjax.scores.voxel.band_energies`), so beta does not change when the cloud is
+  rotated, wherever the frame is well defined (distinct covariance eigenvalues).
+
+beta is +inf where the low band is exactly zero (signals symmetric about the centre, e.g.
+interior points of a flat face aligned with the kernel).
 
 The smooth twin :func:`soft_beta` counts with soft voxel memberships and returns the bounded
 beta / (1 + beta) = ||high|| / (||high|| + ||low||), which is finite everywhere.
@@ -30,14 +38,24 @@ from hgjax.scores import _common, voxel
 __all__ = ["beta", "score", "soft_beta", "soft_score"]
 
 
-def beta(offsets, valid, d, *, kernel_size: int = 3):
-    """beta (Eq. (11)) of one cube neighbourhood.
+def _signal(offsets, valid, d, kernel_size, variant, tau=None):
+    """Voxel counts (hard, or soft with ``tau``) of the kernel, turned into the local frame for "invariant"."""
+    if variant == "invariant":
+        offsets = voxel.oriented(offsets, valid, d)
+    if tau is None:
+        return voxel.local_signal(offsets, valid, d, kernel_size)
+    return voxel.soft_local_signal(offsets, valid, d, tau, kernel_size)
+
+
+def beta(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant"):
+    """beta (Eq. (11)) of one cube (reference) or ball (invariant) neighbourhood.
 
     Args:
-      offsets: (K, 3) the cube neighbourhood minus the point, padding rows masked by
+      offsets: (K, 3) the neighbourhood minus the point, padding rows masked by
         ``valid`` (K,).
       d: voxel spacing (scalar).
       kernel_size: k of the k x k x k kernel (static).
+      variant: ``"invariant"`` (kernel in the local frame) or ``"reference"`` (static).
 
     Returns:
       Scalar beta >= 0, +inf when the low band is 0.
@@ -45,14 +63,14 @@ def beta(offsets, valid, d, *, kernel_size: int = 3):
     Examples:
       >>> import jax.numpy as jnp, hgjax
       >>> offsets = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-      >>> round(float(hgjax.scores.hkc.beta(offsets, jnp.ones(3, bool), 1.0)), 4)
+      >>> round(float(hgjax.scores.hkc.beta(offsets, jnp.ones(3, bool), 1.0, variant="reference")), 4)
       8.9443
     """
-    low, high = voxel.low_high(voxel.local_signal(offsets, valid, d, kernel_size), kernel_size)
-    return _common.safe_div(jnp.linalg.norm(high), jnp.linalg.norm(low), jnp.inf)
+    high2, low2 = voxel.band_energies(_signal(offsets, valid, d, kernel_size, variant), kernel_size, variant)
+    return _common.safe_div(_common.safe_sqrt(high2), _common.safe_sqrt(low2), jnp.inf)
 
 
-def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3):
+def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3, variant: str = "invariant"):
     """Smooth bounded HKC score of one cube neighbourhood: beta / (1 + beta) of soft counts.
 
     ||high|| / (||high|| + ||low||) (Eqs. (10)-(11)) of
@@ -63,6 +81,7 @@ def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3):
       offsets, valid, d: as :func:`beta`.
       tau: softness of the voxel membership, relative to d (scalar > 0, traced).
       kernel_size: k (static).
+      variant: as :func:`beta` (static).
 
     Returns:
       Scalar in [0, 1]; lower is sharper.
@@ -73,22 +92,23 @@ def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3):
       >>> round(float(hgjax.scores.hkc.soft_beta(offsets, jnp.ones(3, bool), 1.0, 1e-3)), 6)
       1.0
     """
-    s = voxel.soft_local_signal(offsets, valid, d, tau, kernel_size)
-    low, high = voxel.low_high(s, kernel_size)
-    return _common.band_ratio(jnp.sum(high * high), jnp.sum(low * low))
+    s = _signal(offsets, valid, d, kernel_size, variant, tau)
+    return _common.band_ratio(*voxel.band_energies(s, kernel_size, variant))
 
 
 @functools.lru_cache(maxsize=None)
-def _kernel(kernel_size: int):
-    return functools.partial(beta, kernel_size=kernel_size)
+def _kernel(kernel_size: int, variant: str):
+    return functools.partial(beta, kernel_size=kernel_size, variant=variant)
 
 
-def score(nb, *, kernel_size: int = 3, chunk_size: int | None = None, progress: bool = False):
+def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: int | None = None,
+          progress: bool = False):
     """HKC beta (Eq. (11)) of every neighbourhood; lower is sharper.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`
         (its ``scale`` is the voxel spacing d per point).
+      variant: the one the neighbourhoods were built for (static).
       kernel_size: odd k, the one the neighbourhoods were built for (static).
       chunk_size: rows per streamed chunk on eager calls; never changes results.
       progress: progress bar on stderr for long eager runs.
@@ -102,18 +122,20 @@ def score(nb, *, kernel_size: int = 3, chunk_size: int | None = None, progress: 
       >>> hgjax.scores.hkc.score(nb).shape
       (200,)
     """
+    variant = _common.check_variant(variant)
     kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
-    return _stream.map_neighbourhoods(_kernel(kernel_size), nb, row_args=(nb.scale,), chunk_size=chunk_size,
+    return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,), chunk_size=chunk_size,
                                       progress=progress, narrow=True)
 
 
-def soft_score(nb, *, tau=0.1, kernel_size: int = 3):
+def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3):
     """Smooth HKC score of every neighbourhood (:func:`soft_beta`), pure JAX and differentiable.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`.
       tau: softness of the voxel membership, relative to d (traced).
+      variant: the one the neighbourhoods were built for (static).
       kernel_size: odd k (static).
 
     Returns:
@@ -126,7 +148,9 @@ def soft_score(nb, *, tau=0.1, kernel_size: int = 3):
       >>> bool(((s >= 0) & (s <= 1)).all())
       True
     """
+    variant = _common.check_variant(variant)
     kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     tau = _validate.check_traced_positive(tau, "tau")
-    return _common.soft_map(functools.partial(soft_beta, kernel_size=kernel_size), nb, (nb.scale,), (tau,))
+    fn = functools.partial(soft_beta, kernel_size=kernel_size, variant=variant)
+    return _common.soft_map(fn, nb, (nb.scale,), (tau,))

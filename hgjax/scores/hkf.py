@@ -10,9 +10,11 @@ the share of high-frequency energy:
   depends on that arbitrary basis (another LAPACK build gives other scores).
 * ``variant="invariant"`` (default): sigma_i = ||P_high s_i|| / (||P_high s_i|| +
   ||P_low s_i||), the L1 norm of the two band energies (L2 norms of the projections onto
-  each band), which no choice of basis can change. For a cubic kernel this equals
-  beta / (1 + beta) with HKC's beta, so it ranks points exactly like HKC, and its smooth
-  twin is HKC's: the registry's HKF soft score is :func:`hgjax.scores.hkc.soft_score`.
+  each band), which no choice of basis can change, with HKC's invariant kernel (turned
+  into the local frame, energies averaged over the frame's axis signs:
+  :func:`hgjax.scores.voxel.band_energies`). This equals beta / (1 + beta) with HKC's
+  beta, so it ranks points exactly like HKC, and its smooth twin is HKC's: the registry's
+  HKF soft score is :func:`hgjax.scores.hkc.soft_score`.
 
 Lower sigma means sharper; resampling keeps the smallest. sigma is always finite in [0, 1].
 """
@@ -45,17 +47,16 @@ def sigma(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant"
     Examples:
       >>> import jax.numpy as jnp, hgjax
       >>> offsets = jnp.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-      >>> round(float(hgjax.scores.hkf.sigma(offsets, jnp.ones(3, bool), 1.0)), 4)
-      0.8994
+      >>> round(float(hgjax.scores.hkf.sigma(offsets, jnp.ones(3, bool), 1.0, variant="reference")), 4)
+      0.9699
     """
-    s = voxel.local_signal(offsets, valid, d, kernel_size)
     if variant == "reference":
+        s = voxel.local_signal(offsets, valid, d, kernel_size)
         _, v, t = voxel.reference_spectrum(kernel_size)
         s_hat = jnp.abs(jnp.asarray(v, s.dtype).T @ s)
         return _common.safe_div(jnp.sum(s_hat[:t]), jnp.sum(s_hat), 0.0)
-    low, high = voxel.low_high(s, kernel_size)
-    nh, nl = jnp.linalg.norm(high), jnp.linalg.norm(low)
-    return _common.safe_div(nh, nh + nl, 0.0)
+    s = voxel.local_signal(voxel.oriented(offsets, valid, d), valid, d, kernel_size)
+    return _common.band_ratio(*voxel.band_energies(s, kernel_size, variant))
 
 
 @functools.lru_cache(maxsize=None)

@@ -2,42 +2,38 @@
 
 For each point p_i and a length n, the local signal is s (n, 3) = the n nearest points of
 p_i (p_i itself first) minus p_i (Eq. (13)); its first row is 0. Its spectrum comes from
-R = s_n s_n^T (n, n) with s_n the row-centred signal; t = argmax(diff(lam)) + 1 splits the
+R = s_n s_n^T (n, n) with s_n the centred signal (by rows in the reference, by columns in
+the default); t = argmax(diff(lam)) + 1 splits the
 high band (the first t components) from the low band. The single-length sharpness is
 
 * ``variant="reference"`` (Eq. (14), REFERENCE.md): gamma = sum_{j<t,k} |T[j, k]| /
   sum_{j,k} |T[j, k]| with T = V^T s, through a batched n x n ``eigh``. R has rank <= 2, so
   the high band contains an (n - 2)-dimensional degenerate eigenspace and the L1 ratio
   depends on the basis the eigensolver returns there.
-* ``variant="invariant"`` (default): Eq. (14) with the eigensolver's basis averaged out.
-  For x in a d-dimensional eigenspace E, the expected L1 norm of its coordinates in a
-  uniformly (Haar) random orthonormal basis of E is d c_d ||x||_2, with c_d = E|v_1| =
-  Gamma(d/2) / (sqrt(pi) Gamma((d + 1)/2)) for v uniform on the sphere S^{d-1} (c_1 = 1: a
-  1-D eigenspace gives |u^T x| exactly). Summing over the columns s_k and the eigenspaces
-  E of each band,
+* ``variant="invariant"`` (default): Eq. (14) made independent of the cloud's orientation
+  and of the eigensolver's basis. Row-centring subtracts from each row its mean along
+  (1, 1, 1), a direction of the coordinate axes, and the per-column L1 sums weigh the axes
+  unequally: both change with a rotation of the cloud. Here the rows are centred by the
+  neighbourhood centroid (s_c = s - 1 c^T, c the mean row), so R = s_c s_c^T turns with
+  nothing, and each coefficient row T[j] = u_j^T s (3,) counts by its L2 norm, which is
+  the L1 norm averaged over random rotations up to a common factor 3/2. The eigenspaces
+  of R are the eigenvectors of mu0 <= mu1 <= mu2, the eigenvalues of C = s_c^T s_c, with
+  ||T[j]||_2 = sqrt(mu_j) in any basis of equal mu; and the null space, of dimension d =
+  n - 3 (d = 1 for n = 3), which holds P_null s = 1 c^T. Its rows are averaged over
+  Haar-random bases as for the reference's degenerate L1: d c_d sqrt(n) ||c||, with c_d =
+  E|v_1| = Gamma(d/2) / (sqrt(pi) Gamma((d + 1)/2)) for v uniform on S^{d-1}. So
 
-      A_band = sum_{E in band} d_E c_{d_E} sum_k ||P_E s_k||_2,   gamma = A_high / (A_high + A_low),
+      gamma = (d c_d sqrt(n) ||c|| + sum_{j in high} sqrt(mu_j)) / (d c_d sqrt(n) ||c|| + sum_j sqrt(mu_j)),
 
-  the ratio of the expectations of Eq. (14)'s numerator and denominator over random bases
-  inside every eigenspace (not the expectation of the ratio; for n = 3 every eigenspace is
-  1-D and gamma equals the reference). The eigenspaces of R are its null space (dimension
-  d = n - rank(R), always in the high band; since s = s_n + m 1^T with m the row means,
-  P_null s has the same column res for k = 1, 2, 3) and the eigenvectors u1, u2 of
-  mu1 <= mu2, or one 2-D eigenspace when mu1 = mu2 (to 8 n eps).
-  Why: the edge signal of Eq. (14) is res, the residual of the row means after a
-  least-squares fit on the in-plane coordinates (a plane fit through p_i). The L1 norm
-  weighs it by 3 d c_d against the 1-D terms; Frobenius band norms ||P_band s||_F (the
-  previous definition of this variant) weigh it by sqrt(3) only, and the in-plane spread
-  along u1 then dominates. On the edge benchmark (F1 at ratio 0.2, 12 shapes, lengths
-  (4, 8) and (6, 12), noise p <= 0.2, axis-aligned and rotated) band norms ranked barely
-  above uniform sampling, while this definition scores above the reference variant in every
-  setting and on the three labelled real clouds (MCC). At p >= 0.5 every LHF variant is
-  near uniform.
-  Computed from the 3 x 3 Gram matrix G = s_n^T s_n, whose non-zero eigenpairs (mu_k, w_k)
-  give those of R (u_k = s_n w_k / sqrt(mu_k)), plus an explicit projection onto the null
-  space. Since s_n 1 = 0, that Gram reduces to a 2 x 2 one solved in closed form. No n x n
-  eigendecomposition, no LAPACK call, no basis dependence. ``solver="eigh"`` computes the
-  same number through the n x n ``eigh`` (the tests prove the two agree).
+  the ratio of the expectations of Eq. (14)'s numerator and denominator over a random
+  rotation of the cloud and random bases inside every eigenspace (not the expectation of
+  the ratio): still the high-band share of the signal, with the band threshold t =
+  argmax(diff(lam)) + 1 of the normalised eigenvalues (0, ..., 0, mu0, mu1, mu2) / mu2.
+  The edge signal is the centroid offset ||c|| and the spread along the normal(s), sqrt(mu0).
+  Computed from the 3 x 3 covariance C (:func:`bands`, Jacobi eigenvalues, no LAPACK call);
+  ``solver="eigh"`` computes the same number through the n x n ``eigh`` (the tests prove the
+  two agree wherever rank(s_c) = 3). On the defaults study it ranks edges far better than
+  the previous (row-centred) invariant variant: bench/results/edge_defaults.md.
 
 Two lengths (N_a, N_b) are combined (Eqs. (15)-(16)): gamma_i = eps gamma_a + (1 - eps)
 gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), Gamma the value at the top-ratio fraction
@@ -45,10 +41,10 @@ of each sorted gamma (the paper's definition, not the reference code's arbitrary
 Higher gamma means sharper; resampling keeps the largest.
 
 Degenerate neighbourhoods: duplicates and collinear or coplanar points give finite gamma in
-[0, 1]; a signal with no structure at all (every row of s constant, e.g. all points equal)
-gives gamma = 0. The invariant gamma jumps where an eigenspace changes dimension (rank(R)
-drops, mu1 meets mu2), as the band threshold t already does at mu1 / mu2 = 1/2; the smooth
-twin :func:`soft_gamma` shares :func:`gram_bands` and blends across the last two.
+[0, 1]; a signal with no structure at all (all points equal) gives gamma = 0. Vanishing
+eigenvalues of C leave d unchanged (their directions carry no part of s), so the invariant
+gamma is continuous in s except where the band threshold t moves; the smooth twin
+:func:`soft_gamma` shares :func:`bands` and blends across those jumps.
 """
 
 from __future__ import annotations
@@ -63,7 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _stream, _validate, spatial, spectrum
-from hgjax.scores import _common
+from hgjax.scores import _common, ea
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
 
@@ -84,12 +80,12 @@ def _reference(s):
 
 def _haar_l1_factor(d: int) -> float:
     """d c_d: expected L1 norm of a unit vector's coordinates in a Haar-random basis of R^d."""
-    return d * math.exp(math.lgamma(d / 2) - math.lgamma((d + 1) / 2)) / math.sqrt(math.pi) if d else 0.0
+    return d * math.exp(math.lgamma(d / 2) - math.lgamma((d + 1) / 2)) / math.sqrt(math.pi)
 
 
-def _null_factor(rank, n, dtype):
-    """d c_d for the null space of R, d = n - rank with a traced rank in {0, 1, 2}."""
-    return jnp.asarray([_haar_l1_factor(n - r) for r in range(3)], dtype=dtype)[rank]
+def _null_dim(n: int) -> int:
+    """Dimension of the fixed null eigenspace of R for a column-centred signal of n rows."""
+    return max(n - 3, 1)
 
 
 def _row_sum(x):
@@ -102,197 +98,147 @@ def _row_sum(x):
     return out
 
 
-def _degeneracy_tol(n, dtype):
-    """Relative eigenvalue tolerance for 'zero' and 'equal' (both solvers use it)."""
-    return 8 * n * jnp.finfo(dtype).eps
+def _ascending(lam):
+    """(3,) values sorted ascending by min / max (a sort inside a custom_jvp breaks its batching)."""
+    a, b, c = lam[0], lam[1], lam[2]
+    mid = jnp.maximum(jnp.minimum(a, b), jnp.minimum(jnp.maximum(a, b), c))
+    return jnp.stack([jnp.minimum(jnp.minimum(a, b), c), mid, jnp.maximum(jnp.maximum(a, b), c)])
 
 
-def _invariant_eigh(s):
-    """Haar-expected L1 band ratio through the n x n eigh (proof path for the Gram solver).
+@jax.custom_jvp
+def eigenvalues(cov):
+    """Ascending eigenvalues (3,) of a symmetric 3 x 3 matrix, by :mod:`hgjax.scores.ea` 's Jacobi.
 
-    Eigenspaces from the normalised eigenvalues: the first d = n - rank columns (null
-    space), then the last two separately, or together when they are equal.
+    The derivative of each is v_k^T dC v_k with v_k its eigenvector: finite everywhere; where
+    eigenvalues are equal, the derivative along one vector of their eigenspace.
+
+    Args:
+      cov: (3, 3) symmetric.
+
+    Returns:
+      (3,) ascending, in the dtype of ``cov``.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores import lhf
+      >>> lhf.eigenvalues(jnp.array([[2.0, 1, 0], [1, 2, 0], [0, 0, 0.5]])).round(6).tolist()
+      [0.5, 1.0, 3.0]
     """
-    n = s.shape[0]
-    lam, v = spectrum.estimate_spectrum(s)
-    t = spectrum.band_threshold(lam)
-    coef = spectrum.hgft(v, s)  # (n, 3)
-    tol = _degeneracy_tol(n, lam.dtype)
-    rank = jnp.sum(lam > tol)  # <= 2: only the last two eigenvalues can be non-zero
-    j = jnp.arange(n)
-    null = j < n - rank
-    null_norms = _common.safe_sqrt(jnp.sum(jnp.where(null[:, None], coef * coef, 0), axis=0))  # (3,)
-    null_l1 = _null_factor(rank, n, s.dtype) * jnp.sum(null_norms)
-    a = jnp.sum(jnp.abs(coef), axis=1)  # (n,) L1 on each eigenvector: exact for 1-D eigenspaces
-    high_1d = jnp.sum(jnp.where(~null & (j < t), a, 0))
-    low_1d = jnp.sum(jnp.where(~null & (j >= t), a, 0))
-    # mu1 = mu2: one 2-D eigenspace, in the low band (its normalised eigenvalue is 1).
-    equal = (rank == 2) & (lam[n - 1] - lam[n - 2] <= tol)
-    pair = _haar_l1_factor(2) * jnp.sum(_common.safe_sqrt(coef[n - 2] ** 2 + coef[n - 1] ** 2))
-    high = null_l1 + jnp.where(equal, 0, high_1d)
-    low = jnp.where(equal, pair, low_1d)
-    return jnp.where(rank > 0, _common.safe_div(high, high + low, 0.0), 0.0)
+    return _ascending(ea._jacobi(cov, vectors=False)[0])
 
 
-# Orthonormal basis (3, 2) of the plane orthogonal to (1, 1, 1): row-centring projects onto it.
-_PLANE = np.array([[1 / np.sqrt(2), 1 / np.sqrt(6)], [-1 / np.sqrt(2), 1 / np.sqrt(6)], [0.0, -2 / np.sqrt(6)]])
+@eigenvalues.defjvp
+def _eigenvalues_jvp(primals, tangents):
+    (cov,), (dcov,) = primals, tangents
+    lam, vec = ea._jacobi(cov, vectors=True)
+    order = jnp.argsort(lam)
+    return _ascending(lam), jnp.stack([vec[:, i] @ dcov @ vec[:, i] for i in (order[0], order[1], order[2])])
 
 
-class GramBands(NamedTuple):
-    """Haar-expected L1 sums of Eq. (14) over the eigenspaces of R for one signal (scalars).
+class Bands(NamedTuple):
+    """Eigenspace sums of the invariant LHF (Eq. (14)) for one signal, from :func:`bands`.
 
-    Built by :func:`gram_bands`, combined into gamma by :func:`band_l1_ratio`.
+    Combined into gamma by :func:`band_ratio`.
     """
 
-    null: jax.Array  #: 3 d c_d ||res||: the null space of R (d = n - rank(R)), always high band.
-    small: jax.Array  #: sum_k |u1^T s_k|: the mu1 direction (0 when mu1 is null).
-    large: jax.Array  #: sum_k |u2^T s_k|: the mu2 direction, always low band.
-    pair: jax.Array  #: 2 c_2 sum_k ||P s_k||, P onto span(u1, u2) = range(R) as one 2-D eigenspace.
-    ratio: jax.Array  #: mu1 / mu2 in [0, 1], the middle normalised eigenvalue (0 when R = 0).
-    equal: jax.Array  #: bool, mu1 = mu2 != 0 to the degeneracy tolerance.
-    top: jax.Array  #: mu2 = max eigenvalue of R; 0 for a signal without structure.
+    null: jax.Array  #: d c_d sqrt(n) ||c||: the null eigenspace of R (always high band).
+    amplitude: jax.Array  #: (3,) sqrt(mu_k), ascending: the eigenvectors of R with mu_k = eig(s_c^T s_c).
+    jumps: jax.Array  #: (3,) mu0 / mu2, (mu1 - mu0) / mu2, 1 - mu1 / mu2: the last three steps of lam.
 
 
-def gram_bands(s, *, unrolled: bool = True) -> GramBands:
-    """Eigenspace L1 sums of the invariant LHF (Eq. (14)) through a closed-form 2 x 2 Gram.
+def bands(s, *, unrolled: bool = True) -> Bands:
+    """Eigenspace sums of the invariant LHF (Eq. (14)) through the 3 x 3 covariance.
 
-    Row-centring is the projection of each row onto the plane orthogonal to (1, 1, 1), so
-    s_n = y Q^T with y = s Q (n, 2) and Q the fixed orthonormal basis of that plane. The
-    non-zero eigenpairs of R = s_n s_n^T = y y^T are those of the 2 x 2 Gram G = y^T y: with
-    G w_k = mu_k w_k, the eigenvectors of R are u_k = z_k / ||z_k||, z_k = y w_k, and mu_k =
-    ||z_k||^2. The null-space part of s is the residual res of the row means m after
-    projection onto span(z_1, z_2), the same for all three columns, so the null space
-    contributes 3 d c_d ||res||. No LAPACK call.
-
-    Three passes over the n rows, each one fused loop with its sums written out:
-    1. G and vm = y^T m, which give w_k in closed form and mu_l, u_l^T s_k;
-    2. z_s = y w_s, which gives mu_s = ||z_s||^2 and u_s^T s_k. From G, mu_s would be a
-       difference of O(mu_l) terms (relative error ~eps mu_l / mu_s); summed, it is not;
-    3. res = m - y g with g = G^+ vm the plane-fit coefficients of m (explicit, so no
-       cancellation when res is small).
-    Autodiff gives the true derivatives; where G is isotropic to rounding the eigenvectors
-    are any basis with zero derivative, which only the basis-dependent 1-D sums see (the
-    pair and null sums go through G^{-1} there). s is first scaled by a power of two and
+    With s_c = s - 1 c^T (c the mean row, the neighbourhood centroid minus the point), R =
+    s_c s_c^T has the eigenvalues mu0 <= mu1 <= mu2 of C = s_c^T s_c and a null eigenspace
+    of dimension d = n - 3 (d = 1 for n = 3, where mu0 = 0 always), which contains 1. An
+    eigenvector u_k of mu_k > 0 gives the row T[k] = u_k^T s = u_k^T s_c with ||T[k]||_2 =
+    sqrt(mu_k), whatever basis is chosen inside an eigenspace of equal mu. The null space
+    gives P_null s = 1 c^T, of rank one, whose row norms in a Haar-random basis add up to
+    d c_d sqrt(n) ||c|| on average. Eigenvalues of C vanishing by rounding or geometry do
+    not change d (their directions then carry no part of s), so every sum is continuous in s.
+    No n x n eigendecomposition, no LAPACK call; s is first scaled by a power of two and
     everything is computed in its dtype.
 
     Shared by the hard kernel (``variant="invariant"``) and the smooth LHF of
-    :func:`soft_gamma`, which differ only in the weights passed to :func:`band_l1_ratio`.
+    :func:`soft_gamma`, which differ only in the band weights passed to :func:`band_ratio`.
 
     Args:
       s: (n, 3) local signal (Eq. (13)).
       unrolled: sums over the n rows written out as adds (the hard kernel) or as reductions
-        (the differentiated soft path: value_and_grad through the written-out adds compiled
-        7x slower than its forward; bench/results/compile_grad.md). Static.
+        (the differentiated soft path: value_and_grad through written-out adds compiles
+        several times slower than its forward; bench/results/compile_grad.md). Static.
 
     Returns:
-      :class:`GramBands` of scalars in the dtype of ``s``, for s scaled by a power of two
-      (only their ratios are meaningful).
+      :class:`Bands` in the dtype of ``s``, for s scaled by a power of two (only ratios of
+      ``null`` and ``amplitude`` are meaningful).
     """
     n = s.shape[0]
-    info = jnp.finfo(s.dtype)
     row_sum = _row_sum if unrolled else functools.partial(jnp.sum, axis=-1)
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
-    # rounding below scales with it; squares and 1 / det then neither underflow nor overflow.
+    # rounding below scales with it and no square under- or overflows.
     s = _common.unit_scale(s)
-    q = jnp.asarray(_PLANE, s.dtype)  # NumPy float64 scalars would promote a float32 s under x64
-    # Small products written out elementwise: XLA fuses them, batched dots of this size are slow.
-    x0, x1, x2 = s[:, 0], s[:, 1], s[:, 2]
-    y0 = x0 * q[0, 0] + x1 * q[1, 0]  # y = s Q (n, 2); Q[2, 0] = 0
-    y1 = x0 * q[0, 1] + x1 * q[1, 1] + x2 * q[2, 1]
-    m = (x0 + x1 + x2) / 3  # (n,) row means: s = s_n + m 1^T
-
-    # Pass 1: G = [[a, b], [b, c]] and vm; y^T s = y^T s_n + vm 1^T = G Q^T + vm 1^T.
-    a, c, b, vm0, vm1 = (row_sum(u * v) for u, v in ((y0, y0), (y1, y1), (y0, y1), (y0, m), (y1, m)))
-    # Eigenvectors of G in closed form: with d = (a - c) / 2, r = sqrt(d^2 + b^2) and rho =
-    # b / (r + |d|) (|rho| <= 1), w_l = (1, rho) for d >= 0 and (rho, 1) for d < 0, normalised;
-    # w_s = w_l turned by 90 degrees. Everything below is invariant to the sign of w. No
-    # trigonometry: XLA CPU would recompute it in every fusion that reads the angle.
-    # Isotropic to rounding (r <= eps (a + c), or r^2 so small that its derivatives, ~1 / r^2,
-    # would overflow): w_l = (1, 0) with zero derivative; then mu_s = mu_l to the degeneracy
-    # tolerance and only the pair and null sums, which do not use w, count.
-    d = (a - c) / 2
-    r2 = d * d + b * b
-    iso = r2 <= jnp.maximum(jnp.square(info.eps * (a + c)), jnp.sqrt(info.tiny))
-    rho = jnp.where(iso, 0, b / (jnp.sqrt(jnp.where(iso, 1, r2)) + jnp.abs(d)))
-    k = jax.lax.rsqrt(1 + rho * rho)
-    first = (d >= 0) | iso
-    cos = jnp.where(first, 1, rho) * k  # w_l = (cos, sin), w_s = (-sin, cos)
-    sin = jnp.where(first, rho, 1) * k
-    mu_l = a * cos * cos + 2 * b * sin * cos + c * sin * sin  # w_l^T G w_l
-    tol = _degeneracy_tol(n, s.dtype)
-    nz_l = mu_l > 0
-    inv_l = jnp.where(nz_l, 1 / jnp.where(nz_l, mu_l, 1), 0)
-    # u_l^T s_k = w_l^T vy_k / sqrt(mu_l) = sqrt(mu_l) w_l^T q_k + w_l^T vm / sqrt(mu_l) (q_k row k of Q)
-    vm_l = cos * vm0 + sin * vm1
-    p_l = _common.safe_sqrt(mu_l) * (cos * q[:, 0] + sin * q[:, 1]) + vm_l * _common.safe_sqrt(inv_l)  # (3,)
-
-    # Pass 2: z_s = y w_s.
-    z_s = cos * y1 - sin * y0
-    mu_s, vm_s, zx0, zx1, zx2 = (row_sum(z_s * v) for v in (z_s, m, x0, x1, x2))
-    top = jnp.maximum(mu_s, mu_l)
-    nz_s = mu_s > tol * top
-    inv_s = jnp.where(nz_s, 1 / jnp.where(nz_s, mu_s, 1), 0)
-    p_s = jnp.stack([zx0, zx1, zx2]) * _common.safe_sqrt(inv_s)  # (3,) u_s^T s_k, 0 if null
-    ratio = _common.safe_div(jnp.minimum(mu_s, mu_l), top, 0.0)
-    # Projections onto range(R) (pair, null), invariant to the basis. For ratio >= 1/2
-    # (cond(G) <= 2) they go through G^{-1} = adj(G) / det instead of the eigenvectors: the
-    # eigenvectors' derivatives grow like 1 / (mu_l - mu_s), and their rounding would swamp
-    # the gradients near mu_s = mu_l. Below 1/2 the gap is >= mu_l / 2 and the eigenvectors
-    # are the well-conditioned route (G^{-1} is not, as mu_s -> 0).
-    near = ratio >= 0.5
-    inv_det = 1 / jnp.where(near, a * c - b * b, 1)
-    vy0 = a * q[:, 0] + b * q[:, 1] + vm0  # (3,) y_0^T s_k
-    vy1 = b * q[:, 0] + c * q[:, 1] + vm1  # (3,) y_1^T s_k
-    quad = (c * vy0 * vy0 - 2 * b * vy0 * vy1 + a * vy1 * vy1) * inv_det  # (3,) ||P s_k||^2
-    norms = jnp.where(near, quad, p_s * p_s + p_l * p_l)  # (3,) ||P s_k||^2
-    f_s, f_l = inv_s * vm_s, inv_l * vm_l  # (w^T vm) / mu (vm_s = z_s^T m = w_s^T vm)
-    g0 = jnp.where(near, (c * vm0 - b * vm1) * inv_det, cos * f_l - sin * f_s)
-    g1 = jnp.where(near, (a * vm1 - b * vm0) * inv_det, sin * f_l + cos * f_s)
-
-    # Pass 3: res = m - y g = P_null s_k, the same for k = 1, 2, 3.
-    res = m - (y0 * g0 + y1 * g1)
-    rank = nz_s.astype(jnp.int32) + nz_l.astype(jnp.int32)
-    first_small = mu_s <= mu_l
-    l1_s, l1_l = row_sum(jnp.abs(p_s)), row_sum(jnp.abs(p_l))  # L1 over the 3 columns
-    return GramBands(
-        null=3 * _null_factor(rank, n, s.dtype) * _common.safe_sqrt(row_sum(res * res)),
-        small=jnp.where(first_small, l1_s, l1_l),
-        large=jnp.where(first_small, l1_l, l1_s),
-        pair=_haar_l1_factor(2) * row_sum(_common.safe_sqrt(norms)),
-        ratio=ratio,
-        equal=nz_s & (jnp.abs(mu_l - mu_s) <= tol * top),
-        top=top,
+    x = [s[:, k] for k in range(3)]
+    c = [row_sum(xk) / n for xk in x]  # centroid offset
+    y = [xk - ck for xk, ck in zip(x, c)]
+    # C written out elementwise: XLA fuses it, batched dots of this size are slow.
+    cxx, cyy, czz, cxy, cxz, cyz = (row_sum(y[i] * y[j]) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)))
+    cov = jnp.stack([jnp.stack([cxx, cxy, cxz]), jnp.stack([cxy, cyy, cyz]), jnp.stack([cxz, cyz, czz])])
+    mu = jnp.maximum(eigenvalues(cov), 0)
+    if n == 3:  # three centred rows span at most a plane
+        mu = mu.at[0].set(0)
+    r = _common.safe_div(mu, mu[2], 0.0)
+    return Bands(
+        null=_haar_l1_factor(_null_dim(n)) * math.sqrt(n) * _common.safe_sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]),
+        amplitude=_common.safe_sqrt(mu),
+        jumps=jnp.stack([r[0], r[1] - r[0], 1 - r[1]]),
     )
 
 
-def band_l1_ratio(bands: GramBands, high, pair):
-    """gamma = A_high / (A_high + A_low) of the invariant LHF from weighted eigenspace sums.
+def band_ratio(b: Bands, weights):
+    """gamma = A_high / (A_high + A_low) of the invariant LHF from band weights.
 
-    A_high = null + (1 - pair) high small and A_low = pair pair_sum + (1 - pair) (large +
-    (1 - high) small): ``high`` is the high-band weight of the mu1 direction, ``pair`` the
-    weight of counting span(u1, u2) as one 2-D eigenspace. The hard kernel passes the 0/1
-    steps (mu1 / mu2 < 1/2: t = argmax(diff(lam)) + 1 puts mu1 in the high band) and
-    ``bands.equal``; :func:`soft_gamma` passes smooth switches of ``bands.ratio``.
+    The band threshold t = argmax(diff(lam)) + 1 falls at one of the last three steps of
+    lam (the null eigenvalues are 0, the others sum to at least one): after the null space
+    (weights (1, 0, 0)), after mu0 ((0, 1, 0)) or after mu1 ((0, 0, 1)). ``weights`` (3,)
+    weigh those three cases; the hard kernel passes the one-hot argmax of ``b.jumps``,
+    :func:`soft_gamma` a softmax.
 
     Args:
-      bands: :class:`GramBands` from :func:`gram_bands`.
-      high: weight in [0, 1] (scalar, in the dtype of the bands).
-      pair: weight in [0, 1] (scalar, in the dtype of the bands).
+      b: :class:`Bands` from :func:`bands`.
+      weights: (3,) non-negative, summing to 1.
 
     Returns:
-      Scalar gamma in [0, 1]; 0 for a signal without structure (R = 0).
+      Scalar gamma in [0, 1]; 0 for a signal without structure (all rows equal).
     """
-    keep = 1 - pair
-    a_high = bands.null + keep * (high * bands.small)
-    a_low = pair * bands.pair + keep * (bands.large + (1 - high) * bands.small)
-    return jnp.where(bands.top > 0, _common.safe_div(a_high, a_high + a_low, 0.0), 0.0)
+    a_high = b.null + (weights[1] + weights[2]) * b.amplitude[0] + weights[2] * b.amplitude[1]
+    return _common.safe_div(a_high, b.null + jnp.sum(b.amplitude), 0.0)
 
 
-def _invariant_gram(s):
-    """Haar-expected L1 band ratio through :func:`gram_bands` with the hard band switches."""
-    bands = gram_bands(s)
-    dtype = bands.top.dtype
-    return band_l1_ratio(bands, (bands.ratio < 0.5).astype(dtype), bands.equal.astype(dtype))
+def _invariant_bands(s):
+    """Rotation-invariant gamma through :func:`bands` with the hard band threshold."""
+    b = bands(s)
+    return band_ratio(b, jax.nn.one_hot(jnp.argmax(b.jumps), 3, dtype=b.jumps.dtype))
+
+
+def _invariant_eigh(s):
+    """Rotation-invariant gamma through the n x n eigh of R (proof path for :func:`bands`).
+
+    Eq. (14) with L2 row norms ||T[j]||_2 (T = V^T s) in place of the per-column L1 sums,
+    and the null eigenspace (the first d columns) averaged over its bases as d c_d ||P s||_F.
+    Agrees with :func:`bands` where rank(s_c) = 3 (otherwise eigh's basis mixes the null
+    space with the vanishing directions of C).
+    """
+    n = s.shape[0]
+    lam, v = spectrum.estimate_spectrum(s, axis="column")
+    t = spectrum.band_threshold(lam)
+    coef = spectrum.hgft(v, s)  # (n, 3)
+    sq = jnp.sum(coef * coef, axis=1)  # (n,)
+    j = jnp.arange(n)
+    null = j < _null_dim(n)
+    rows = jnp.where(null, 0, _common.safe_sqrt(sq))
+    a_null = _haar_l1_factor(_null_dim(n)) * _common.safe_sqrt(jnp.sum(jnp.where(null, sq, 0)))
+    return _common.safe_div(a_null + jnp.sum(jnp.where(j < t, rows, 0)), a_null + jnp.sum(rows), 0.0)
 
 
 def gamma(offsets, valid, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram"):
@@ -319,30 +265,22 @@ def gamma(offsets, valid, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant"
     if variant == "reference":
         fn = _reference
     else:
-        fn = _invariant_gram if solver == "gram" else _invariant_eigh
+        fn = _invariant_bands if solver == "gram" else _invariant_eigh
     return jnp.stack([fn(signal[:n]) for n in lengths])
 
 
 def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     """Smooth LHF sharpness gamma (Eq. (14)) of one k-nearest neighbourhood for each length.
 
-    The invariant (Haar-expected L1) gamma, with the eigenspace sums of :func:`gram_bands`
-    (shared with the hard kernel) combined by :func:`band_l1_ratio` with smooth switches of
-    r = mu1 / mu2 instead of the hard steps:
-
-    * band: the mu1 direction is high band with weight sigmoid((1/2 - r) / tau);
-    * pair: u1, u2 count as one 2-D eigenspace (Haar factor 4 / pi) with weight
-      q = exp(-((1 - r) / tau)^2). The 1-D terms |u_k^T s| turn with the eigenvectors, whose
-      derivative grows like 1 / (mu2 - mu1); since 1 - q = O((1 - r)^2), gamma and its
-      gradient stay continuous at mu1 = mu2, where the hard gamma jumps.
-
-    gamma still jumps where rank(R) drops (collinear signals, or a plane containing the
-    direction (1, 1, 1)); gradients stay finite there.
+    The invariant gamma, with the eigenspace sums of :func:`bands` (shared with the hard
+    kernel) combined by :func:`band_ratio` with a softmax of the last three steps of lam
+    (softness ``tau``) in place of the hard argmax of the band threshold, so gamma is
+    continuous where the threshold moves.
 
     Args:
       offsets, valid: as :func:`gamma`.
-      tau: softness of the switches on r (scalar > 0, traced); tau -> 0 gives the hard
-        invariant gamma except for r within a few tau of 1/2 or 1.
+      tau: softness of the band threshold (scalar > 0, traced); tau -> 0 gives the hard
+        invariant gamma except where two steps of lam are within a few tau of each other.
       lengths: tuple of lengths n (static).
 
     Returns:
@@ -358,10 +296,12 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     signal = jnp.where(valid[:, None], offsets, 0)
     out = []
     for n in lengths:
-        bands = gram_bands(signal[:n], unrolled=False)
-        high = jax.nn.sigmoid(_common.switch_argument(0.5 - bands.ratio, tau))
-        pair = jnp.exp(-jnp.square(_common.switch_argument(1 - bands.ratio, tau)))
-        out.append(band_l1_ratio(bands, high, pair))
+        b = bands(signal[:n], unrolled=False)
+        # softmax is shift-invariant: the max is a constant shift (no derivative; XLA CPU
+        # compiles the JVP of a traced max here under jit and vmap into NaN).
+        top = jax.lax.stop_gradient(jnp.max(b.jumps))
+        weights = jax.nn.softmax(_common.switch_argument(b.jumps - top, tau))
+        out.append(band_ratio(b, weights))
     return jnp.stack(out)
 
 

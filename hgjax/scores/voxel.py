@@ -22,11 +22,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate, spatial
-from hgjax.scores import _common
+from hgjax.scores import _common, ea
 
-__all__ = ["default_d_factor", "local_signal", "low_high", "neighbourhoods", "soft_local_signal"]
+__all__ = ["band_energies", "default_d_factor", "frame", "local_signal", "low_high", "neighbourhoods", "oriented",
+           "soft_local_signal"]
 
 
+FRAME_GAP = 1e-9  # eigenvalue gaps below this x trace(C) are degenerate: no frame derivative across them
 REFERENCE_D_FACTOR = 1.3  # d = 1.3 x resolution (REFERENCE.md)
 # The default variant's d = f x local spacing, f from the sampling irregularity c (the
 # coefficient of variation of nearest-neighbour distances): REGULAR_D_FACTOR for lattices
@@ -203,6 +205,94 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
     return low, s - low
 
 
+@jax.custom_jvp
+def frame(cov: jax.Array) -> jax.Array:
+    """Orthonormal eigenvectors (3, 3), as columns, of a symmetric 3 x 3 ``cov`` (Jacobi).
+
+    Their order and signs are whatever :mod:`hgjax.scores.ea` 's Jacobi sweeps give; the
+    invariant kernel does not depend on them (:func:`band_energies`). The derivative is
+    first-order perturbation theory, dv_k = sum_j v_j (v_j^T dC v_k) / (l_k - l_j), leaving
+    out the pairs closer than ``FRAME_GAP`` x trace: exact where the eigenvalues are
+    distinct, finite where they are not (there the basis of the eigenspace is arbitrary).
+
+    Args:
+      cov: (3, 3) symmetric.
+
+    Returns:
+      (3, 3) orthonormal, in the dtype of ``cov``.
+    """
+    return ea._jacobi(cov, vectors=True)[1]
+
+
+@frame.defjvp
+def _frame_jvp(primals, tangents):
+    (cov,), (dcov,) = primals, tangents
+    lam, vec = ea._jacobi(cov, vectors=True)
+    tol = FRAME_GAP * jnp.abs(jnp.trace(cov))
+    cols = []
+    for k in range(3):
+        dv = jnp.zeros_like(vec[:, k])
+        for j in range(3):
+            if j != k:
+                gap = lam[k] - lam[j]
+                far = jnp.abs(gap) > tol
+                dv = dv + jnp.where(far, (vec[:, j] @ dcov @ vec[:, k]) / jnp.where(far, gap, 1), 0) * vec[:, j]
+        cols.append(dv)
+    return vec, jnp.stack(cols, axis=1)
+
+
+def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
+    """Offsets (K, 3) in the neighbourhood's local frame: the eigenvectors of its covariance.
+
+    The frame turns with the cloud, so the voxel counts of the turned offsets do not depend
+    on the cloud's orientation wherever the covariance's eigenvalues are distinct. Where two
+    are equal (e.g. the in-plane ones at the interior of a flat patch) the frame inside
+    their eigenspace is the one Jacobi returns: deterministic, but orientation-dependent.
+
+    Args:
+      offsets: (K, 3) the neighbourhood minus the point (padding rows masked by ``valid``).
+      valid: (K,) bool.
+      d: voxel spacing (scalar), the unit in which the covariance is formed.
+
+    Returns:
+      (K, 3) offsets @ V, V from :func:`frame`.
+    """
+    x = jnp.where(valid[:, None], offsets / d, 0)
+    count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
+    y = jnp.where(valid[:, None], x - (jnp.sum(x, axis=0) / count)[None, :], 0)
+    return offsets @ frame(y.T @ y)
+
+
+def band_energies(s: jax.Array, kernel_size: int, variant: str) -> tuple[jax.Array, jax.Array]:
+    """Squared high- and low-band norms (||high||^2, ||low||^2) of a voxel signal s (N_k,).
+
+    * ``"reference"``: of the projections of Eq. (10) (:func:`low_high`).
+    * ``"invariant"``: averaged over the kernel's orientations in the local frame. The low
+      band is span{C w : w orthogonal to (1, 1, 1)} (row-centred centres), so it depends on
+      the signs of the frame's axes (not on their order): the 8 sign choices average its
+      projector to (2/3) C C^T / m (C^T C = m I), whence ||low||^2 = (2/3) ||C^T s||^2
+      / m and ||high||^2 = ||s||^2 - ||low||^2. No sign or order convention of the frame
+      matters, and low is 0 exactly for signals symmetric about the centre, as in Eq. (10).
+
+    Args:
+      s: (N_k,) local signal.
+      kernel_size: k (static).
+      variant: ``"invariant"`` or ``"reference"`` (static).
+
+    Returns:
+      (high2, low2), scalars >= 0 (high2 up to rounding).
+    """
+    if variant == "reference":
+        low, high = low_high(s, kernel_size)
+        return jnp.sum(high * high), jnp.sum(low * low)
+    c = integer_offsets(kernel_size)
+    m = float(np.sum(c[:, 0] ** 2))
+    c = jnp.asarray(c, dtype=s.dtype)
+    w = jnp.sum(c.T * s[None, :], axis=1)  # (3,) C^T s, exact for integer counts
+    low2 = (2.0 / 3.0) * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) / m
+    return jnp.maximum(jnp.sum(s * s) - low2, 0), low2
+
+
 def build_params(*, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                  resolution: float | None = None, dedupe: bool | None = None) -> dict:
     """Validated build parameters of HKC/HKF; ``d_factor`` and a reference ``resolution`` may still be None.
@@ -245,9 +335,10 @@ def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
     """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params`` (see :func:`resolve`).
 
     Returns:
-      (idx, scale, reach): idx (R, K) int32 sorted-frame indices by increasing Chebyshev
-      distance, padded with n; scale (R,) float64 voxel spacing d; reach (R,) the distance
-      per axis within which every point the row used lies (cube and spacing estimate).
+      (idx, scale, reach): idx (R, K) int32 sorted-frame indices by increasing distance
+      (Chebyshev for "reference", Euclidean for "invariant"), padded with n; scale (R,)
+      float64 voxel spacing d; reach (R,) the distance per axis within which every point
+      the row used lies (cube or ball, and spacing estimate).
     """
     rows = np.asarray(rows, dtype=np.int64)
     if params["resolution"] is None:
@@ -255,20 +346,25 @@ def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
     else:
         res, reach = np.full(rows.size, params["resolution"]), np.zeros(rows.size)
     k = params["kernel_size"]
-    half = k / 2 * params["d_factor"] * res
+    invariant = params["variant"] == "invariant"
+    # The invariant variant turns its cube into the point's local frame, so it queries the
+    # ball that holds the cube in every orientation (radius sqrt(3) x the half-width).
+    widen = np.sqrt(3.0) if invariant else 1.0
+    half = widen * k / 2 * params["d_factor"] * res
     reach = np.maximum(reach, half)
-    max_count = MAX_COUNT if params["variant"] == "invariant" else None
+    max_count = MAX_COUNT if invariant else None
     start = [32]
 
     def query(part):
-        idx, half[part] = index.cube(half[part], rows[part], capacity=start[0], max_count=max_count)
+        idx, half[part] = index.cube(half[part], rows[part], capacity=start[0], max_count=max_count,
+                                     norm=2 if invariant else np.inf)
         # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
         # percentile count instead of doubling up from 32 again.
         start[0] = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
         return idx
 
     idx = spatial.pad_queries(index, query, capacity, "cube", rows.size)
-    return idx, 2 / k * half, reach
+    return idx, 2 / k * half / widen, reach
 
 
 def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
