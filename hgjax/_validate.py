@@ -248,6 +248,40 @@ def check_scores(scores, name="scores") -> np.ndarray:
     return s
 
 
+def check_neighbourhood_list(nbs: Any, cls: type) -> list:
+    """Return ``nbs`` as a list after checking it holds single-cloud ``cls`` items that stack.
+
+    Raises:
+      TypeError: ``nbs`` is not a list or tuple of ``cls``, or the points' dtypes differ.
+      ValueError: ``nbs`` is empty, an item is not one cloud (points (N, 3), idx (N, K)), or
+        the items' methods, build parameters or the presence of ``scale`` differ.
+    """
+    if isinstance(nbs, cls) or not isinstance(nbs, (list, tuple)):
+        raise TypeError(f"nbs must be a list of hgjax.Neighbourhoods; got {type(nbs).__name__}")
+    if not nbs:
+        raise ValueError("nbs must hold at least one hgjax.Neighbourhoods; got an empty list")
+    for i, nb in enumerate(nbs):
+        if not isinstance(nb, cls):
+            raise TypeError(f"nbs[{i}] must be hgjax.Neighbourhoods; got {type(nb).__name__}")
+        shape, idx_shape = np.shape(nb.points), np.shape(nb.idx)
+        if len(shape) != 2 or shape[1] != 3 or len(idx_shape) != 2 or idx_shape[0] != shape[0]:
+            raise ValueError(f"nbs[{i}] must be one cloud, points (N, 3) and idx (N, K); got points {shape} and"
+                             f" idx {idx_shape}")
+    first = nbs[0]
+    for i, nb in enumerate(nbs[1:], start=1):
+        for field in ("method", "params"):
+            if getattr(nb, field) != getattr(first, field):
+                raise ValueError(f"nbs[{i}].{field} is {getattr(nb, field)!r} but nbs[0].{field} is"
+                                 f" {getattr(first, field)!r}; a batch holds neighbourhoods built alike")
+        if nb.points.dtype != first.points.dtype:
+            raise TypeError(f"nbs[{i}].points has dtype {nb.points.dtype} but nbs[0].points {first.points.dtype};"
+                            " build every cloud of a batch in one dtype")
+        if (nb.scale is None) != (first.scale is None):
+            raise ValueError(f"nbs[{i}].scale is {'None' if nb.scale is None else 'set'} but nbs[0].scale is"
+                             f" {'None' if first.scale is None else 'set'}; a batch holds neighbourhoods built alike")
+    return list(nbs)
+
+
 def check_capacity(capacity, width: int, what: str) -> None:
     """Raise when a fixed ``capacity`` (columns) is below the fullest row's ``width``."""
     if capacity is not None and width > capacity:

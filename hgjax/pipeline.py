@@ -17,6 +17,7 @@ import inspect
 from typing import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate, samplers, spatial, tiles
@@ -260,7 +261,12 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       (500,)
     """
     entry = _scoring(method)
-    return entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params)))
+    return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params))))
+
+
+def _absent_zero(nb: spatial.Neighbourhoods, values):
+    """``values`` (N,) with the padding rows of a stacked cloud (row >= ``nb.count``) set to 0."""
+    return values if nb.count is None else jnp.where(nb.row_mask, values, 0)
 
 
 def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
@@ -289,7 +295,8 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       True
     """
     entry = _scoring(method)
-    return entry.soft_score(nb, **_matching(nb, entry, "soft_score", _split(entry, "soft_score", params)))
+    return _absent_zero(nb, entry.soft_score(nb, **_matching(nb, entry, "soft_score",
+                                                             _split(entry, "soft_score", params))))
 
 
 def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray:
@@ -398,7 +405,8 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
     if "ratio" in entry.params["soft_score"]:
         params["ratio"] = ratio
     s = soft_score(nb, method, **params)
-    return soft_select(s, ratio, temperature=temperature, largest=entry.largest)
+    return soft_select(s, ratio, temperature=temperature, largest=entry.largest,
+                       valid=None if nb.count is None else nb.row_mask)
 
 
 def soft_resample(points, ratio: float, *, method: str = "hkc", temperature=0.05, **params) -> jax.Array:
