@@ -238,8 +238,9 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
 
     Runs inside a caller's ``jax.jit`` (``method`` and shape-setting parameters static;
     float parameters such as ``ratio`` traced, so a sweep does not recompile) and under
-    ``jax.vmap`` over a batch of equal-shape neighbourhoods. Called eagerly, it streams
-    fixed-size chunks through one compiled kernel, so a new cloud size does not recompile.
+    ``jax.vmap`` over a batch of clouds (:func:`hgjax.stack_neighbourhoods`). Called eagerly,
+    it streams fixed-size chunks through one compiled kernel, so a new cloud size does not
+    recompile.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` with the same method
@@ -249,7 +250,9 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
 
     Returns:
       (N,) scores in the dtype of ``nb.points``; ``METHODS[method].largest`` says which end
-      is kept.
+      is kept. A padded cloud of a stacked batch (``nb.count`` set) scores its first
+      ``count`` rows as the cloud alone (LHF's order statistics over them only) and its
+      padding rows 0.
 
     Raises:
       TypeError, ValueError: invalid method or parameters.
@@ -282,7 +285,8 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
         LHF, ``kernel_size``, ``lengths``).
 
     Returns:
-      (N,) smooth scores; ``METHODS[method].largest`` says which end is kept.
+      (N,) smooth scores; ``METHODS[method].largest`` says which end is kept. Padding rows
+      of a stacked cloud (``nb.count`` set) score 0, with zero gradients.
 
     Raises:
       TypeError, ValueError: invalid method or parameters.
@@ -380,7 +384,7 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
 
     Jit with ``method`` and shape parameters static; ``nb.points``, ``ratio``,
     ``temperature`` and ``tau`` are traced (gradients flow to all of them). vmap over a
-    batch of equal-shape neighbourhoods.
+    batch of clouds (:func:`hgjax.stack_neighbourhoods`).
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` (same method).
@@ -390,7 +394,8 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
       **params: soft-score parameters (see :func:`soft_score`).
 
     Returns:
-      (N,) weights in [0, 1] summing to ratio * N.
+      (N,) weights in [0, 1] summing to ratio * N; for a padded cloud of a stacked batch,
+      to ratio * ``nb.count``, its padding rows weighing exactly 0 (zero gradients).
 
     Raises:
       TypeError, ValueError: as :func:`soft_score` and :func:`hgjax.soft_select`.

@@ -387,7 +387,8 @@ def combine(gamma_a, gamma_b, ratio, count=None):
       >>> import numpy as np, hgjax
       >>> hgjax.scores.lhf.combine(np.array([0.2, 0.4]), np.array([0.1, 0.3]), 0.5).round(3).tolist()
       [0.143, 0.343]
-      >>> hgjax.scores.lhf.combine(np.array([0.2, 0.4, 0.9]), np.array([0.1, 0.3, 0.9]), 0.5, count=2).round(3)[:2].tolist()
+      >>> padded = hgjax.scores.lhf.combine(np.array([0.2, 0.4, 0.9]), np.array([0.1, 0.3, 0.9]), 0.5, count=2)
+      >>> padded[:2].round(3).tolist()  # the third row is padding: not an order statistic
       [0.143, 0.343]
     """
     xp = jnp if _stream.is_traced(gamma_a, gamma_b, ratio, count) else np
@@ -398,8 +399,11 @@ def combine(gamma_a, gamma_b, ratio, count=None):
         g_real = xp.where((xp.arange(n) < count)[:, None], g, -1)
     else:
         g_real, count = g, n
-    x = ratio * count
-    m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, count).astype(xp.int32)
+    if isinstance(ratio, float) and _stream.is_traced(count):  # the host's count, not float32's ratio x count
+        m = _validate.n_keep_traced(count, ratio)
+    else:
+        x = ratio * count
+        m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, count).astype(xp.int32)
     big = xp.sort(g_real, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
     return mix(g[:, 0], g[:, 1], big[0], big[1])
 
