@@ -290,8 +290,8 @@ def check_neighbourhood_list(nbs: Any, cls: type) -> list:
 
     Raises:
       TypeError: ``nbs`` is not a list or tuple of ``cls``, or the points' dtypes differ.
-      ValueError: ``nbs`` is empty, an item is not one cloud (points (N, 3), idx (N, K)), or
-        the items' methods, build parameters or the presence of ``scale`` differ.
+      ValueError: ``nbs`` is empty, an item is not one cloud (points (N, 3), idx (N, K), 1 <=
+        N < 2^24), or the items' methods, build parameters or the presence of ``scale`` differ.
     """
     if isinstance(nbs, cls) or not isinstance(nbs, (list, tuple)):
         raise TypeError(f"nbs must be a list of hgjax.Neighbourhoods; got {type(nbs).__name__}")
@@ -304,6 +304,8 @@ def check_neighbourhood_list(nbs: Any, cls: type) -> list:
         if len(shape) != 2 or shape[1] != 3 or len(idx_shape) != 2 or idx_shape[0] != shape[0]:
             raise ValueError(f"nbs[{i}] must be one cloud, points (N, 3) and idx (N, K); got points {shape} and"
                              f" idx {idx_shape}")
+        if not 1 <= shape[0] < 1 << 24:
+            raise ValueError(f"nbs[{i}] must hold 1 to 2^24 - 1 points to be stacked; got {shape[0]}")
     first = nbs[0]
     for i, nb in enumerate(nbs[1:], start=1):
         for field in ("method", "params"):

@@ -170,7 +170,7 @@ class Neighbourhoods:
 
 
 def stack_neighbourhoods(nbs) -> Neighbourhoods:
-    """One padded batch of the neighbourhoods of clouds of any N and K, for ``jax.vmap`` (host).
+    """One padded batch of the neighbourhoods of clouds of any N and K, for ``jax.vmap`` (host, not jittable).
 
     Cloud b is padded from N_b to N_max rows and from K_b to K_max columns: its real rows
     and indices are unchanged, the sentinel N_b becomes N_max (every padding column stays
@@ -195,8 +195,8 @@ def stack_neighbourhoods(nbs) -> Neighbourhoods:
 
     Raises:
       TypeError: ``nbs`` is not a sequence of Neighbourhoods, or their dtypes differ.
-      ValueError: ``nbs`` is empty, an item is already a batch, or their methods, build
-        parameters or the presence of ``scale`` differ.
+      ValueError: ``nbs`` is empty, an item is already a batch or holds no point (or 2^24 or
+        more), or their methods, build parameters or the presence of ``scale`` differ.
 
     Examples:
       >>> import jax, numpy as np, hgjax
@@ -205,10 +205,10 @@ def stack_neighbourhoods(nbs) -> Neighbourhoods:
       >>> batch = hgjax.stack_neighbourhoods(nbs)
       >>> batch.points.shape, batch.idx.shape, batch.count.tolist()
       ((2, 450, 3), (2, 450, 16), [300, 450])
-      >>> scores = jax.vmap(lambda nb: hgjax.score(nb, "ea"))(batch)
+      >>> f = jax.jit(jax.vmap(lambda nb: (hgjax.score(nb, "ea"), hgjax.soft_weights(nb, 0.2, method="ea"))))
+      >>> scores, w = f(batch)
       >>> bool(np.allclose(scores[0, :300], hgjax.score(nbs[0], "ea"), rtol=1e-6))
       True
-      >>> w = jax.vmap(lambda nb: hgjax.soft_weights(nb, 0.2, method="ea"))(batch)
       >>> np.round(w.sum(axis=1), 3).tolist(), float(w[0, 300:].max())
       ([60.0, 90.0], 0.0)
     """

@@ -33,7 +33,7 @@ def clouds() -> tuple[np.ndarray, ...]:
     box = hgjax.eval.box_surface(300, 1)
     union = hgjax.eval.box_union_cloud(seed=2, n_points=450).points
     flat = hgjax.eval.box_surface(640, 3, size=(3.0, 2.0, 0.2))
-    return (np.concatenate([box, box[:20]]) + 0.0, union + 0.003 * rng.standard_normal(union.shape),
+    return (np.concatenate([box, box[:20]]), union + 0.003 * rng.standard_normal(union.shape),
             flat + 0.002 * rng.standard_normal(flat.shape))
 
 
@@ -155,7 +155,7 @@ def test_lhf_order_statistics_come_from_the_real_rows_only():
     n_max = batch.points.shape[1]
     single = [np.asarray(hgjax.scores.lhf.single(nb)) for nb in nbs]
     gammas = jnp.asarray(np.stack([np.pad(g, ((0, n_max - g.shape[0]), (0, 0))) for g in single]))
-    combine = jax.vmap(lambda g, c: hgjax.scores.lhf.combine(g[:, 0], g[:, 1], RATIO, c))
+    combine = jax.vmap(lambda g, c: hgjax.scores.lhf.combine(g[:, 0], g[:, 1], RATIO, count=c))
     with_count = np.asarray(combine(gammas, jnp.asarray(batch.count)))
     without = np.asarray(jax.vmap(lambda g: hgjax.scores.lhf.combine(g[:, 0], g[:, 1], RATIO))(gammas))
     for b, (g, nb) in enumerate(zip(single, nbs)):
@@ -244,6 +244,8 @@ def test_stack_rejects_bad_lists():
         hgjax.stack_neighbourhoods([nbs[0], f32])
     with pytest.raises(ValueError, match=r"nbs\[0\] must be one cloud.*\(2, 640, 3\)"):
         hgjax.stack_neighbourhoods([hgjax.stack_neighbourhoods([nbs[2], nbs[2]])])
+    with pytest.raises(ValueError, match=r"nbs\[0\] must hold 1 to 2\^24 - 1 points to be stacked; got 0"):
+        hgjax.stack_neighbourhoods([hgjax.Neighbourhoods(np.zeros((0, 3)), np.zeros((0, 4), np.int32))])
     cube = hgjax.cube(clouds()[0], 0.1)
     with pytest.raises(ValueError, match=r"nbs\[1\].scale is set but nbs\[0\].scale is None"):
         hgjax.stack_neighbourhoods([cube, dataclasses.replace(cube, scale=np.ones(320))])

@@ -365,7 +365,7 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     return jnp.stack(out)
 
 
-def combine(gamma_a, gamma_b, ratio, count=None):
+def combine(gamma_a, gamma_b, ratio, *, count=None):
     """Combine two single-length gammas (paper Eqs. (15)-(16)).
 
     Pure JAX when any input is traced (``ratio`` and ``count`` may then be traced too),
@@ -499,7 +499,7 @@ def score(nb, *, ratio, lengths=DEFAULT_LENGTHS, variant: str = "invariant", sol
       (100,)
     """
     g = single(nb, lengths=lengths, variant=variant, solver=solver, chunk_size=chunk_size, progress=progress)
-    out = combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio), nb.count)
+    out = combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio), count=nb.count)
     return out if _stream.is_traced(out) else jax.device_put(out)
 
 
@@ -551,4 +551,4 @@ def soft_score(nb, *, ratio, tau=0.1, lengths=DEFAULT_LENGTHS):
     tau = _validate.check_traced_positive(tau, "tau")
     g = _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
     ratio = jnp.asarray(_validate.check_traced_ratio(ratio), g.dtype)
-    return combine(g[:, 0], g[:, 1], ratio, nb.count)
+    return combine(g[:, 0], g[:, 1], ratio, count=nb.count)
