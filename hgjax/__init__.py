@@ -31,6 +31,7 @@ from hgjax.spatial import (
     knn,
     local_frame,
     spatial_order,
+    stack_neighbourhoods,
     working_dtype,
 )
 
@@ -61,6 +62,7 @@ __all__ = [
     "soft_weights",
     "spatial_order",
     "spectrum",
+    "stack_neighbourhoods",
     "top_k",
     "weighted_sample",
     "working_dtype",

@@ -11,6 +11,7 @@ import math
 from typing import Any, Iterable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
@@ -82,6 +83,42 @@ def n_keep(n_points: int, ratio: float) -> int:
     x = ratio * n_points
     m = round(x) if abs(x - round(x)) <= 1e-9 * x else math.ceil(x)
     return int(min(max(m, 1), n_points))
+
+
+KEEP_LIMB = 12  # bits per limb of n_keep_traced's exact product
+KEEP_LIMBS = 7  # fractional limbs of the ratio: every bit of a float64 ratio >= 2^-31
+
+
+def n_keep_traced(n_points, ratio: float):
+    """:func:`n_keep` of a traced integer count, exactly, in int32 arithmetic (jit, vmap).
+
+    ceil(x) with x = ratio N first rounded to 1e-9 relative equals ceil(R N) with R = ratio
+    (1 - 1e-9) < 1. R N is formed exactly from R's 12-bit digits times N's two 12-bit halves
+    (each product below 2^24), so the count is the host's whatever the float precision
+    (float32 without x64 rounds 0.3 x 100 to 30.000002 and would keep 31).
+
+    Args:
+      n_points: traced integer scalar, 0 <= N < 2^24.
+      ratio: concrete Python float in (0, 1].
+
+    Returns:
+      int32 scalar m = min(max(ceil(ratio N), 1), N), as :func:`n_keep`.
+    """
+    frac, digits = ratio * (1 - 1e-9), [0]  # digits[j]: bits 12 (j - 1) + 1 .. 12 j of R
+    for _ in range(KEEP_LIMBS):
+        frac *= 1 << KEEP_LIMB  # exact: a power of two
+        digits.append(int(frac))
+        frac -= digits[-1]
+    digits.append(0)
+    c = jnp.asarray(n_points, jnp.int32)
+    hi, lo = c >> KEEP_LIMB, c & ((1 << KEEP_LIMB) - 1)
+    # limb q (weight 2^(-12 q)) of R N = digits[q] lo + digits[q + 1] hi, carried from the last up
+    carry, fraction = jnp.int32(0), jnp.bool_(False)
+    for q in range(KEEP_LIMBS, 0, -1):
+        limb = digits[q] * lo + digits[q + 1] * hi + carry
+        fraction = fraction | ((limb & ((1 << KEEP_LIMB) - 1)) != 0)
+        carry = limb >> KEEP_LIMB
+    return jnp.clip(digits[1] * hi + carry + fraction.astype(jnp.int32), 1, c)
 
 
 def check_min_points(n_points: int, needed: int, what: str, name: str = "points") -> None:
@@ -246,6 +283,42 @@ def check_scores(scores, name="scores") -> np.ndarray:
     if np.isnan(s).any():
         raise ValueError(f"{name} contains NaN at {int(np.isnan(s).sum())} of {s.size} points")
     return s
+
+
+def check_neighbourhood_list(nbs: Any, cls: type) -> list:
+    """Return ``nbs`` as a list after checking it holds single-cloud ``cls`` items that stack.
+
+    Raises:
+      TypeError: ``nbs`` is not a list or tuple of ``cls``, or the points' dtypes differ.
+      ValueError: ``nbs`` is empty, an item is not one cloud (points (N, 3), idx (N, K), 1 <=
+        N < 2^24), or the items' methods, build parameters or the presence of ``scale`` differ.
+    """
+    if isinstance(nbs, cls) or not isinstance(nbs, (list, tuple)):
+        raise TypeError(f"nbs must be a list of hgjax.Neighbourhoods; got {type(nbs).__name__}")
+    if not nbs:
+        raise ValueError("nbs must hold at least one hgjax.Neighbourhoods; got an empty list")
+    for i, nb in enumerate(nbs):
+        if not isinstance(nb, cls):
+            raise TypeError(f"nbs[{i}] must be hgjax.Neighbourhoods; got {type(nb).__name__}")
+        shape, idx_shape = np.shape(nb.points), np.shape(nb.idx)
+        if len(shape) != 2 or shape[1] != 3 or len(idx_shape) != 2 or idx_shape[0] != shape[0]:
+            raise ValueError(f"nbs[{i}] must be one cloud, points (N, 3) and idx (N, K); got points {shape} and"
+                             f" idx {idx_shape}")
+        if not 1 <= shape[0] < 1 << 24:
+            raise ValueError(f"nbs[{i}] must hold 1 to 2^24 - 1 points to be stacked; got {shape[0]}")
+    first = nbs[0]
+    for i, nb in enumerate(nbs[1:], start=1):
+        for field in ("method", "params"):
+            if getattr(nb, field) != getattr(first, field):
+                raise ValueError(f"nbs[{i}].{field} is {getattr(nb, field)!r} but nbs[0].{field} is"
+                                 f" {getattr(first, field)!r}; a batch holds neighbourhoods built alike")
+        if nb.points.dtype != first.points.dtype:
+            raise TypeError(f"nbs[{i}].points has dtype {nb.points.dtype} but nbs[0].points {first.points.dtype};"
+                            " build every cloud of a batch in one dtype")
+        if (nb.scale is None) != (first.scale is None):
+            raise ValueError(f"nbs[{i}].scale is {'None' if nb.scale is None else 'set'} but nbs[0].scale is"
+                             f" {'None' if first.scale is None else 'set'}; a batch holds neighbourhoods built alike")
+    return list(nbs)
 
 
 def check_capacity(capacity, width: int, what: str) -> None:

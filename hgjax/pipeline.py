@@ -17,6 +17,7 @@ import inspect
 from typing import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate, samplers, spatial, tiles
@@ -237,8 +238,9 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
 
     Runs inside a caller's ``jax.jit`` (``method`` and shape-setting parameters static;
     float parameters such as ``ratio`` traced, so a sweep does not recompile) and under
-    ``jax.vmap`` over a batch of equal-shape neighbourhoods. Called eagerly, it streams
-    fixed-size chunks through one compiled kernel, so a new cloud size does not recompile.
+    ``jax.vmap`` over a batch of clouds (:func:`hgjax.stack_neighbourhoods`). Called eagerly,
+    it streams fixed-size chunks through one compiled kernel, so a new cloud size does not
+    recompile.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` with the same method
@@ -248,7 +250,9 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
 
     Returns:
       (N,) scores in the dtype of ``nb.points``; ``METHODS[method].largest`` says which end
-      is kept.
+      is kept. A padded cloud of a stacked batch (``nb.count`` set) scores its first
+      ``count`` rows as the cloud alone (LHF's order statistics over them only) and its
+      padding rows 0.
 
     Raises:
       TypeError, ValueError: invalid method or parameters.
@@ -260,7 +264,12 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       (500,)
     """
     entry = _scoring(method)
-    return entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params)))
+    return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params))))
+
+
+def _absent_zero(nb: spatial.Neighbourhoods, values):
+    """``values`` (N,) with the padding rows of a stacked cloud (row >= ``nb.count``) set to 0."""
+    return values if nb.count is None else jnp.where(nb.row_mask, values, 0)
 
 
 def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
@@ -276,7 +285,8 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
         LHF, ``kernel_size``, ``lengths``).
 
     Returns:
-      (N,) smooth scores; ``METHODS[method].largest`` says which end is kept.
+      (N,) smooth scores; ``METHODS[method].largest`` says which end is kept. Padding rows
+      of a stacked cloud (``nb.count`` set) score 0, with zero gradients.
 
     Raises:
       TypeError, ValueError: invalid method or parameters.
@@ -289,7 +299,8 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       True
     """
     entry = _scoring(method)
-    return entry.soft_score(nb, **_matching(nb, entry, "soft_score", _split(entry, "soft_score", params)))
+    return _absent_zero(nb, entry.soft_score(nb, **_matching(nb, entry, "soft_score",
+                                                             _split(entry, "soft_score", params))))
 
 
 def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray:
@@ -373,7 +384,7 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
 
     Jit with ``method`` and shape parameters static; ``nb.points``, ``ratio``,
     ``temperature`` and ``tau`` are traced (gradients flow to all of them). vmap over a
-    batch of equal-shape neighbourhoods.
+    batch of clouds (:func:`hgjax.stack_neighbourhoods`).
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` (same method).
@@ -383,7 +394,8 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
       **params: soft-score parameters (see :func:`soft_score`).
 
     Returns:
-      (N,) weights in [0, 1] summing to ratio * N.
+      (N,) weights in [0, 1] summing to ratio * N; for a padded cloud of a stacked batch,
+      to ratio * ``nb.count``, its padding rows weighing exactly 0 (zero gradients).
 
     Raises:
       TypeError, ValueError: as :func:`soft_score` and :func:`hgjax.soft_select`.
@@ -398,7 +410,8 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
     if "ratio" in entry.params["soft_score"]:
         params["ratio"] = ratio
     s = soft_score(nb, method, **params)
-    return soft_select(s, ratio, temperature=temperature, largest=entry.largest)
+    return soft_select(s, ratio, temperature=temperature, largest=entry.largest,
+                       valid=None if nb.count is None else nb.row_mask)
 
 
 def soft_resample(points, ratio: float, *, method: str = "hkc", temperature=0.05, **params) -> jax.Array:

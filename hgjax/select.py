@@ -351,69 +351,88 @@ def gumbel_log_weights(key, weights: np.ndarray, gids: np.ndarray) -> np.ndarray
 
 
 @jax.custom_jvp
-def _threshold(scores, temperature, target):
-    """theta with sum(sigmoid((scores - theta) / temperature)) = target, by bisection."""
+def _threshold(scores, valid, temperature, target):
+    """theta with sum over ``valid`` of sigmoid((scores - theta) / temperature) = target, by bisection."""
     span = 40 * temperature
 
     def step(_, bounds):
         lo, hi = bounds
         mid = (lo + hi) / 2
-        above = jnp.sum(jax.nn.sigmoid((scores - mid) / temperature)) > target
+        above = jnp.sum(jnp.where(valid, jax.nn.sigmoid((scores - mid) / temperature), 0)) > target
         return jnp.where(above, mid, lo), jnp.where(above, hi, mid)
 
-    lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, step, (jnp.min(scores) - span, jnp.max(scores) + span))
+    lo = jnp.min(jnp.where(valid, scores, jnp.inf)) - span
+    hi = jnp.max(jnp.where(valid, scores, -jnp.inf)) + span
+    lo, hi = jax.lax.fori_loop(0, BISECTION_STEPS, step, (lo, hi))
     return (lo + hi) / 2
 
 
 @_threshold.defjvp
 def _threshold_jvp(primals, tangents):
-    scores, temperature, target = primals
-    ds, dt, dm = tangents
-    theta = _threshold(scores, temperature, target)
+    scores, valid, temperature, target = primals
+    ds, _, dt, dm = tangents
+    theta = _threshold(scores, valid, temperature, target)
     z = (scores - theta) / temperature
     w = jax.nn.sigmoid(z)
-    g = w * (1 - w)  # derivative of the sigmoid
+    g = jnp.where(valid, w * (1 - w), 0)  # derivative of the sigmoid; 0 on absent rows
     # Implicit function theorem on F = sum sigmoid(z) - target = 0.
-    num = jnp.sum(g * ds) - jnp.sum(g * z) * dt - temperature * dm
+    num = jnp.sum(jnp.where(valid, g * ds, 0)) - jnp.sum(jnp.where(valid, g * z, 0)) * dt - temperature * dm
     return theta, _common.safe_div(num, jnp.sum(g), 0.0)
 
 
-def soft_select(scores, ratio, *, temperature=0.05, largest: bool = True):
+def soft_select(scores, ratio, *, temperature=0.05, largest: bool = True, valid=None):
     """Soft top-k: keep weights in [0, 1] that sum to ratio * N.
 
     w_i = sigmoid((s_i - theta) / temperature) (or of theta - s_i with ``largest=False``),
     theta found by 64 bisection steps so that sum(w) = ratio * N, and differentiated by the
     implicit function theorem: d theta = sum_i g_i ds_i / sum_i g_i with g the sigmoid
     slopes. As temperature -> 0 the weights tend to the hard top-k mask (ties share).
+    With ``valid``, only the valid scores take part: N is their number, and the others
+    (the padding rows of :func:`hgjax.stack_neighbourhoods`, ``valid=nb.row_mask``) weigh
+    exactly 0 and get zero gradients.
 
     Args:
       scores: (N,) float scores without NaN (traced).
       ratio: fraction alpha in (0, 1] (traced: a new value does not recompile).
       temperature: > 0, in the units of the scores (traced).
       largest: keep the largest scores (True) or the smallest (static).
+      valid: (N,) bool, the scores that take part (traced), or None for all of them.
 
     Returns:
-      (N,) weights in [0, 1] in the dtype of ``scores``; their sum is ratio * N up to the
-      bisection's precision (and < N when ratio = 1, each weight then being about 1).
+      (N,) weights in [0, 1] in the dtype of ``scores``; their sum is ratio * N (N the
+      number of valid scores) up to the bisection's precision (and < N when ratio = 1, each
+      weight then being about 1); 0 where ``valid`` is False.
 
     Raises:
-      ValueError: if ``scores`` is not one-dimensional, or a concrete ``ratio`` or
-        ``temperature`` is out of range (NaN, 0 or below).
+      ValueError: if ``scores`` is not one-dimensional, ``valid`` not a bool array of its
+        shape, or a concrete ``ratio`` or ``temperature`` is out of range (NaN, 0 or below).
 
     Examples:
       >>> import jax.numpy as jnp, hgjax
       >>> w = hgjax.soft_select(jnp.array([0.1, 0.9, 0.5, 0.7]), 0.5, temperature=1e-3)
       >>> [round(float(x), 3) for x in w]
       [0.0, 1.0, 0.0, 1.0]
+      >>> w = hgjax.soft_select(jnp.array([0.1, 0.9, 0.5, 0.7]), 0.5, temperature=1e-3,
+      ...                       valid=jnp.array([True, True, True, False]))
+      >>> [round(float(x), 3) for x in w]
+      [0.0, 1.0, 0.5, 0.0]
     """
     scores = jnp.asarray(scores)
     if scores.ndim != 1:
         raise ValueError(f"scores must have shape (N,); got {scores.shape}")
     ratio = _validate.check_traced_ratio(ratio)
     temperature = _validate.check_traced_positive(temperature, "temperature")
+    if valid is None:
+        valid, n = jnp.ones(scores.shape, bool), scores.shape[0]
+    else:
+        valid = jnp.asarray(valid)
+        if valid.shape != scores.shape or valid.dtype != bool:
+            raise ValueError(f"valid must be None or a bool array of the scores' shape {scores.shape};"
+                             f" got {valid.dtype} {valid.shape}")
+        n = jnp.sum(valid).astype(scores.dtype)
     if not largest:
         scores = -scores
     temperature = jnp.asarray(temperature, scores.dtype)
-    target = jnp.asarray(ratio, scores.dtype) * scores.shape[0]
-    theta = _threshold(scores, temperature, target)
-    return jax.nn.sigmoid((scores - theta) / temperature)
+    target = jnp.asarray(ratio, scores.dtype) * n
+    theta = _threshold(scores, valid, temperature, target)
+    return jnp.where(valid, jax.nn.sigmoid((scores - theta) / temperature), 0)

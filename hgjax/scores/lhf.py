@@ -305,30 +305,46 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     return jnp.stack(out)
 
 
-def combine(gamma_a, gamma_b, ratio):
+def combine(gamma_a, gamma_b, ratio, *, count=None):
     """Combine two single-length gammas (paper Eqs. (15)-(16)).
 
-    Pure JAX when any input is traced (``ratio`` may then be traced too), NumPy otherwise.
+    Pure JAX when any input is traced (``ratio`` and ``count`` may then be traced too),
+    NumPy otherwise.
 
     Args:
       gamma_a, gamma_b: (N,) single-length sharpness values.
       ratio: the resampling ratio alpha in (0, 1].
+      count: the number of real rows of a padded cloud (its first ``count``; see
+        :attr:`hgjax.Neighbourhoods.count`), or None for all N. The order statistics are
+        taken over the real rows only, so they are the unpadded cloud's.
 
     Returns:
       (N,) eps gamma_a + (1 - eps) gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), where
-      Gamma is the ceil(alpha N)-th largest value of each (eps = 0.5 when both are 0).
+      Gamma is the ceil(alpha n)-th largest value of each over the n = ``count`` real rows
+      (eps = 0.5 when both are 0).
 
     Examples:
       >>> import numpy as np, hgjax
       >>> hgjax.scores.lhf.combine(np.array([0.2, 0.4]), np.array([0.1, 0.3]), 0.5).round(3).tolist()
       [0.143, 0.343]
+      >>> padded = hgjax.scores.lhf.combine(np.array([0.2, 0.4, 0.9]), np.array([0.1, 0.3, 0.9]), 0.5, count=2)
+      >>> padded[:2].round(3).tolist()  # the third row is padding: not an order statistic
+      [0.143, 0.343]
     """
-    xp = jnp if _stream.is_traced(gamma_a, gamma_b, ratio) else np
+    xp = jnp if _stream.is_traced(gamma_a, gamma_b, ratio, count) else np
     g = xp.stack([xp.asarray(gamma_a), xp.asarray(gamma_b)], axis=1)  # (N, 2)
     n = g.shape[0]
-    x = ratio * n
-    m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, n).astype(xp.int32)
-    big = xp.sort(g, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
+    if count is not None:  # padding rows below every gamma in [0, 1]: sorted first, never an order statistic
+        count = count if xp is jnp else int(count)
+        g_real = xp.where((xp.arange(n) < count)[:, None], g, -1)
+    else:
+        g_real, count = g, n
+    if isinstance(ratio, float) and _stream.is_traced(count):  # the host's count, not float32's ratio x count
+        m = _validate.n_keep_traced(count, ratio)
+    else:
+        x = ratio * count
+        m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, count).astype(xp.int32)
+    big = xp.sort(g_real, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
     return mix(g[:, 0], g[:, 1], big[0], big[1])
 
 
@@ -423,7 +439,7 @@ def score(nb, *, ratio, lengths=DEFAULT_LENGTHS, variant: str = "invariant", sol
       (100,)
     """
     g = single(nb, lengths=lengths, variant=variant, solver=solver, chunk_size=chunk_size, progress=progress)
-    out = combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio))
+    out = combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio), count=nb.count)
     return out if _stream.is_traced(out) else jax.device_put(out)
 
 
@@ -475,4 +491,4 @@ def soft_score(nb, *, ratio, tau=0.1, lengths=DEFAULT_LENGTHS):
     tau = _validate.check_traced_positive(tau, "tau")
     g = _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
     ratio = jnp.asarray(_validate.check_traced_ratio(ratio), g.dtype)
-    return combine(g[:, 0], g[:, 1], ratio)
+    return combine(g[:, 0], g[:, 1], ratio, count=nb.count)
