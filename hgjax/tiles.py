@@ -291,7 +291,8 @@ class _Dask(_Here):
 
     def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
         self.cloud, self.client, self.k = cloud, client, k
-        self.shared = client.scatter(cloud, broadcast=True)
+        # a fresh key per run: a key shared with an earlier run of the same cloud can be released under this one
+        self.shared = client.scatter(cloud, broadcast=True, hash=False)
         self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
         self.cells = {}  # task key -> the tile it computes or derives from
 
