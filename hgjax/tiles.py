@@ -117,17 +117,18 @@ class _Cloud:
             c = self.cells(x)
             code[s:s + PASS_ROWS] = np.ravel_multi_index(c.T, self.shape)
             sub[s:s + PASS_ROWS] = np.ravel_multi_index(self.subcells(x, c).T, (SUB,) * 3)
-        order = np.argsort(code, kind="stable")  # within a tile, ascending global id
+        order = np.argsort(code, kind="stable")  # by tile, then ascending global id
         code = code[order]
         bounds = np.flatnonzero(code[1:] != code[:-1]) + 1
+        firsts, ends, code = np.r_[0, bounds], np.r_[bounds, n], code[np.r_[0, bounds]]
         self.members, self.subs = {}, {}
-        for s, e in zip(np.r_[0, bounds], np.r_[bounds, n]):
-            cell = tuple(int(c) for c in np.unravel_index(code[s], self.shape))
-            by_sub = np.argsort(sub[order[s:e]], kind="stable")
-            self.members[cell] = order[s:e][by_sub]
-            codes = sub[self.members[cell]]
+        for s, e, c in zip(firsts, ends, code):
+            ids = order[s:e]  # a view: the members share one array
+            ids[:] = ids[np.argsort(sub[ids], kind="stable")]  # by sub-cell, then ascending global id
+            codes = sub[ids]
             starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
-            self.subs[cell] = (codes[starts], np.r_[starts, e - s])
+            cell = tuple(int(i) for i in np.unravel_index(c, self.shape))
+            self.members[cell], self.subs[cell] = ids, (codes[starts], np.r_[starts, e - s])
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__, keep=False, _indices={})
