@@ -18,7 +18,9 @@ what :func:`hgjax.resample` runs):
    tile's box; otherwise the tile is redone with twice the halo. Neighbour ties are broken
    by (distance, global id) and each neighbourhood's offsets are rounded to the working
    dtype from float64 coordinates, so a core point's score has the same bits in every tile
-   that can hold its neighbourhood.
+   that can hold its neighbourhood. A halo reads only the sub-cells of the neighbouring
+   tiles that meet its box, and a tile is indexed once for the sample statistics and its
+   scores (in this process, up to KEEP_POINTS points).
 3. **Selection** (:func:`hgjax.select.top_pairs`). The kept set is the top ceil(ratio N)
    by (score, global id) over the whole cloud, exactly, from per-tile histograms of
    order-preserving integer keys; LHF's two order statistics (Eqs. (15)-(16)) are taken
@@ -491,8 +493,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     The same indices, in the same order, as :func:`hgjax.resample` on the whole cloud,
     whatever ``tile`` is and wherever the tiles run (module docstring); with ``tile=None``
     and no client it is :func:`hgjax.resample`. Memory is bounded by a tile and its halo,
-    not by N (scores aside: 12-16 bytes per point), so an ``np.memmap`` of 1e8 points
-    streams from disk.
+    not by N (scores aside: 12-16 bytes per point; and up to KEEP_POINTS points, the
+    tiles' host indices, kept between the sample-statistics and scoring passes), so an
+    ``np.memmap`` of 1e8 points streams from disk.
 
     Args:
       points: (N, 3) float32 or float64 (NumPy, JAX or ``np.memmap``); never modified.
