@@ -76,7 +76,8 @@ def test_halo_slabs_hold_every_point_of_the_box_and_no_other():
 def test_each_tile_is_gathered_once_per_halo(smooth, method, params, monkeypatch):
     seen = []
     gather = tiles._Cloud.gather
-    monkeypatch.setattr(tiles._Cloud, "gather", lambda self, cell, halo: seen.append((cell, halo)) or gather(self, cell, halo))
+    monkeypatch.setattr(tiles._Cloud, "gather",
+                        lambda self, cell, halo: seen.append((cell, halo)) or gather(self, cell, halo))
     tiles.resample(smooth, 0.2, method=method, tile=1.4, **params)
     assert len(seen) == len(set(seen)), sorted(seen)
 
