@@ -18,7 +18,9 @@ what :func:`hgjax.resample` runs):
    tile's box; otherwise the tile is redone with twice the halo. Neighbour ties are broken
    by (distance, global id) and each neighbourhood's offsets are rounded to the working
    dtype from float64 coordinates, so a core point's score has the same bits in every tile
-   that can hold its neighbourhood.
+   that can hold its neighbourhood. A halo reads only the sub-cells of the neighbouring
+   tiles that meet its box, and a tile is indexed once for the sample statistics and its
+   scores (in this process, up to KEEP_POINTS points).
 3. **Selection** (:func:`hgjax.select.top_pairs`). The kept set is the top ceil(ratio N)
    by (score, global id) over the whole cloud, exactly, from per-tile histograms of
    order-preserving integer keys; LHF's two order statistics (Eqs. (15)-(16)) are taken
@@ -53,8 +55,9 @@ GLOBAL_ONLY = {
     "fps": "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles",
 }
 CUBE = ("hkc", "hkf")
-HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K)
-GFR_KEEP_POINTS = 4_000_000  # up to this N, GFR keeps each tile's graph between its two passes
+HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K) per k-nearest radius reached
+KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's index (or GFR graph) between passes
+SUB = 16  # a tile's members are grouped in SUB^3 sub-cells, so that a halo reads slabs of its neighbours
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
 MANIFEST = "hgjax-manifest.json"
 TASK_BYTES = 32  # per neighbour of a core point in a tile task: an int64 index and three float64 offsets
@@ -97,31 +100,46 @@ class Plan:
 
 
 class _Cloud:
-    """Points by global id, and the global ids of each tile (host; the points are never copied whole)."""
+    """Points by global id, and the global ids of each tile (host; the points are never copied whole).
+
+    ``members[cell]`` holds a tile's global ids grouped by its SUB^3 sub-cells (ascending
+    within each), and ``subs[cell]`` the (occupied sub-cell codes, their starts): a halo reads
+    only the sub-cells of its neighbours that meet its box. ``keep`` (set by the runner) keeps
+    every tile's host index once built, instead of only the last one, until :meth:`release`.
+    """
 
     def __init__(self, points: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  tile: float | None, source=None):
         self.points, self.origin, self.lo, self.hi, self.tile = points, origin, lo, hi, tile
         self.source = source  # the caller's array (an np.memmap is pickled as its file name)
-        self._last = None
+        self.keep, self._indices = False, {}
         n = points.shape[0]
         if tile is None:
-            self.shape, self.members = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}
+            self.shape, self.members, self.subs = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}, {}
             return
         self.shape = tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
-        code = np.empty(n, dtype=np.int64)  # each point's tile, one chunk of the cloud at a time
+        code = np.empty(n, dtype=np.int64)  # each point's tile and sub-cell, one chunk of the cloud at a time
+        sub = np.empty(n, dtype=np.int16)
         for s in range(0, n, PASS_ROWS):
-            code[s:s + PASS_ROWS] = np.ravel_multi_index(self.cells(self.frame(np.arange(s, min(s + PASS_ROWS, n)))).T,
-                                                         self.shape)
-        order = np.argsort(code, kind="stable")  # within a tile, ascending global id
+            x = self.frame(np.arange(s, min(s + PASS_ROWS, n)))
+            c = self.cells(x)
+            code[s:s + PASS_ROWS] = np.ravel_multi_index(c.T, self.shape)
+            sub[s:s + PASS_ROWS] = np.ravel_multi_index(self.subcells(x, c).T, (SUB,) * 3)
+        order = np.argsort(code, kind="stable")  # by tile, then ascending global id
         code = code[order]
         bounds = np.flatnonzero(code[1:] != code[:-1]) + 1
-        starts = np.r_[0, bounds]
-        self.members = {tuple(int(c) for c in np.unravel_index(code[s], self.shape)): order[s:e]
-                        for s, e in zip(starts, np.r_[bounds, n])}
+        firsts, ends, code = np.r_[0, bounds], np.r_[bounds, n], code[np.r_[0, bounds]]
+        self.members, self.subs = {}, {}
+        for s, e, c in zip(firsts, ends, code):
+            ids = order[s:e]  # a view: the members share one array
+            ids[:] = ids[np.argsort(sub[ids], kind="stable")]  # by sub-cell, then ascending global id
+            codes = sub[ids]
+            starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
+            cell = tuple(int(i) for i in np.unravel_index(c, self.shape))
+            self.members[cell], self.subs[cell] = ids, (codes[starts], np.r_[starts, e - s])
 
     def __getstate__(self) -> dict:
-        state = dict(self.__dict__, _last=None)
+        state = dict(self.__dict__, keep=False, _indices={})
         if self.source is not None and self.source.filename:  # travels as its file, not its bytes
             m = self.source
             state["points"] = state["source"] = (m.filename, m.dtype.str, m.offset, m.shape)
@@ -134,12 +152,22 @@ class _Cloud:
         self.__dict__.update(state)
 
     def indexed(self, cell, halo: float, dedupe: bool):
-        """(gids, x, core, index) of :meth:`gather` with a host index over it; the last one is reused."""
-        key = (cell, None if self.tile is None else halo, dedupe)
-        if self._last is None or self._last[0] != key:
+        """(gids, x, core, index) of :meth:`gather` with a host index over it, reused until released.
+
+        One index is held (the last built), or one per tile while ``keep`` is set.
+        """
+        key = (None if self.tile is None else halo, dedupe)
+        held = self._indices.get(cell)
+        if held is None or held[0] != key:
+            if not self.keep:
+                self._indices.clear()
             gids, x, core = self.gather(cell, halo)
-            self._last = (key, (gids, x, core, spatial.SpatialIndex(x, dedupe=dedupe, gid=gids)))
-        return self._last[1]
+            held = self._indices[cell] = (key, (gids, x, core, spatial.SpatialIndex(x, dedupe=dedupe, gid=gids)))
+        return held[1]
+
+    def release(self, cell) -> None:
+        """Forget the index held for ``cell``."""
+        self._indices.pop(cell, None)
 
     def frame(self, gids: np.ndarray) -> np.ndarray:
         """(R, 3) float64 coordinates of ``gids`` minus the plan's origin."""
@@ -156,6 +184,23 @@ class _Cloud:
         c = np.asarray(cell, dtype=np.float64)
         return self.lo + c * self.tile - halo, self.lo + (c + 1) * self.tile + halo
 
+    def subcells(self, x: np.ndarray, cell) -> np.ndarray:
+        """(R, 3) int64 sub-cell of ``cell`` nearest each point of frame coordinates ``x`` (clipped to the tile).
+
+        Non-decreasing in each coordinate, so the sub-cells of a box's corners bound those of its points.
+        """
+        start = self.lo + np.asarray(cell, dtype=np.float64) * self.tile
+        return np.clip(np.floor((x - start) * (SUB / self.tile)).astype(np.int64), 0, SUB - 1)
+
+    def slab(self, cell, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+        """Global ids of the sub-cells of ``cell`` that meet the box [box_lo, box_hi]: all its points in the box."""
+        codes, starts = self.subs[cell]
+        first, last = self.subcells(np.stack([box_lo, box_hi]), cell)
+        at = np.stack(np.unravel_index(codes, (SUB,) * 3), axis=1)
+        hit = np.flatnonzero(((at >= first) & (at <= last)).all(axis=1))
+        ids = self.members[cell]
+        return np.concatenate([ids[starts[i]:starts[i + 1]] for i in hit] or [ids[:0]])
+
     def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(gids (n,) ascending, frame coordinates (n, 3), core mask (n,)) of a tile and its halo."""
         core = self.members[cell]
@@ -163,15 +208,14 @@ class _Cloud:
             return core, self.frame(core), np.ones(core.size, bool)
         box_lo, box_hi = self.box(cell, halo)
         first, last = self.cells(box_lo[None])[0], self.cells(box_hi[None])[0]
-        near = [g for c, g in self.members.items()
+        near = [self.slab(c, box_lo, box_hi) for c in self.members
                 if c != cell and all(first[a] <= c[a] <= last[a] for a in range(3))]
         gids = np.concatenate([core] + near)
-        x = self.frame(gids)
-        keep = np.ones(gids.size, bool)
-        keep[core.size:] = ((x[core.size:] >= box_lo) & (x[core.size:] < box_hi)).all(axis=1)
-        gids, x = gids[keep], x[keep]
         order = np.argsort(gids, kind="stable")
-        return gids[order], x[order], order < core.size
+        gids, is_core = gids[order], order < core.size
+        x = self.frame(gids)  # read in ascending id order
+        keep = is_core | ((x >= box_lo) & (x < box_hi)).all(axis=1)
+        return gids[keep], x[keep], is_core[keep]
 
     def covers(self, cell, halo: float, x: np.ndarray, reach: np.ndarray) -> bool:
         """Whether every box of half-width ``reach`` around ``x`` lies in the tile's box (or beyond the cloud)."""
@@ -209,11 +253,26 @@ def _reach_k(build: dict) -> int:
     return voxel.LOCAL_K + 1 if "kernel_size" in build else build.get("k", ea.DEFAULT_K)
 
 
+def _reach_radii(build: dict) -> int:
+    """k-nearest radii a core neighbourhood reaches: two for the spacing-adaptive cube, else one.
+
+    The invariant cube's spacing estimate reads the k-nearest radius of each of the point's
+    k nearest neighbours (:func:`hgjax.spatial.local_spacing`).
+    """
+    return 2 if "kernel_size" in build and build["variant"] == "invariant" and build["resolution"] is None else 1
+
+
 class _Here:
-    """Runs the tile tasks one after another in this process."""
+    """Runs the tile tasks one after another in this process.
+
+    Up to KEEP_POINTS points, each tile's index is kept from the pass that gathers the sample
+    statistics to the scoring pass, so each tile is indexed once; above, one index is held at
+    a time (memory bounded by a tile).
+    """
 
     def __init__(self, cloud: _Cloud):
         self.cloud = cloud
+        cloud.keep = cloud.points.shape[0] <= KEEP_POINTS
 
     def tiles(self, fn, *args, cells=None) -> list:
         return [fn(self.cloud, cell, *args) for cell in (cells or list(self.cloud.members))]
@@ -238,7 +297,8 @@ class _Dask(_Here):
 
     def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
         self.cloud, self.client, self.k = cloud, client, k
-        self.shared = client.scatter(cloud, broadcast=True)
+        # a fresh key per run: a key shared with an earlier run of the same cloud can be released under this one
+        self.shared = client.scatter(cloud, broadcast=True, hash=False)
         self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
         self.cells = {}  # task key -> the tile it computes or derives from
 
@@ -320,9 +380,11 @@ def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]
     lo, hi = bmin - origin, bmax - origin
     dtype = spatial.working_dtype(pts.dtype)
     cloud = _Cloud(pts, origin, lo, hi, tile, points if isinstance(points, np.memmap) else None)
-    # The first halo: a few neighbourhood radii at the mean density of the occupied tiles
-    # (a surface crossing a cube of edge t with n points has a spacing of about t / sqrt(n)).
-    halo = 0.0 if tile is None else HALO_SPACINGS * tile * np.sqrt(_reach_k(build) * len(cloud.members) / n)
+    # The first halo: a few k-nearest radii per radius a neighbourhood reaches (_reach_radii) at the
+    # mean density of the occupied tiles (a surface crossing a cube of edge t with n points has a
+    # spacing of about t / sqrt(n)).
+    spacing = 0.0 if tile is None else tile * np.sqrt(len(cloud.members) / n)
+    halo = HALO_SPACINGS * _reach_radii(build) * spacing * np.sqrt(_reach_k(build))
     return Plan(method, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo)), cloud
 
 
@@ -394,6 +456,7 @@ def tile_scores(cloud: _Cloud, cell, plan_: Plan, stream: dict | None = None) ->
         if cloud.covers(cell, halo, index.points[rows], reach):
             break
         halo *= 2
+    cloud.release(cell)
     values = _kernel_scores(plan_, index.points, rows, idx, row_args, stream or {})
     return gids[core], _per_point(index, rows, core, values)
 
@@ -433,8 +496,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     The same indices, in the same order, as :func:`hgjax.resample` on the whole cloud,
     whatever ``tile`` is and wherever the tiles run (module docstring); with ``tile=None``
     and no client it is :func:`hgjax.resample`. Memory is bounded by a tile and its halo,
-    not by N (scores aside: 12-16 bytes per point), so an ``np.memmap`` of 1e8 points
-    streams from disk.
+    not by N (scores aside: 12-16 bytes per point; and up to KEEP_POINTS points, the
+    tiles' host indices, kept between the sample-statistics and scoring passes), so an
+    ``np.memmap`` of 1e8 points streams from disk.
 
     Args:
       points: (N, 3) float32 or float64 (NumPy, JAX or ``np.memmap``); never modified.
@@ -594,6 +658,7 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
         if cloud.covers(cell, halo, index.points[rows], np.full(rows.size, reach)):
             break
         halo *= 2
+    cloud.release(cell)
     a, c = gfr.location_pairs(index, b["r"], b["max_nn"])
     sym = gfr.symmetric(a, c, index.n, index.gid[:-1])
     counts = np.append(np.bincount(index.row, minlength=index.n).astype(np.float64), 0.0)
@@ -627,7 +692,7 @@ def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
     graphs = runner.tiles(_gfr_graph, plan_)
     sums = runner.gather(runner.each(_gfr_sums, graphs))
     mean_q, two_var = gfr.moments([sum((t[i] for t in sums), select.ExactSum()) for i in range(3)])
-    if isinstance(runner, _Dask) or plan_.n <= GFR_KEEP_POINTS:
+    if isinstance(runner, _Dask) or plan_.n <= KEEP_POINTS:
         return runner.each(_gfr_norms, graphs, plan_, mean_q, two_var, stream)
     del graphs
     return runner.tiles(_gfr_tile, plan_, mean_q, two_var, stream)

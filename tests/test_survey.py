@@ -184,7 +184,7 @@ def test_a_killed_tile_names_its_cell_and_memory():
     plan_, tiled = tiles._base(cloud, 0.2, "ea", 1.0, {})
 
     class Client:
-        def scatter(self, value, broadcast):
+        def scatter(self, value, broadcast, hash):
             return value
 
         def submit(self, fn, *args, pure):

@@ -55,6 +55,33 @@ def test_points_on_tile_edges_are_owned_once():
                                   hgjax.resample(p, 0.3, method="lhf", lengths=(4, 8)))
 
 
+def test_halo_slabs_hold_every_point_of_the_box_and_no_other():
+    g = np.arange(0.0, 2.01, 1 / 16)  # coordinates on tile, sub-cell and halo-box edges
+    lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    rough = np.random.default_rng(0).uniform(0, 2, (3000, 3))
+    for p in (lattice, rough):
+        _, cloud = tiles.plan(p, 0.2, method="ea", tile=0.5)
+        x_all = cloud.frame(np.arange(len(p)))
+        for halo in (0.0, 1 / 16, 0.3, 0.7):
+            for cell, core in cloud.members.items():
+                gids, x, is_core = cloud.gather(cell, halo)
+                box_lo, box_hi = cloud.box(cell, halo)
+                inside = np.flatnonzero(((x_all >= box_lo) & (x_all < box_hi)).all(axis=1))
+                np.testing.assert_array_equal(gids, np.union1d(inside, core))
+                np.testing.assert_array_equal(gids[is_core], np.sort(core))
+                np.testing.assert_array_equal(x, x_all[gids])
+
+
+@pytest.mark.parametrize("method,params", [("hkc", {}), ("gfr", {"mode": "top"})])
+def test_each_tile_is_gathered_once_per_halo(smooth, method, params, monkeypatch):
+    seen = []
+    gather = tiles._Cloud.gather
+    monkeypatch.setattr(tiles._Cloud, "gather",
+                        lambda self, cell, halo: seen.append((cell, halo)) or gather(self, cell, halo))
+    tiles.resample(smooth, 0.2, method=method, tile=1.4, **params)
+    assert len(seen) == len(set(seen)), sorted(seen)
+
+
 @pytest.mark.parametrize("method", ["ea", "hkc"])
 def test_a_halo_given_too_small_grows_to_the_exact_result(smooth, method):
     plan, cloud = tiles.plan(smooth, 0.2, method=method, tile=1.5)
