@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+import fixtures
 import hgjax
 from hgjax.scores import hkc, lhf, voxel
 
@@ -25,8 +26,7 @@ CAPACITY = 128  # fixed K: one compilation serves every cloud of a method (GFR r
 
 def box_surface(seed, n, noise=0.0):
     """n points on the surface of an axis-aligned 3 x 2 x 1.5 box, plus Gaussian noise."""
-    p = hgjax.eval.box_surface(n, seed, size=(3.0, 2.0, 1.5))
-    return p + noise * np.random.default_rng(seed).standard_normal((n, 3))
+    return fixtures.box_surface(n, seed, noise=noise, size=(3.0, 2.0, 1.5))
 
 
 def floats_of(method, tau=0.1, temperature=0.05):
@@ -118,28 +118,20 @@ def test_check_grads_weights():
     check_grads(f, (jnp.asarray(pts), 0.01, RATIO), order=1, modes=("fwd", "rev"), eps=1e-6)
 
 
-def degenerate_clouds(n=32):
-    """Degenerate clouds of n points each."""
-    g = np.stack(np.meshgrid(np.arange(4.0), np.arange(8.0), indexing="ij"), -1).reshape(-1, 2)
-    base = box_surface(5, n // 4)
-    return {
-        "coplanar": np.c_[g, np.zeros(n)],  # exactly planar grid: symmetric signals, beta = inf
-        "collinear": np.c_[np.arange(float(n)), 2 * np.arange(float(n)), np.zeros(n)],
-        "duplicate": np.concatenate([base] * 4),  # every point four times
-        "all_equal": np.full((n, 3), 0.25),
-    }
+DEGENERATE = fixtures.degenerate_clouds()  # every cloud has the same N: one compilation per method
+N_DEGENERATE = len(DEGENERATE["all_equal"])
 
 
 @functools.lru_cache(maxsize=None)
 def value_and_grads(method):
-    c = jnp.asarray(np.random.default_rng(8).random(32))
+    c = jnp.asarray(np.random.default_rng(8).random(N_DEGENERATE))
     loss = lambda p, nb, floats: jnp.sum(c * weights_of(p, nb, method, floats))  # noqa: E731
     return jax.jit(jax.value_and_grad(loss, argnums=(0, 2)))
 
 
 @pytest.mark.parametrize("method", METHODS)
 def test_gradients_finite_on_degenerate_clouds(method):
-    for case, pts in degenerate_clouds().items():
+    for case, pts in DEGENERATE.items():
         nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
         value, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
         assert np.isfinite(value), case
@@ -147,7 +139,7 @@ def test_gradients_finite_on_degenerate_clouds(method):
         assert all(np.isfinite(float(g)) for g in g_floats.values()), (case, g_floats)
         assert set(g_floats) == set(floats_of(method))
     # On a generic cloud the gradients are not all zero (the test above could not pass vacuously).
-    pts = box_surface(3, 32, 0.01)
+    pts = box_surface(3, N_DEGENERATE, 0.01)
     nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
     _, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
     assert float(jnp.abs(g_points).max()) > 0 and float(g_floats["ratio"]) != 0
@@ -221,12 +213,9 @@ def test_soft_lhf_gradients_finite_on_degenerate_signals(dtype):
 
 
 def test_soft_lhf_at_low_tau_is_the_hard_kernel_on_degenerate_signals():
-    rng = np.random.default_rng(18)
-    clouds = [rng.random((40, 3)), np.outer(rng.random(40), [1.0, 2.0, 3.0]), np.c_[rng.random((40, 2)), np.zeros(40)],
-              np.repeat(rng.random((10, 3)), 4, axis=0)]
-    for p in clouds:
+    for p in (fixtures.uniform_cloud(40, seed=18), *(DEGENERATE[c] for c in ("collinear", "coplanar", "duplicates"))):
         idx = hgjax.knn(p, 8).idx
-        sig = jnp.asarray(p[idx] - p[:, None, :])  # (40, 8, 3)
+        sig = jnp.asarray(p[idx] - p[:, None, :])  # (N, 8, 3)
         np.testing.assert_allclose(jax.vmap(soft_gamma, in_axes=(0, None))(sig, 1e-12), jax.vmap(hard_gamma)(sig),
                                    rtol=1e-12, atol=1e-14)
 
@@ -237,8 +226,7 @@ def test_soft_lhf_at_low_tau_is_the_hard_kernel_on_degenerate_signals():
 def jittered_lattice(seed, jitter=0.08):
     """Box-surface lattice points (spacing 1) jittered a little: per-axis offsets stay
     within 2 * jitter of an integer, far from the voxel faces at half-integers (d = 1)."""
-    g = np.stack(np.meshgrid(*(np.arange(7.0),) * 3, indexing="ij"), -1).reshape(-1, 3)
-    shell = g[(g == 0).any(1) | (g == 6).any(1)]
+    shell = fixtures.lattice_shell(7)
     return shell + jitter * np.random.default_rng(seed).uniform(-1, 1, shell.shape)
 
 
@@ -314,21 +302,7 @@ def test_low_temperature_support_matches_hard_selection(method):
     assert abs(support.size - m) <= 0.05 * m
 
 
-# ------------------------------------------------------------------------- batching, jit
-
-
-@pytest.mark.parametrize("method", ["hkc", "lhf", "gfr"])
-def test_vmap_over_batch_equals_loop(method):
-    nbs = [hgjax.neighbourhoods(box_surface(10 + b, N, 0.01), method, capacity=CAPACITY) for b in range(4)]
-    stacked = jax.tree.map(lambda *x: np.stack(x), *nbs)
-    f = jax.jit(lambda nb, ratio: hgjax.soft_weights(nb, ratio, method=method))
-    batched = jax.jit(jax.vmap(f, in_axes=(0, None)))(stacked, RATIO)
-    assert batched.shape == (4, N)
-    loop = np.stack([f(nb, RATIO) for nb in nbs])
-    np.testing.assert_allclose(batched, loop, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(batched.sum(axis=1), RATIO * N, rtol=1e-9)
-    f(nbs[0], 0.5)
-    assert f._cache_size() == 1  # ratio is traced: a new value does not recompile
+# ------------------------------------------------------------------------- jit boundary, dtype, scale
 
 
 def test_soft_resample_is_soft_weights_of_neighbourhoods_and_rejects_tracers():
