@@ -70,6 +70,7 @@ def host_score(nb, method, **params):
 
 # The registry gives HKF HKC's soft score and PCA-AC EA's scores: their matrices would repeat those.
 SAME_SOFT = {"hkf": "hkc", "pca_ac": "ea"}
+SOFT_WEIGHTS = ("hkc", "lhf")
 
 
 def kernel_cases():
@@ -85,6 +86,9 @@ def kernel_cases():
         floats = {"ratio": 0.2} if method == "lhf" else {}
         cases.append((f"soft_score-{method}", method, {}, functools.partial(hgjax.soft_score, method=method, **floats),
                       ()))
+    # soft_weights = soft_select(soft_score): a method that keeps the smallest scores and one that
+    # keeps the largest and passes the ratio on to its soft score.
+    for method in SOFT_WEIGHTS:
         cases.append((f"soft_weights-{method}", method, {},
                       functools.partial(hgjax.soft_weights, ratio=0.2, method=method), ()))
     return cases
