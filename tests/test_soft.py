@@ -326,11 +326,12 @@ def test_keeps_float32():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_soft_weights_are_scale_free(method):
-    """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights."""
+    """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights
+    (soft_resample's, which are soft_weights of the neighbourhoods: one compilation per dtype)."""
     pts = box_surface(9, 96, 0.01)
-    want = np.asarray(hgjax.soft_resample(pts, RATIO, method=method))
-    tiny = np.asarray(hgjax.soft_resample((pts * 1e-8).astype(np.float32), RATIO, method=method))
-    big = np.asarray(hgjax.soft_resample(pts * 1e3, RATIO, method=method))
+    weights = jax.jit(lambda nb: hgjax.soft_weights(nb, RATIO, method=method))
+    want, tiny, big = (np.asarray(weights(hgjax.neighbourhoods(p, method)))
+                       for p in (pts, (pts * 1e-8).astype(np.float32), pts * 1e3))
     np.testing.assert_allclose(big, want, atol=1e-6)
     np.testing.assert_allclose(tiny, want, atol=2e-3)
 
