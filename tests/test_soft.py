@@ -21,12 +21,8 @@ METHODS = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
 TAU_METHODS = ("hkc", "hkf", "lhf")  # soft scores with a tau
 N = 160
 RATIO = 0.25  # RATIO * N is an integer: the hard top-k keeps exactly that many
+BOX = (3.0, 2.0, 1.5)  # the sides of the box whose surface the clouds sample
 CAPACITY = 128  # fixed K: one compilation serves every cloud of a method (GFR rows hold ~100)
-
-
-def box_surface(seed, n, noise=0.0):
-    """n points on the surface of an axis-aligned 3 x 2 x 1.5 box, plus Gaussian noise."""
-    return fixtures.box_surface(n, seed, noise=noise, size=(3.0, 2.0, 1.5))
 
 
 def floats_of(method, tau=0.1, temperature=0.05):
@@ -42,7 +38,7 @@ def weights_of(points, nb, method, floats):
 
 @functools.lru_cache(maxsize=None)
 def setup(method, seed=0, noise=0.01):
-    pts = box_surface(seed, N, noise)
+    pts = fixtures.box_surface(N, seed, noise=noise, size=BOX)
     return pts, hgjax.neighbourhoods(pts, method)
 
 
@@ -99,7 +95,7 @@ def test_soft_hkf_is_soft_hkc():
 
 @pytest.mark.parametrize("method", [m for m in METHODS if m not in ("hkf", "pca_ac")])  # = hkc, ea
 def test_check_grads_scores(method):
-    pts = box_surface(0, 48, 0.01)
+    pts = fixtures.box_surface(48, 0, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, method)
     if method in TAU_METHODS:
         extra = {"ratio": RATIO} if method == "lhf" else {}
@@ -139,7 +135,7 @@ def test_gradients_finite_on_degenerate_clouds(method):
         assert all(np.isfinite(float(g)) for g in g_floats.values()), (case, g_floats)
         assert set(g_floats) == set(floats_of(method))
     # On a generic cloud the gradients are not all zero (the test above could not pass vacuously).
-    pts = box_surface(3, N_DEGENERATE, 0.01)
+    pts = fixtures.box_surface(N_DEGENERATE, 3, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
     _, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
     assert float(jnp.abs(g_points).max()) > 0 and float(g_floats["ratio"]) != 0
@@ -268,7 +264,7 @@ def test_soft_hkc_converges_to_beta_over_one_plus_beta():
 
 
 def test_soft_lhf_converges_to_hard_lhf():
-    pts = box_surface(2, N, 0.02)
+    pts = fixtures.box_surface(N, 2, noise=0.02, size=BOX)
     nb = hgjax.neighbourhoods(pts, "lhf")
     hard = np.asarray(hgjax.score(nb, "lhf", ratio=RATIO))
     far = np.asarray(hgjax.soft_score(nb, "lhf", tau=1e-9, ratio=RATIO))
@@ -306,7 +302,7 @@ def test_low_temperature_support_matches_hard_selection(method):
 
 
 def test_soft_resample_is_soft_weights_of_neighbourhoods_and_rejects_tracers():
-    pts = box_surface(20, N, 0.01)
+    pts = fixtures.box_surface(N, 20, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, "hkc")
     np.testing.assert_array_equal(hgjax.soft_resample(pts, RATIO, method="hkc", tau=0.2),
                                   hgjax.soft_weights(nb, RATIO, method="hkc", tau=0.2))
@@ -317,7 +313,7 @@ def test_soft_resample_is_soft_weights_of_neighbourhoods_and_rejects_tracers():
 
 
 def test_keeps_float32():
-    pts = box_surface(0, N, 0.01).astype(np.float32)
+    pts = fixtures.box_surface(N, 0, noise=0.01, size=BOX).astype(np.float32)
     for method in ("hkc", "ea"):
         w = weights_of(*(lambda nb: (nb.points, nb))(hgjax.neighbourhoods(pts, method)), method, floats_of(method))
         assert w.dtype == np.float32, method
@@ -328,7 +324,7 @@ def test_keeps_float32():
 def test_soft_weights_are_scale_free(method):
     """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights
     (soft_resample's, which are soft_weights of the neighbourhoods: one compilation per dtype)."""
-    pts = box_surface(9, 96, 0.01)
+    pts = fixtures.box_surface(96, 9, noise=0.01, size=BOX)
     weights = jax.jit(lambda nb: hgjax.soft_weights(nb, RATIO, method=method))
     want, tiny, big = (np.asarray(weights(hgjax.neighbourhoods(p, method)))
                        for p in (pts, (pts * 1e-8).astype(np.float32), pts * 1e3))
@@ -363,7 +359,7 @@ def test_bad_tau_and_temperature_raise_value_error_naming_them(name, value):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_soft_resample_rejects_nan_points_and_too_few_points(method):
-    pts = box_surface(0, 40, 0.01)
+    pts = fixtures.box_surface(40, 0, noise=0.01, size=BOX)
     bad = pts.copy()
     bad[3, 1] = np.nan
     with pytest.raises(ValueError, match="points"):
