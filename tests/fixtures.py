@@ -1,11 +1,11 @@
 """Clouds the tests build, the degenerate clouds, and the variants helper (one matrix per kernel).
 
-Every test file takes its clouds from here, so a cloud that a test and a bench share is built
-one way. The variants helper runs one function of a :class:`hgjax.Neighbourhoods` the ways a
-JAX user calls it (:data:`VARIANTS`: eager, jit with the neighbourhoods as an argument, jit
-closing over them, vmap over a stacked batch) and asserts that every way gives the eager
-values (dm-pix's ``chex.all_variants``). A variant maps a function and a list of
-neighbourhoods to the per-cloud results, so a new way of calling is one more entry.
+Every test file takes its clouds from here, so each kind of cloud is built one way. The
+variants helper runs one function of a :class:`hgjax.Neighbourhoods` the ways a JAX user
+calls it (:data:`VARIANTS`: eager, jit with the neighbourhoods as an argument, jit closing
+over them, vmap over a stacked batch) and asserts that every way gives the eager values
+(dm-pix's ``chex.all_variants``). A variant maps a function and a list of neighbourhoods to
+the per-cloud results, so a new way of calling is one more entry.
 """
 
 from __future__ import annotations
