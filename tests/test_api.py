@@ -26,7 +26,7 @@ CAPACITY = 128  # fixed K of a batch: enough for every method on these clouds
 # (chunk_size=1024): see test_lhf_eigh_kernels_finish_on_the_default_streamed_chunk.
 ONE_BLOCK = {"chunk_size": 1024}
 
-# Every scoring method and variant: (method, static params, traced float params).
+# Every scoring method and variant (PCA-AC scores with EA's score): (method, static params, traced float params).
 SCORE_CASES = [
     ("hkc", {}, {}),
     ("hkc", {"variant": "reference"}, {}),
@@ -38,7 +38,6 @@ SCORE_CASES = [
     ("gfr", {}, {}),
     ("gfr", {"variant": "reference"}, {}),
     ("ea", {}, {}),
-    ("pca_ac", {}, {}),
     ("mss", {}, {}),
 ]
 CASE_IDS = ["-".join([m, *map(str, s.values())]) for m, s, _ in SCORE_CASES]
@@ -68,7 +67,8 @@ def host_score(nb, method, **params):
 # ----------------------------------------------------------------- the variants matrix
 
 
-# The registry gives HKF HKC's soft score and PCA-AC EA's scores: their matrices would repeat those.
+# The registry gives HKF HKC's soft score and PCA-AC EA's neighbourhoods and scores: their
+# matrices would repeat those.
 SAME_SOFT = {"hkf": "hkc", "pca_ac": "ea"}
 SOFT_WEIGHTS = ("hkc", "lhf")
 
@@ -102,6 +102,7 @@ def test_shared_soft_scores_are_the_same_functions():
         assert hgjax.METHODS[method].soft_score is hgjax.METHODS[twin].soft_score
         assert hgjax.METHODS[method].largest is hgjax.METHODS[twin].largest
     assert hgjax.METHODS["pca_ac"].score is hgjax.METHODS["ea"].score
+    assert hgjax.METHODS["pca_ac"].build is hgjax.METHODS["ea"].build
 
 
 @pytest.mark.parametrize("method,static,fn,skip", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
