@@ -1,4 +1,4 @@
-"""Naive NumPy loop-over-points references of every HGSP score (REFERENCE.md, literally).
+"""Naive NumPy loop-over-points references of every score and of FPS (REFERENCE.md, literally).
 
 Deliberately slow and simple: brute-force neighbours, one ``np.linalg.eigh`` per point.
 """
@@ -168,6 +168,30 @@ def lhf_single_invariant(points, n):
         s = p[rows[i]] - p[i]
         out[i] = lhf_invariant_signal(s, *lhf_invariant_spectrum(s))
     return out
+
+
+def ea(points, k=16):
+    """EA surface variation l0 / (l0 + l1 + l2) of the k nearest points (the point itself
+    first), one ``np.linalg.eigvalsh`` per point; 0 where the neighbours coincide."""
+    p = np.asarray(points, dtype=np.float64)
+    out = np.empty(len(p))
+    for i, rows in enumerate(knn_rows(p, k)):
+        y = p[rows] - p[rows].mean(axis=0)
+        lam = np.linalg.eigvalsh(y.T @ y)
+        out[i] = max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0
+    return out
+
+
+def fps(points, m, start=0):
+    """Farthest point sampling: m indices from ``start``, each the farthest from those before it
+    (ties by index)."""
+    p = np.asarray(points, dtype=np.float64)
+    chosen, min_d = [start], np.full(len(p), np.inf)
+    for _ in range(m - 1):
+        min_d = np.minimum(min_d, ((p - p[chosen[-1]]) ** 2).sum(1))
+        min_d[chosen] = -1
+        chosen.append(int(np.argmax(min_d)))
+    return np.array(chosen)
 
 
 def gfr_pairs(points, max_nn=100, radius_factor=None):

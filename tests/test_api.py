@@ -2,8 +2,8 @@
 
 Host path = ``hgjax.score`` on concrete neighbourhoods (fixed-size chunks streamed through one
 compiled kernel); traced path = the same call inside the caller's ``jax.jit`` or ``jax.vmap``.
-Tolerances between the two paths: float64 rtol 1e-12, float32 rtol 1e-6 (XLA may fuse the two
-programs differently, so the last bits may differ; infinities must coincide exactly).
+The variants matrix (tests/fixtures.py) holds every score, soft score and soft weights to
+eager == jit(argument) == jit(closed-over) == vmap, within fixtures.VARIANT_RTOL.
 """
 
 from __future__ import annotations
@@ -17,16 +17,16 @@ import jax
 import numpy as np
 import pytest
 
+import fixtures
 import hgjax
 
 N = 300
 CAPACITY = 128  # fixed K of a batch: enough for every method on these clouds
-PATH_RTOL = {np.dtype(np.float32): 1e-6, np.dtype(np.float64): 1e-12}
 # Kernels that call LAPACK eigh per row. Their eager calls here use one-block chunks
 # (chunk_size=1024): see test_lhf_eigh_kernels_finish_on_the_default_streamed_chunk.
 ONE_BLOCK = {"chunk_size": 1024}
 
-# Every scoring method and variant: (method, static params, traced float params).
+# Every scoring method and variant (PCA-AC scores with EA's score): (method, static params, traced float params).
 SCORE_CASES = [
     ("hkc", {}, {}),
     ("hkc", {"variant": "reference"}, {}),
@@ -38,7 +38,7 @@ SCORE_CASES = [
     ("gfr", {}, {}),
     ("gfr", {"variant": "reference"}, {}),
     ("ea", {}, {}),
-    ("pca_ac", {}, {}),
+    ("mss", {}, {}),
 ]
 CASE_IDS = ["-".join([m, *map(str, s.values())]) for m, s, _ in SCORE_CASES]
 SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
@@ -46,14 +46,13 @@ SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
 
 def cloud(seed=0, n=N, dtype=np.float64):
     """A noisy box surface (sharp edges, no duplicates)."""
-    p = hgjax.eval.box_surface(n, seed)
-    return (p + 0.005 * np.random.default_rng(seed).standard_normal(p.shape)).astype(dtype)
+    return fixtures.box_surface(n, seed, noise=0.005).astype(dtype)
 
 
 def path_rtol(method, static, dtype):
     """GFR's reference variant keeps its weights in float32 (as the authors' code): float32 tolerance."""
     reference_gfr = method == "gfr" and static.get("variant") == "reference"
-    return PATH_RTOL[np.dtype(np.float32) if reference_gfr else np.dtype(dtype)]
+    return fixtures.VARIANT_RTOL[np.dtype(np.float32) if reference_gfr else np.dtype(dtype)]
 
 
 def uses_eigh(method, static):
@@ -65,31 +64,57 @@ def host_score(nb, method, **params):
     return np.asarray(hgjax.score(nb, method, **params))
 
 
-@functools.lru_cache(maxsize=None)
-def jitted_score(method, static_items):
-    """One jitted score per (method, static params); float params are traced arguments."""
-    return jax.jit(functools.partial(hgjax.score, method=method, **dict(static_items)))
+# ----------------------------------------------------------------- the variants matrix
 
 
-def assert_paths_agree(got, want, dtype, rtol):
-    got, want = np.asarray(got), np.asarray(want)
-    assert got.dtype == want.dtype == dtype
-    np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
-    f = np.isfinite(want)
-    np.testing.assert_allclose(got[f], want[f], rtol=rtol, atol=rtol * 1e-3)
+# The registry gives HKF HKC's soft score and PCA-AC EA's neighbourhoods and scores: their
+# matrices would repeat those.
+SAME_SOFT = {"hkf": "hkc", "pca_ac": "ea"}
+SOFT_WEIGHTS = ("hkc", "lhf")
 
 
-# ----------------------------------------------------------------- score: jit, vmap, host
+def kernel_cases():
+    """(id, method, build params, fn(nb), variants to skip) of every score, soft score and soft weights."""
+    cases = []
+    for (method, static, floats), case_id in zip(SCORE_CASES, CASE_IDS):
+        eager = {**static, **floats, **(ONE_BLOCK if uses_eigh(method, static) else {})}
+        # The eigh-based LHF kernels deadlock nondeterministically when several LAPACK eigh calls
+        # run in one XLA CPU loop (vmap over a batch): test_lhf_eigh_kernels_finish_... covers them.
+        skip = ("vmap",) if uses_eigh(method, static) else ()
+        cases.append((f"score-{case_id}", method, static, functools.partial(hgjax.score, method=method, **eager), skip))
+    for method in sorted(set(SCORING) - set(SAME_SOFT)):
+        floats = {"ratio": 0.2} if method == "lhf" else {}
+        cases.append((f"soft_score-{method}", method, {}, functools.partial(hgjax.soft_score, method=method, **floats),
+                      ()))
+    # soft_weights = soft_select(soft_score): a method that keeps the smallest scores and one that
+    # keeps the largest and passes the ratio on to its soft score.
+    for method in SOFT_WEIGHTS:
+        cases.append((f"soft_weights-{method}", method, {},
+                      functools.partial(hgjax.soft_weights, ratio=0.2, method=method), ()))
+    return cases
 
 
-@pytest.mark.parametrize("method,static,floats", SCORE_CASES, ids=CASE_IDS)
-def test_score_under_jit_equals_host_path(method, static, floats, dtype):
-    nb = hgjax.neighbourhoods(cloud(dtype=dtype), method, **static)
-    eager = {**static, **floats, **(ONE_BLOCK if uses_eigh(method, static) else {})}
-    want = host_score(nb, method, **eager)
-    got = jitted_score(method, tuple(static.items()))(nb, **floats)
-    assert got.shape == (N,)
-    assert_paths_agree(got, want, dtype, path_rtol(method, static, dtype))
+KERNEL_CASES = kernel_cases()
+
+
+def test_shared_soft_scores_are_the_same_functions():
+    for method, twin in SAME_SOFT.items():
+        assert hgjax.METHODS[method].soft_score is hgjax.METHODS[twin].soft_score
+        assert hgjax.METHODS[method].largest is hgjax.METHODS[twin].largest
+    assert hgjax.METHODS["pca_ac"].score is hgjax.METHODS["ea"].score
+    assert hgjax.METHODS["pca_ac"].build is hgjax.METHODS["ea"].build
+
+
+@pytest.mark.parametrize("method,static,fn,skip", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
+def test_variants_agree(method, static, fn, skip, dtype):
+    """eager == jit(argument) == jit(closed-over) == vmap over a batch, in float32 and float64."""
+    capacity = None if hgjax.METHODS[method].kind == "knn" else CAPACITY  # a batch shares one K
+    nbs = [hgjax.neighbourhoods(cloud(s, dtype=dtype), method, capacity=capacity, **static) for s in (1, 2)]
+    rtol = path_rtol(method, static, dtype)
+    # Weights lie in [0, 1] and soft_select's threshold moves them all: an absolute tolerance.
+    atol = rtol if fn.func is hgjax.soft_weights else None
+    want = fixtures.assert_variants_agree(fn, nbs, rtol=rtol, atol=atol, skip=skip)
+    assert all(w.shape == (N,) and not np.isnan(w).any() for w in want)
 
 
 def test_lhf_ratio_is_traced_under_jit():
@@ -99,26 +124,6 @@ def test_lhf_ratio_is_traced_under_jit():
     assert f._cache_size() == 1  # a new ratio did not recompile
     assert not np.array_equal(a, b)  # ... and it does change the scores (Eq. (16)'s eps)
     np.testing.assert_allclose(b, host_score(nb, "lhf", ratio=0.5), rtol=1e-12)
-
-
-def batch(method, static, seeds=(1, 2, 3)):
-    """A stacked batch of equal-shape neighbourhoods (fixed capacity) and the per-cloud ones."""
-    nbs = [hgjax.neighbourhoods(cloud(s), method, capacity=CAPACITY, **static) for s in seeds]
-    return jax.tree.map(lambda *x: np.stack(x), *nbs), nbs
-
-
-# The eigh-based LHF kernels deadlock nondeterministically when several LAPACK eigh calls run in
-# one XLA CPU loop (multi-block chunk, vmap over a batch): covered in a subprocess below.
-@pytest.mark.parametrize("method,static,floats",
-                         [c for c in SCORE_CASES if not uses_eigh(c[0], c[1])],
-                         ids=[i for c, i in zip(SCORE_CASES, CASE_IDS) if not uses_eigh(c[0], c[1])])
-def test_score_under_vmap_equals_per_cloud_scores(method, static, floats):
-    stacked, nbs = batch(method, static)
-    assert stacked.points.shape == (3, N, 3) and stacked.idx.shape == (3, N, CAPACITY)
-    f = jitted_score(method, tuple(static.items()))
-    got = jax.jit(jax.vmap(lambda nb: f(nb, **floats)))(stacked)
-    for b, nb in enumerate(nbs):
-        assert_paths_agree(got[b], f(nb, **floats), np.dtype(np.float64), path_rtol(method, static, np.float64))
 
 
 @pytest.mark.parametrize("method,static,floats", [

@@ -14,7 +14,9 @@ import pytest
 from scipy.cluster.hierarchy import fcluster, linkage
 
 import hgjax
+import naive
 from conftest import TOL
+from fixtures import degenerate_clouds, uniform_cloud
 
 ea_module = importlib.import_module("hgjax.scores.ea")
 pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")
@@ -24,45 +26,9 @@ NEW_METHODS = ("gfr", "ea", "pca_ac", "uniform", "voxel", "fps")
 KEYED = ("gfr", "uniform")
 
 
-# ---------------------------------------------------------------- naive references
-def ea_naive(points, k=16):
-    p = np.asarray(points, dtype=np.float64)
-    out = np.zeros(len(p))
-    for i in range(len(p)):
-        nb = p[np.argsort(((p - p[i]) ** 2).sum(1), kind="stable")[:k]]
-        lam = np.linalg.eigvalsh(np.cov(nb.T, bias=True))
-        out[i] = max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0
-    return out
-
-
-def fps_naive(points, m, start=0):
-    p = np.asarray(points, dtype=np.float64)
-    chosen, min_d = [start], np.full(len(p), np.inf)
-    for _ in range(m - 1):
-        min_d = np.minimum(min_d, ((p - p[chosen[-1]]) ** 2).sum(1))
-        min_d[chosen] = -1
-        chosen.append(int(np.argmax(min_d)))
-    return np.array(chosen)
-
-
 def spacing(points, idx):
     """Distance from each selected point to the closest one selected before it."""
     return np.array([np.sqrt(((points[idx[:i]] - points[idx[i]]) ** 2).sum(1).min()) for i in range(1, len(idx))])
-
-
-def cloud(n=300, seed=0, scale=1.0):
-    return np.random.default_rng(seed).random((n, 3)) * scale
-
-
-def degenerate_clouds():
-    rng = np.random.default_rng(5)
-    base = rng.random((60, 3))
-    planar = np.c_[rng.random((80, 2)), np.zeros(80)]
-    return {
-        "duplicates": np.concatenate([base, base[:30], base[:5]]),
-        "coplanar": planar,
-        "all_equal": np.ones((40, 3)),
-    }
 
 
 def tol(dtype):
@@ -77,8 +43,8 @@ def scores_of(points, method, **params):
 # ---------------------------------------------------------------- scores vs naive
 @pytest.mark.parametrize("k", [16, 5])
 def test_ea_matches_naive(dtype, k):
-    p = cloud(400, seed=2, scale=3.0)
-    want = ea_naive(p, k)
+    p = uniform_cloud(400, seed=2, scale=3.0)
+    want = naive.ea(p, k)
     got = scores_of(p.astype(dtype), "ea", k=k)
     assert got.dtype == dtype
     np.testing.assert_allclose(got, want, rtol=tol(dtype), atol=tol(dtype) * want.max())
@@ -116,16 +82,17 @@ def test_smallest_eigenvalue_gradient(dtype):
 
 
 def test_ea_with_duplicates_matches_naive_on_the_distinct_points():
-    p = degenerate_clouds()["duplicates"]  # 60 distinct points, 35 copies
-    want = ea_naive(p[:60], 16)
+    base = uniform_cloud(60, seed=5)
+    p = np.concatenate([base, base[:30], base[:5]])  # 60 distinct points, 35 copies
+    want = naive.ea(base, 16)
     got = scores_of(p, "ea")  # dedupe=True by default: a copy scores as its first copy
     np.testing.assert_allclose(got, np.concatenate([want, want[:30], want[:5]]), rtol=1e-10, atol=1e-14)
     paper = scores_of(p, "ea", dedupe=False)
-    np.testing.assert_allclose(paper, ea_naive(p, 16), rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(paper, naive.ea(p, 16), rtol=1e-10, atol=1e-14)
 
 
 def test_scores_follow_a_permutation():
-    p = cloud(300, seed=3)
+    p = uniform_cloud(300, seed=3)
     perm = np.random.default_rng(0).permutation(len(p))
     np.testing.assert_array_equal(scores_of(p[perm], "ea"), scores_of(p, "ea")[perm])
     for method in ("ea", "pca_ac"):
@@ -134,13 +101,13 @@ def test_scores_follow_a_permutation():
 
 
 def test_chunk_size(dtype):
-    p = cloud(700, seed=15).astype(dtype)
+    p = uniform_cloud(700, seed=15).astype(dtype)
     nb = hgjax.neighbourhoods(p, "ea")
     np.testing.assert_array_equal(hgjax.score(nb, "ea", chunk_size=128), hgjax.score(nb, "ea"))
 
 
 def test_scores_do_not_modify_input():
-    p = cloud(200, seed=4)
+    p = uniform_cloud(200, seed=4)
     copy = p.copy()
     for method in ("gfr", "ea", "pca_ac"):
         hgjax.resample(p, 0.2, method=method, key=jax.random.key(0))
@@ -158,7 +125,7 @@ def test_degenerate_clouds_give_finite_scores(name):
     assert labels.shape == (len(p),) and set(labels.tolist()) <= {0, 1}
     if name == "all_equal":
         assert not scores_of(p, "gfr").any() and not scores_of(p, "ea").any()
-    if name == "coplanar":
+    if name in ("coplanar", "planar_grid"):
         assert scores_of(p, "ea").max() < 1e-12
 
 
@@ -179,7 +146,7 @@ def test_ward_1d_matches_scipy(round_share, monkeypatch):
 
 
 def test_pca_ac_keeps_what_ea_keeps():
-    p = cloud(500, seed=7)
+    p = uniform_cloud(500, seed=7)
     a = hgjax.resample(p, 0.2, method="pca_ac", n_clusters=4)
     b = hgjax.resample(p, 0.2, method="ea")
     assert set(a.tolist()) == set(b.tolist())
@@ -190,8 +157,8 @@ def test_pca_ac_keeps_what_ea_keeps():
 
 # ---------------------------------------------------------------- samplers
 def test_fps_matches_naive(dtype):
-    p = cloud(500, seed=8)
-    want = fps_naive(p, 100)
+    p = uniform_cloud(500, seed=8)
+    want = naive.fps(p, 100)
     got = hgjax.farthest_point_sample(p.astype(dtype), 0.2)
     if dtype == np.float64:
         np.testing.assert_array_equal(got, want)
@@ -199,7 +166,7 @@ def test_fps_matches_naive(dtype):
 
 
 def test_fps_properties():
-    p = np.concatenate([cloud(300, seed=9), cloud(20, seed=9)])  # 20 exact duplicates
+    p = np.concatenate([uniform_cloud(300, seed=9), uniform_cloud(20, seed=9)])  # 20 exact duplicates
     idx = hgjax.farthest_point_sample(p, 1.0, start=5)
     assert idx[0] == 5 and len(set(idx.tolist())) == len(p)
     gaps = spacing(p, idx)
@@ -215,21 +182,21 @@ def test_voxel_one_point_per_voxel():
 
 
 def test_voxel_exact_count_with_duplicates():
-    p = np.concatenate([np.zeros((50, 3)), cloud(10, seed=10)])
+    p = np.concatenate([np.zeros((50, 3)), uniform_cloud(10, seed=10)])
     idx = hgjax.voxel_sample(p, 0.5)  # 11 distinct positions < 30 requested
     assert len(idx) == 30 and len(set(idx.tolist())) == 30
 
 
 @pytest.mark.parametrize("method", KEYED)
 def test_same_key_same_output(method):
-    p = cloud(400, seed=11)
+    p = uniform_cloud(400, seed=11)
     run = lambda seed: hgjax.resample(p, 0.2, method=method, key=jax.random.key(seed))
     np.testing.assert_array_equal(run(0), run(0))
     assert set(run(0).tolist()) != set(run(1).tolist())
 
 
 def test_gfr_top_mode_keeps_largest_scores():
-    p = cloud(300, seed=12)
+    p = uniform_cloud(300, seed=12)
     idx = hgjax.resample(p, 0.1, method="gfr", mode="top")
     s = scores_of(p, "gfr")
     assert s[idx].min() >= np.sort(s)[-len(idx)]
@@ -244,7 +211,7 @@ def test_gfr_top_mode_keeps_largest_scores():
 @pytest.mark.parametrize("method", NEW_METHODS)
 @pytest.mark.parametrize("ratio", [0.05, 0.33, 1.0])
 def test_resample_counts(method, ratio):
-    p = cloud(257, seed=13).astype(np.float32)
+    p = uniform_cloud(257, seed=13).astype(np.float32)
     idx = hgjax.resample(p, ratio, method=method, key=jax.random.key(0))
     assert idx.dtype == np.int64 and idx.shape == (int(np.ceil(ratio * 257)),)
     assert len(set(idx.tolist())) == len(idx) and idx.min() >= 0 and idx.max() < 257
@@ -260,7 +227,7 @@ def test_resample_degenerate(method, name):
 
 @pytest.mark.parametrize("method", KEYED)
 def test_missing_or_bad_key(method):
-    p = cloud(50)
+    p = uniform_cloud(50)
     with pytest.raises(ValueError, match=r"key=jax\.random\.key\(0\)"):
         hgjax.resample(p, 0.2, method=method)
     with pytest.raises(TypeError, match="key"):
@@ -269,7 +236,7 @@ def test_missing_or_bad_key(method):
 
 @pytest.mark.parametrize("method", NEW_METHODS)
 def test_bad_ratio_and_points(method):
-    p = cloud(50)
+    p = uniform_cloud(50)
     for ratio, error in [(0.0, ValueError), (1.5, ValueError), (float("nan"), ValueError), ("a", TypeError)]:
         with pytest.raises(error, match="ratio"):
             hgjax.resample(p, ratio, method=method, key=jax.random.key(0))
@@ -284,7 +251,7 @@ def test_bad_ratio_and_points(method):
 
 
 def test_bad_parameters():
-    p = cloud(50)
+    p = uniform_cloud(50)
     cases = [
         (lambda: hgjax.resample(p, 0.2, method="gfr", mode="best"), ValueError, "mode"),
         (lambda: hgjax.neighbourhoods(p, "ea", k=1), ValueError, "k"),

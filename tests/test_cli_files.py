@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import box_union
 from hgjax import io
 from hgjax.cli import main
 
@@ -29,7 +30,7 @@ def run_here(capsys, *args):
 
 
 def cloud(n, spacing=None):
-    points = hgjax.eval.box_union_cloud(seed=0, n_points=n).points
+    points = box_union(n)
     if spacing is not None:
         points = points * (spacing / hgjax.intrinsic_resolution(points))
     return points

@@ -4,7 +4,6 @@ that lose no work, and signals at every stage (subprocesses through the installe
 import os
 import pathlib
 import shutil
-import signal
 import subprocess
 import sys
 import time

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import box_union, uniform_cloud
 from hgjax import io
 
 SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
@@ -12,7 +13,7 @@ SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
 
 @pytest.fixture(scope="module")
 def cloud():
-    return hgjax.eval.box_union_cloud(seed=0, n_points=1000).points
+    return box_union(1000)
 
 
 @pytest.mark.parametrize("backend", ["fpsample", "jax"])
@@ -80,14 +81,14 @@ def test_an_empty_ascii_pcd_is_an_error_naming_the_file(tmp_path):
 ])
 def test_parameters_are_named_in_their_errors(call, error, match):
     with pytest.raises(error, match=match):
-        call(np.random.default_rng(0).random((100, 3)))
+        call(uniform_cloud(100))
 
 
 @pytest.mark.parametrize("method", ["hkc", "hkf", "lhf"])
 def test_tau_gradient_is_finite_however_small_tau_is(method):
     import jax
 
-    p = np.random.default_rng(0).random((200, 3)).astype(np.float32)
+    p = uniform_cloud(200).astype(np.float32)
     nb = hgjax.neighbourhoods(p, method)
     for tau in (1e-30, 1e-8, 0.1):
         g = jax.grad(lambda t: hgjax.soft_weights(nb, 0.2, method=method, tau=t).sum())(tau)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
 
@@ -15,6 +16,7 @@ import hgjax
 from hgjax import spatial
 
 from conftest import TOL
+from fixtures import box_surface, degenerate_clouds, grid, uniform_cloud
 from hgjax.scores import gfr as gfr_module
 from naive import gfr_naive, gfr_pairs
 
@@ -33,34 +35,17 @@ def pairs_of(g):
     return sorted({(min(x, y), max(x, y)) for a, b in stored for x in copies[a] for y in copies[b]})
 
 
-def lattice(m, spacing, seed):
-    """m^3 points of a cubic lattice, rows shuffled (so index ties are not lattice order)."""
-    g = np.stack(np.meshgrid(*[np.arange(m)] * 3, indexing="ij"), axis=-1).reshape(-1, 3) * spacing
-    return g[np.random.default_rng(seed).permutation(len(g))]
-
-
-def box_surface(n, seed):
-    """n points uniformly at random on the surface of a 1 x 0.8 x 0.6 box (sharp edges)."""
-    rng = np.random.default_rng(seed)
-    size = np.array([1.0, 0.8, 0.6])
-    area = np.array([size[1] * size[2], size[0] * size[2], size[0] * size[1]])
-    axis = rng.choice(3, size=n, p=area / area.sum())
-    p = rng.random((n, 3)) * size
-    p[np.arange(n), axis] = rng.integers(0, 2, n) * size[axis]
-    return p
-
-
 def clouds():
     rng = np.random.default_rng(3)
     base = rng.random((150, 3))
-    jittered = lattice(6, 0.1, 1) + 1e-3 * rng.standard_normal((216, 3))
+    jittered = grid((6, 6, 6), 0.1, seed=1) + 1e-3 * rng.standard_normal((216, 3))
     return {
         "random": rng.random((300, 3)),
         "random_x7": 7 * rng.random((300, 3)),
         "box_surface": box_surface(400, 0),
         "jittered_grid": jittered,
         "duplicates": np.concatenate([base, base[:40], base[:5]]),
-        "capped_grid": lattice(8, 0.0625, 2),  # minNN == maxNN, the ball holds every point
+        "capped_grid": grid((8, 8, 8), 0.0625, seed=2),  # minNN == maxNN, the ball holds every point
     }
 
 
@@ -74,10 +59,13 @@ def overlap(a, b):
     return np.intersect1d(a, b).size / len(b)
 
 
+jitted_high_pass = jax.jit(high_pass, static_argnames="weights_dtype")
+
+
 def scores(points, variant="invariant", **kw):
     idx, first = graph(points, variant=variant, **kw)
     weights = np.float32 if variant == "reference" else None
-    return np.asarray(high_pass(jnp.asarray(points), jnp.asarray(idx), first=first, weights_dtype=weights))
+    return np.asarray(jitted_high_pass(jnp.asarray(points), jnp.asarray(idx), first=first, weights_dtype=weights))
 
 
 # ------------------------------------------------------------------ reference vs naive
@@ -108,7 +96,7 @@ def test_capped_grid_rows_hit_the_cap():
     assert pairs_of(graph(p, variant="reference", max_nn=7)) == gfr_pairs(p, max_nn=7)[0]
 
 
-@pytest.mark.parametrize("cloud", [np.random.default_rng(0).random((500, 3)), box_surface(500, 0)],
+@pytest.mark.parametrize("cloud", [uniform_cloud(500), box_surface(500, 0)],
                          ids=["cube", "box_surface"])
 def test_reference_scores_few_exact_zeros(cloud):
     assert (scores(cloud, "reference") == 0).mean() < 0.02
@@ -173,26 +161,24 @@ def test_reference_depends_on_units():
 
 
 # ------------------------------------------------------------------ JAX transforms
-def degenerate():
-    rng = np.random.default_rng(8)
-    base = rng.random((40, 3))
-    t = np.linspace(0, 1, 30)
-    return {
-        "duplicates": np.concatenate([base, base[:20]]),
-        "collinear": np.stack([t, 2 * t, -t], axis=1),
-        "coplanar": np.c_[lattice(6, 0.1, 0)[:, :2], np.zeros(216)],
-        "all_equal": np.ones((20, 3)),
-    }
+DEGENERATE_WIDTH = 64  # idx padded to one width: one compilation per dtype, variant and first
+
+
+@functools.partial(jax.jit, static_argnames="weights_dtype")
+def scores_and_gradient(points, idx, first, weights_dtype):
+    f = lambda x: high_pass(x, idx, first=first, weights_dtype=weights_dtype)  # noqa: E731
+    return f(points), jax.grad(lambda x: jnp.sum(f(x)))(points)
 
 
 @pytest.mark.parametrize("variant", ["invariant", "reference"])
-@pytest.mark.parametrize("name", sorted(degenerate()))
+@pytest.mark.parametrize("name", sorted(degenerate_clouds()))
 def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
-    p = degenerate()[name].astype(dtype)
+    p = degenerate_clouds()[name].astype(dtype)
     idx, first = graph(p, variant=variant)
+    assert idx.shape[1] <= DEGENERATE_WIDTH
+    idx = np.pad(idx, ((0, 0), (0, DEGENERATE_WIDTH - idx.shape[1])), constant_values=len(p))
     weights = np.float32 if variant == "reference" else None
-    s = high_pass(jnp.asarray(p), idx, first=first, weights_dtype=weights)
-    g = jax.grad(lambda x: jnp.sum(high_pass(x, idx, first=first, weights_dtype=weights)))(jnp.asarray(p))
+    s, g = scores_and_gradient(jnp.asarray(p), idx, first, weights)
     assert s.dtype == dtype and np.isfinite(s).all() and (s >= 0).all() and np.isfinite(g).all()
     if name == "all_equal":
         assert not s.any() and not g.any()
@@ -201,15 +187,16 @@ def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
 def test_gradient_finite_when_a_graph_collapses():
     p = box_surface(100, 9)
     idx, _ = graph(p)
+    grad = jax.jit(jax.grad(lambda y: jnp.sum(high_pass(y, idx))))
     for x in (np.ones_like(p), 1e-30 * p, np.float32(1e-6) * p.astype(np.float32)):
-        g = jax.grad(lambda y: jnp.sum(high_pass(y, idx)))(jnp.asarray(x))
+        g = grad(jnp.asarray(x))
         assert np.isfinite(g).all()
 
 
 def test_gradient_matches_finite_differences():
     p = box_surface(60, 10)
     idx, _ = graph(p)
-    check_grads(lambda x: high_pass(x, idx), (jnp.asarray(p),), order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
+    check_grads(jax.jit(lambda x: high_pass(x, idx)), (jnp.asarray(p),), order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
 
 
 def test_jit_and_vmap_match_single_calls():

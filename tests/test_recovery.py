@@ -8,15 +8,10 @@ import pytest
 import trimesh
 
 import hgjax
+from fixtures import sphere
 from hgjax.eval import ALPHA_FACTORS, Recovery, alpha_complex, recover, recovery_metrics
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def sphere(n, seed, radius=1.0):
-    """n points on the sphere of ``radius`` about the origin, uniform by area."""
-    v = np.random.default_rng(seed).normal(size=(n, 3))
-    return radius * v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
 def naive_metrics(original, recovered, d_theta):

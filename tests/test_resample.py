@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import degenerate_clouds, uniform_cloud
 from hgjax import _validate
 
 HGSP = ["hkc", "hkf", "lhf"]
+N = 400
 
 
 def scores_of(points, method, **params):
@@ -26,29 +28,25 @@ SCORES = {
 }
 
 
-def cloud(n=400, seed=0, dtype=np.float64):
-    return np.random.default_rng(seed).random((n, 3)).astype(dtype)
-
-
 @pytest.mark.parametrize("method", HGSP)
 @pytest.mark.parametrize("ratio", [0.013, 0.2, 0.7, 1.0])
 def test_resample_count_unique_in_range(method, ratio):
-    p = cloud()
+    p = uniform_cloud(N)
     idx = hgjax.resample(p, ratio, method=method)
     assert idx.dtype == np.int64
-    assert idx.shape == (int(np.ceil(ratio * 400 - 1e-9)),)
-    assert len(np.unique(idx)) == len(idx) and idx.min() >= 0 and idx.max() < 400
+    assert idx.shape == (int(np.ceil(ratio * N - 1e-9)),)
+    assert len(np.unique(idx)) == len(idx) and idx.min() >= 0 and idx.max() < N
 
 
 @pytest.mark.parametrize("method,largest", [("hkc", False), ("hkf", False), ("lhf", True)])
 def test_resample_orders_by_priority(method, largest):
-    p = cloud()
+    p = uniform_cloud(N)
     params = {"ratio": 0.25} if method == "lhf" else {}
     s = scores_of(p, method, **params)
     idx = hgjax.resample(p, 0.25, method=method)
     kept = s[idx]
     assert np.all(np.diff(kept) <= 0) if largest else np.all(np.diff(kept) >= 0)
-    rest = np.setdiff1d(np.arange(400), idx)
+    rest = np.setdiff1d(np.arange(N), idx)
     assert (s[rest] <= kept[-1]).all() if largest else (s[rest] >= kept[-1]).all()
 
 
@@ -73,49 +71,35 @@ def test_methods_registry_and_unknown_method():
         assert (entry.kind is None) == (entry.score is None) == (entry.largest is None)
     assert [hgjax.METHODS[m].largest for m in HGSP] == [False, False, True]
     with pytest.raises(ValueError, match=r"unknown method 'nope'; expected one of \["):
-        hgjax.resample(cloud(), 0.2, method="nope")
+        hgjax.resample(uniform_cloud(N), 0.2, method="nope")
     with pytest.raises(ValueError, match="sampler without scores"):
-        hgjax.neighbourhoods(cloud(), "fps")
+        hgjax.neighbourhoods(uniform_cloud(N), "fps")
     with pytest.raises(TypeError, match=r"unexpected parameter\(s\) \['foo'\]"):
-        hgjax.resample(cloud(), 0.2, method="hkc", foo=1)
+        hgjax.resample(uniform_cloud(N), 0.2, method="hkc", foo=1)
 
 
 @pytest.mark.parametrize("method", HGSP)
 def test_resample_is_keep_of_score_of_neighbourhoods(method):
-    p = cloud(seed=3)
+    p = uniform_cloud(N, seed=3)
     params = {"ratio": 0.2} if method == "lhf" else {}
     nb = hgjax.neighbourhoods(p, method, **params)
-    assert nb.idx.dtype == np.int32 and nb.points.shape == (400, 3)
+    assert nb.idx.dtype == np.int32 and nb.points.shape == (N, 3)
     s = hgjax.score(nb, method, **params)
     np.testing.assert_array_equal(hgjax.keep(s, 0.2, method=method), hgjax.resample(p, 0.2, method=method))
     np.testing.assert_array_equal(hgjax.top_k(np.asarray(s), 80, largest=hgjax.METHODS[method].largest),
                                   hgjax.keep(s, 0.2, method=method))
 
 
-@pytest.mark.parametrize("method", HGSP)
-def test_score_is_the_same_under_jit_and_vmap(method):
-    clouds = [cloud(300, seed=s) for s in range(2)]
-    params = {"ratio": 0.2} if method == "lhf" else {}
-    nbs = [hgjax.neighbourhoods(c, method, capacity=256 if method != "lhf" else None, **params) for c in clouds]
-    eager = [np.asarray(hgjax.score(nb, method, **params)) for nb in nbs]
-    jitted = jax.jit(lambda nb, **kw: hgjax.score(nb, method, **kw))
-    for nb, want in zip(nbs, eager):
-        np.testing.assert_allclose(np.asarray(jitted(nb, **params)), want, rtol=1e-12)
-    batch = jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *nbs)
-    batched = jax.vmap(lambda nb: hgjax.score(nb, method, **params))(batch)
-    np.testing.assert_allclose(np.asarray(batched), np.stack(eager), rtol=1e-12)
-
-
 @pytest.mark.parametrize("name", sorted(SCORES))
 def test_scores_follow_a_permutation_of_the_input(name):
-    p = cloud(300, seed=4)
+    p = uniform_cloud(300, seed=4)
     perm = np.random.default_rng(5).permutation(len(p))
     np.testing.assert_array_equal(SCORES[name](p[perm]), SCORES[name](p)[perm])
 
 
 @pytest.mark.parametrize("method", HGSP)
 def test_resample_does_not_depend_on_input_order(method):
-    p = cloud(300, seed=6)
+    p = uniform_cloud(300, seed=6)
     perm = np.random.default_rng(7).permutation(len(p))
     a, b = hgjax.resample(p, 0.2, method=method), hgjax.resample(p[perm], 0.2, method=method)
     assert set(perm[b].tolist()) == set(a.tolist())
@@ -143,56 +127,46 @@ def test_bad_points_raise_clear_errors(bad, exc, match, method):
 @pytest.mark.parametrize("ratio", [0, -0.1, 1.5, float("nan")])
 def test_bad_ratio(ratio):
     with pytest.raises(ValueError, match="ratio must be in"):
-        hgjax.resample(cloud(), ratio)
+        hgjax.resample(uniform_cloud(N), ratio)
 
 
 def test_bad_ratio_type_and_parameters():
     with pytest.raises(TypeError, match="ratio must be a number"):
-        hgjax.resample(cloud(), "0.2")
+        hgjax.resample(uniform_cloud(N), "0.2")
     with pytest.raises(ValueError, match="unknown variant 'paper'"):
-        hgjax.resample(cloud(), 0.2, method="hkc", variant="paper")
+        hgjax.resample(uniform_cloud(N), 0.2, method="hkc", variant="paper")
     with pytest.raises(ValueError, match="kernel_size must be odd"):
-        hgjax.neighbourhoods(cloud(), "hkc", kernel_size=4)
+        hgjax.neighbourhoods(uniform_cloud(N), "hkc", kernel_size=4)
     with pytest.raises(ValueError, match="kernel_size must be odd"):
-        hgjax.score(hgjax.neighbourhoods(cloud(), "hkc"), "hkc", kernel_size=4)
+        hgjax.score(hgjax.neighbourhoods(uniform_cloud(N), "hkc"), "hkc", kernel_size=4)
     with pytest.raises(ValueError, match="d_factor must be a finite number > 0"):
-        hgjax.neighbourhoods(cloud(), "hkf", d_factor=-1)
+        hgjax.neighbourhoods(uniform_cloud(N), "hkf", d_factor=-1)
     with pytest.raises(ValueError, match="lengths must be a pair"):
-        hgjax.resample(cloud(), 0.2, method="lhf", lengths=(4,))
+        hgjax.resample(uniform_cloud(N), 0.2, method="lhf", lengths=(4,))
     with pytest.raises(ValueError, match=r"lengths\[0\] must be >= 3"):
-        hgjax.neighbourhoods(cloud(), "lhf", lengths=(2, 8))
+        hgjax.neighbourhoods(uniform_cloud(N), "lhf", lengths=(2, 8))
     with pytest.raises(ValueError, match="unknown solver"):
-        hgjax.scores.lhf.single(hgjax.neighbourhoods(cloud(), "lhf"), lengths=(8,), solver="svd")
+        hgjax.scores.lhf.single(hgjax.neighbourhoods(uniform_cloud(N), "lhf"), lengths=(8,), solver="svd")
     with pytest.raises(ValueError, match="needs nb.scale"):
-        hgjax.score(hgjax.knn(cloud(), 8), "hkc")
+        hgjax.score(hgjax.knn(uniform_cloud(N), 8), "hkc")
     k = max(hgjax.scores.lhf.DEFAULT_LENGTHS)  # the default lengths need k > 8 columns
     with pytest.raises(ValueError, match=f"8 columns, too few for LHF with length {k}"):
-        hgjax.score(hgjax.knn(cloud(), 8), "lhf", ratio=0.2)
+        hgjax.score(hgjax.knn(uniform_cloud(N), 8), "lhf", ratio=0.2)
 
 
 def test_too_few_points_for_the_neighbourhood():
     k = max(hgjax.scores.lhf.DEFAULT_LENGTHS)
     with pytest.raises(ValueError, match=rf"points has 5 point.*LHF lengths=\(8, {k}\).*at least {k}"):
-        hgjax.resample(cloud(5), 0.2, method="lhf")
+        hgjax.resample(uniform_cloud(5), 0.2, method="lhf")
     with pytest.raises(ValueError, match="too few for HKC"):
-        hgjax.neighbourhoods(cloud(1), "hkc")
+        hgjax.neighbourhoods(uniform_cloud(1), "hkc")
 
 
 def test_checks_fire_for_jax_arrays_and_under_a_caller_jit_boundary():
     with pytest.raises(ValueError, match="NaN or inf"):
         hgjax.neighbourhoods(jnp.full((10, 3), jnp.nan), "hkc")
-    idx = hgjax.resample(jnp.asarray(cloud()), 0.2)
-    np.testing.assert_array_equal(idx, hgjax.resample(cloud(), 0.2))
-
-
-def degenerate_clouds():
-    rng = np.random.default_rng(0)
-    line = np.outer(np.linspace(0, 1, 60), [1.0, 2.0, 3.0])
-    diagonal = np.outer(np.linspace(0, 1, 60), [1.0, 1.0, 1.0])  # row-centred signal is 0
-    plane = np.c_[rng.random((80, 2)), np.zeros(80)]
-    dup = np.repeat(rng.random((20, 3)), 4, axis=0)
-    return {"collinear": line, "diagonal": diagonal, "coplanar": plane, "duplicates": dup,
-            "all_equal": np.ones((40, 3)), "two_points": np.array([[0.0, 0, 0], [1, 1, 1]] * 10)}
+    idx = hgjax.resample(jnp.asarray(uniform_cloud(N)), 0.2)
+    np.testing.assert_array_equal(idx, hgjax.resample(uniform_cloud(N), 0.2))
 
 
 @pytest.mark.parametrize("cloud_name", sorted(degenerate_clouds()))
@@ -220,11 +194,11 @@ def test_all_equal_points_documented_values():
 
 
 def test_input_never_modified_and_readonly_input_accepted():
-    p = cloud()
+    p = uniform_cloud(N)
     p.flags.writeable = False
     for m in HGSP:
         hgjax.resample(p, 0.3, method=m)
-    q = cloud()
+    q = uniform_cloud(N)
     copy = q.copy()
     hgjax.resample(q, 0.3, method="lhf")
     np.testing.assert_array_equal(q, copy)
@@ -234,11 +208,11 @@ def test_float64_without_x64_warns_and_computes_in_float32():
     jax.config.update("jax_enable_x64", False)
     try:
         with pytest.warns(hgjax.PrecisionWarning, match="computed in float32"):
-            nb = hgjax.neighbourhoods(cloud(100), "hkc")
+            nb = hgjax.neighbourhoods(uniform_cloud(100), "hkc")
         assert nb.points.dtype == np.float32 and nb.scale.dtype == np.float32
         assert hgjax.score(nb, "hkc").dtype == np.float32
         with pytest.warns(hgjax.PrecisionWarning):
-            idx = hgjax.resample(cloud(100), 0.2, method="hkc")
+            idx = hgjax.resample(uniform_cloud(100), 0.2, method="hkc")
         assert len(np.unique(idx)) == 20
     finally:
         jax.config.update("jax_enable_x64", True)

@@ -8,13 +8,10 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import box_union
 
 DEFAULTS = ["hkc", "hkf", "lhf", "ea", "gfr"]
 SELECT = {"gfr": {"mode": "top"}}
-
-
-def _cloud(n=4000, seed=0):
-    return hgjax.eval.box_union_cloud(seed=seed, n_points=n).points
 
 
 def _locations(points, idx):
@@ -27,7 +24,7 @@ def _overlap(a, b):
 
 @pytest.fixture(scope="module")
 def base():
-    p = _cloud()
+    p = box_union(4000)
     return p, {m: _locations(p, hgjax.resample(p, 0.2, method=m, **SELECT.get(m, {}))) for m in DEFAULTS}
 
 
@@ -70,7 +67,7 @@ def test_mixed_densities_give_finite_scores_without_errors(method):
 @pytest.mark.parametrize("x64", [True, False], ids=["x64", "x32"])
 @pytest.mark.parametrize("method", ["hkc", "lhf", "ea", "gfr", "fps"])
 def test_georeferenced_offsets_keep_the_same_points(method, x64):
-    p = _cloud(3000, seed=1) * 20.0  # metres, spacing about 0.05
+    p = box_union(3000, seed=1) * 20.0  # metres, spacing about 0.05
     utm = p + np.array([512_345.678, 4_123_456.789, 87.5])
     kw = SELECT.get(method, {})
     with jax.enable_x64(x64), warnings.catch_warnings():

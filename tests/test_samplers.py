@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import normal_cloud
 from hgjax import samplers
 
 needs_fpsample = pytest.mark.skipif(importlib.util.find_spec("fpsample") is None, reason="fpsample not installed")
@@ -16,10 +17,6 @@ needs_numba = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reas
 
 
 MUG = Path(__file__).resolve().parents[2] / "shared" / "data" / "scans" / "scan_table_mug.ply"
-
-
-def cloud(n, seed=0):
-    return np.random.default_rng(seed).normal(size=(n, 3))
 
 
 def voxel_naive(p, size):
@@ -39,7 +36,7 @@ def voxel_naive(p, size):
 @needs_fpsample
 @pytest.mark.parametrize("start", [0, 7])
 def test_fps_backends_agree(dtype, start):
-    p = cloud(600, seed=1).astype(dtype)
+    p = normal_cloud(600, seed=1).astype(dtype)
     fast = hgjax.farthest_point_sample(p, 0.3, start=start, backend="fpsample")
     slow = hgjax.farthest_point_sample(p, 0.3, start=start, backend="jax")
     assert fast.dtype == np.int64 and fast[0] == start
@@ -48,7 +45,7 @@ def test_fps_backends_agree(dtype, start):
 
 @needs_fpsample
 def test_fps_backends_agree_with_duplicates():
-    base = cloud(200, seed=2)
+    base = normal_cloud(200, seed=2)
     p = np.concatenate([base, base[::4], base[:3]])  # duplicates, some of the start point
     for ratio in (0.5, 1.0):  # 1.0 runs past the distinct points into the duplicates
         fast = hgjax.farthest_point_sample(p, ratio, start=0, backend="fpsample")
@@ -62,7 +59,7 @@ def test_fps_layout_replays_the_tree_build():
     # replay of the build's own swaps finds where each row lands.
     import fpsample
 
-    d = np.unique(cloud(100_000, seed=8).astype(np.float32), axis=0)
+    d = np.unique(normal_cloud(100_000, seed=8).astype(np.float32), axis=0)
     layout = samplers._kd_layout(d)
     rows = np.linspace(0, len(d) - 1, 40).astype(np.int64)
     landed = [fpsample.bucket_fps_kdtree_sampling(d, 1, start_idx=int(r))[0] for r in rows]
@@ -73,7 +70,7 @@ def test_fps_layout_replays_the_tree_build():
 def test_fps_fast_path_honours_the_start_on_large_clouds(monkeypatch):
     import fpsample
 
-    p = cloud(50_000, seed=8)
+    p = normal_cloud(50_000, seed=8)
     monkeypatch.setattr(fpsample, "fps_sampling", None)  # the O(N M) fallback must not run
     for start in (0, 3750, 48750):
         fast = hgjax.farthest_point_sample(p, 0.002, start=start, backend="fpsample")
@@ -82,7 +79,7 @@ def test_fps_fast_path_honours_the_start_on_large_clouds(monkeypatch):
 
 @needs_fpsample
 def test_fps_fallback_when_the_start_is_not_honoured(monkeypatch):
-    p = cloud(300, seed=3)
+    p = normal_cloud(300, seed=3)
     want = hgjax.farthest_point_sample(p, 0.2, start=11, backend="jax")
     monkeypatch.setattr(samplers, "_kd_layout", lambda q: np.arange(q.shape[0])[::-1])
     np.testing.assert_array_equal(hgjax.farthest_point_sample(p, 0.2, start=11, backend="fpsample"), want)
@@ -105,7 +102,7 @@ def test_fps_backend_choice(monkeypatch):
 
 # ---------------------------------------------------------------- voxel grid
 def test_voxel_size_matches_naive(dtype):
-    p = cloud(2000, seed=4).astype(dtype)
+    p = normal_cloud(2000, seed=4).astype(dtype)
     got = hgjax.voxel_sample(p, voxel_size=0.7)
     np.testing.assert_array_equal(got, voxel_naive(p.astype(np.float64), 0.7))
     assert got.dtype == np.int64
@@ -114,7 +111,7 @@ def test_voxel_size_matches_naive(dtype):
 @needs_numba
 @pytest.mark.parametrize("name", ["normal", "grid", "one_voxel"])
 def test_voxel_table_matches_the_sort(name, dtype, monkeypatch):
-    base = cloud(3000, seed=6)
+    base = normal_cloud(3000, seed=6)
     p = {"normal": base, "grid": np.stack(np.meshgrid(*[np.arange(12.0)] * 3), -1).reshape(-1, 3) * 0.25,
          "one_voxel": 1e-3 * base}[name].astype(dtype)  # grid: points on voxel faces
     calls = [lambda: hgjax.voxel_sample(p, voxel_size=0.7), lambda: hgjax.voxel_sample(p, 0.1),
@@ -132,7 +129,7 @@ def test_voxel_table_ties_between_duplicated_locations(seed, dtype, monkeypatch)
     # Locations duplicated alike are equally near their voxel's centroid: both paths sum
     # each centroid in index order, so they round alike and give the tie to the lowest index.
     rng = np.random.default_rng(seed)
-    base = cloud(3000, seed=6) * rng.uniform(0.01, 100)
+    base = normal_cloud(3000, seed=6) * rng.uniform(0.01, 100)
     p = np.concatenate([base, base[::3], base[:5]])[rng.permutation(4005)].astype(dtype)
     calls = [lambda: hgjax.voxel_sample(p, voxel_size=float(np.ptp(p)) / 9), lambda: hgjax.voxel_sample(p, 0.1)]
     table = [call() for call in calls]
@@ -142,7 +139,7 @@ def test_voxel_table_ties_between_duplicated_locations(seed, dtype, monkeypatch)
 
 
 def test_voxel_size_with_ratio_truncates_or_fills():
-    p = cloud(500, seed=5)
+    p = normal_cloud(500, seed=5)
     ranked = hgjax.voxel_sample(p, voxel_size=1.5)
     np.testing.assert_array_equal(hgjax.voxel_sample(p, 10 / 500, voxel_size=1.5), ranked[:10])
     filled = hgjax.voxel_sample(p, 0.5, voxel_size=1.5)  # more than the occupied voxels
@@ -170,7 +167,7 @@ def test_voxel_search_reaches_the_count(ratio):
 def test_voxel_counts_match_the_sort_on_many_grids(monkeypatch):
     # The table counts a grid and the nested grid of twice the edge in one pass; sizes
     # sweep many grid dimensions (a multiplicative hash clusters on some of them).
-    p = np.concatenate([cloud(4000, seed=8), 0.01 * cloud(2000, seed=9), cloud(500, seed=10)[:, :1] * [1, 0, 0]])
+    p = np.concatenate([normal_cloud(4000, seed=8), 0.01 * normal_cloud(2000, seed=9), normal_cloud(500, seed=10)[:, :1] * [1, 0, 0]])
     cols = np.asarray(p).T
     origin, top = samplers._axis_bounds(cols)
     extent = float((top - origin).max())
@@ -202,7 +199,7 @@ def test_voxel_search_lands_on_a_real_scan_in_one_assigning_pass(duplicated, mon
 
 
 def test_voxel_float32_and_float64_and_inputs_untouched(dtype):
-    p = cloud(1000, seed=6).astype(dtype)
+    p = normal_cloud(1000, seed=6).astype(dtype)
     keep = p.copy()
     p.flags.writeable = False
     idx = hgjax.voxel_sample(p, 0.1)
@@ -215,7 +212,7 @@ def test_voxel_float32_and_float64_and_inputs_untouched(dtype):
 # ---------------------------------------------------------------- validation
 def test_invalid_arguments_fail_before_jax(monkeypatch):
     monkeypatch.setattr(samplers, "_fps", None)  # any JAX call would raise TypeError: not callable
-    p = cloud(50)
+    p = normal_cloud(50)
     cases = [
         (lambda: hgjax.voxel_sample(p), ValueError, "ratio or voxel_size"),
         (lambda: hgjax.voxel_sample(p, voxel_size=-1.0), ValueError, "voxel_size"),

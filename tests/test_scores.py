@@ -21,13 +21,10 @@ from hgjax.scores import _common, ea, hkc, hkf, lhf, voxel
 
 import naive
 from conftest import TOL
+from fixtures import lattice_shell, uniform_cloud
 
 ONE_BLOCK = 1024  # eager chunk for the eigh-based kernels (see tests/test_api.py)
 D_FACTOR = 2.5  # an explicit voxel-spacing factor, passed to both the library and the naive loop
-
-
-def random_cloud(n=120, seed=0):
-    return np.random.default_rng(seed).random((n, 3))
 
 
 def grid_cloud(jitter=0.0):
@@ -36,24 +33,12 @@ def grid_cloud(jitter=0.0):
     kNN neighbourhoods on an exact grid are ambiguous (equidistant neighbours); the LHF and EA
     cases use a 1e-4 jitter so both implementations see the same neighbour sets.
     """
-    g = np.stack(np.meshgrid(*[np.arange(5.0)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    g = g[((g == 0) | (g == 4)).any(axis=1)]
+    g = lattice_shell(5)
     return g + jitter * np.random.default_rng(0).normal(size=g.shape)
 
 
-CLOUDS = {"random": random_cloud(), "grid": grid_cloud(), "jittered_grid": grid_cloud(1e-4)}
+CLOUDS = {"random": uniform_cloud(120), "grid": grid_cloud(), "jittered_grid": grid_cloud(1e-4)}
 RESOLUTION = {name: naive.resolution(p) for name, p in CLOUDS.items()}
-
-
-def naive_ea(points, k=ea.DEFAULT_K):
-    """EA surface variation l0 / (l0 + l1 + l2) by brute-force neighbours, one eigvalsh per point."""
-    p = np.asarray(points, dtype=np.float64)
-    out = np.empty(len(p))
-    for i, rows in enumerate(naive.knn_rows(p, k)):
-        y = p[rows] - p[rows].mean(axis=0)
-        lam = np.linalg.eigvalsh(y.T @ y)
-        out[i] = max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0
-    return out
 
 
 def _close(got, want, dtype):
@@ -87,7 +72,7 @@ def _naive(name, cloud):
         eps = big_b / (big_a + big_b)
         return eps * ga + (1 - eps) * gb
     if name == "ea":
-        return naive_ea(p)
+        return naive.ea(p, ea.DEFAULT_K)
     raise KeyError(name)
 
 
@@ -134,7 +119,7 @@ def test_fast_matches_naive(name, cloud, dtype):
 
 @pytest.mark.parametrize("name", sorted(FAST))
 def test_permuting_points_permutes_scores_and_repeats_bitwise(name):
-    p = random_cloud(150, seed=5)
+    p = uniform_cloud(150, seed=5)
     perm = np.random.default_rng(0).permutation(150)
     base = FAST[name](p)
     np.testing.assert_array_equal(FAST[name](p[perm]), base[perm])
@@ -146,7 +131,7 @@ def test_lhf_gram_solver_equals_eigh_solver():
     basis mixes the null space with C's vanishing directions)."""
     rng = np.random.default_rng(6)
     slab = np.c_[rng.random((150, 2)), 0.05 * rng.random(150)]  # nearly planar: small mu0
-    for p in (random_cloud(200, seed=6), slab):
+    for p in (uniform_cloud(200, seed=6), slab):
         for n in (3, 6, 16):
             np.testing.assert_allclose(lhf_single(p, n, solver="gram"),
                                        lhf_single(p, n, solver="eigh"), rtol=1e-10, atol=1e-12)
@@ -201,7 +186,7 @@ def test_lhf_reference_is_basis_dependent_but_close_for_longer_signals():
     inside the null space. The reference variant then agrees with the naive loop only in rank
     (REFERENCE.md measured Spearman 0.90-0.98 between two LAPACK builds).
     """
-    p = random_cloud(150, seed=7)
+    p = uniform_cloud(150, seed=7)
     got, want = lhf_single(p, 8, variant="reference"), naive.lhf_single(p, 8)
     assert spearmanr(got, want).statistic > 0.85
 
@@ -324,7 +309,7 @@ def test_lhf_invariant_is_the_reference_l1_averaged_over_rotations_and_random_ba
 
 
 def test_jit_equals_eager_per_neighbourhood():
-    p = random_cloud(60, seed=9)
+    p = uniform_cloud(60, seed=9)
     offsets, valid = jnp.asarray(p[hgjax.knn(p, 8).idx[0]] - p[0]), jnp.ones(8, bool)
     fn = functools.partial(lhf.gamma, lengths=(5, 8))
     # XLA may contract products and sums into FMAs under jit (the Gram's y = s Q already
@@ -338,7 +323,7 @@ def test_jit_equals_eager_per_neighbourhood():
 
 
 def test_vmap_equals_loop_per_neighbourhood():
-    p = random_cloud(40, seed=10)
+    p = uniform_cloud(40, seed=10)
     offsets = jnp.asarray(p[hgjax.knn(p, 6).idx] - p[:, None, :])
     valid = jnp.ones(6, bool)
     fn = functools.partial(lhf.gamma, lengths=(6,))
@@ -348,7 +333,7 @@ def test_vmap_equals_loop_per_neighbourhood():
 
 
 def test_hkc_reference_d_factor_and_hkf_invariant_is_beta_over_one_plus_beta():
-    p = random_cloud(300, seed=11)
+    p = uniform_cloud(300, seed=11)
     res = naive.resolution(p)
     beta = host_score(p, "hkc", resolution=res, d_factor=D_FACTOR)
     # The reference variant's default d factor is 1.3 (REFERENCE.md).
@@ -401,6 +386,6 @@ def test_hkc_hkf_default_is_rotation_translation_and_scale_invariant(method, dty
 
 
 def test_scores_keep_float32():
-    p = random_cloud(100).astype(np.float32)
+    p = uniform_cloud(100).astype(np.float32)
     for fn in FAST.values():
         assert fn(p).dtype == np.float32

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+import fixtures
 import hgjax
 from hgjax.scores import hkc, lhf, voxel
 
@@ -20,13 +21,8 @@ METHODS = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
 TAU_METHODS = ("hkc", "hkf", "lhf")  # soft scores with a tau
 N = 160
 RATIO = 0.25  # RATIO * N is an integer: the hard top-k keeps exactly that many
+BOX = (3.0, 2.0, 1.5)  # the sides of the box whose surface the clouds sample
 CAPACITY = 128  # fixed K: one compilation serves every cloud of a method (GFR rows hold ~100)
-
-
-def box_surface(seed, n, noise=0.0):
-    """n points on the surface of an axis-aligned 3 x 2 x 1.5 box, plus Gaussian noise."""
-    p = hgjax.eval.box_surface(n, seed, size=(3.0, 2.0, 1.5))
-    return p + noise * np.random.default_rng(seed).standard_normal((n, 3))
 
 
 def floats_of(method, tau=0.1, temperature=0.05):
@@ -42,7 +38,7 @@ def weights_of(points, nb, method, floats):
 
 @functools.lru_cache(maxsize=None)
 def setup(method, seed=0, noise=0.01):
-    pts = box_surface(seed, N, noise)
+    pts = fixtures.box_surface(N, seed, noise=noise, size=BOX)
     return pts, hgjax.neighbourhoods(pts, method)
 
 
@@ -99,7 +95,7 @@ def test_soft_hkf_is_soft_hkc():
 
 @pytest.mark.parametrize("method", [m for m in METHODS if m not in ("hkf", "pca_ac")])  # = hkc, ea
 def test_check_grads_scores(method):
-    pts = box_surface(0, 48, 0.01)
+    pts = fixtures.box_surface(48, 0, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, method)
     if method in TAU_METHODS:
         extra = {"ratio": RATIO} if method == "lhf" else {}
@@ -118,28 +114,20 @@ def test_check_grads_weights():
     check_grads(f, (jnp.asarray(pts), 0.01, RATIO), order=1, modes=("fwd", "rev"), eps=1e-6)
 
 
-def degenerate_clouds(n=32):
-    """Degenerate clouds of n points each."""
-    g = np.stack(np.meshgrid(np.arange(4.0), np.arange(8.0), indexing="ij"), -1).reshape(-1, 2)
-    base = box_surface(5, n // 4)
-    return {
-        "coplanar": np.c_[g, np.zeros(n)],  # exactly planar grid: symmetric signals, beta = inf
-        "collinear": np.c_[np.arange(float(n)), 2 * np.arange(float(n)), np.zeros(n)],
-        "duplicate": np.concatenate([base] * 4),  # every point four times
-        "all_equal": np.full((n, 3), 0.25),
-    }
+DEGENERATE = fixtures.degenerate_clouds()  # every cloud has the same N: one compilation per method
+N_DEGENERATE = len(DEGENERATE["all_equal"])
 
 
 @functools.lru_cache(maxsize=None)
 def value_and_grads(method):
-    c = jnp.asarray(np.random.default_rng(8).random(32))
+    c = jnp.asarray(np.random.default_rng(8).random(N_DEGENERATE))
     loss = lambda p, nb, floats: jnp.sum(c * weights_of(p, nb, method, floats))  # noqa: E731
     return jax.jit(jax.value_and_grad(loss, argnums=(0, 2)))
 
 
 @pytest.mark.parametrize("method", METHODS)
 def test_gradients_finite_on_degenerate_clouds(method):
-    for case, pts in degenerate_clouds().items():
+    for case, pts in DEGENERATE.items():
         nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
         value, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
         assert np.isfinite(value), case
@@ -147,7 +135,7 @@ def test_gradients_finite_on_degenerate_clouds(method):
         assert all(np.isfinite(float(g)) for g in g_floats.values()), (case, g_floats)
         assert set(g_floats) == set(floats_of(method))
     # On a generic cloud the gradients are not all zero (the test above could not pass vacuously).
-    pts = box_surface(3, 32, 0.01)
+    pts = fixtures.box_surface(N_DEGENERATE, 3, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, method, capacity=CAPACITY)
     _, (g_points, g_floats) = value_and_grads(method)(jnp.asarray(pts), nb, floats_of(method))
     assert float(jnp.abs(g_points).max()) > 0 and float(g_floats["ratio"]) != 0
@@ -238,12 +226,9 @@ def test_soft_lhf_gradients_finite_on_degenerate_signals(dtype):
 
 
 def test_soft_lhf_at_low_tau_is_the_hard_kernel_on_degenerate_signals():
-    rng = np.random.default_rng(18)
-    clouds = [rng.random((40, 3)), np.outer(rng.random(40), [1.0, 2.0, 3.0]), np.c_[rng.random((40, 2)), np.zeros(40)],
-              np.repeat(rng.random((10, 3)), 4, axis=0)]
-    for p in clouds:
+    for p in (fixtures.uniform_cloud(40, seed=18), *(DEGENERATE[c] for c in ("collinear", "coplanar", "duplicates"))):
         idx = hgjax.knn(p, 8).idx
-        sig = jnp.asarray(p[idx] - p[:, None, :])  # (40, 8, 3)
+        sig = jnp.asarray(p[idx] - p[:, None, :])  # (N, 8, 3)
         np.testing.assert_allclose(jax.vmap(soft_gamma, in_axes=(0, None))(sig, 1e-12), jax.vmap(hard_gamma)(sig),
                                    rtol=1e-12, atol=1e-14)
 
@@ -254,8 +239,7 @@ def test_soft_lhf_at_low_tau_is_the_hard_kernel_on_degenerate_signals():
 def jittered_lattice(seed, jitter=0.08):
     """Box-surface lattice points (spacing 1) jittered a little: per-axis offsets stay
     within 2 * jitter of an integer, far from the voxel faces at half-integers (d = 1)."""
-    g = np.stack(np.meshgrid(*(np.arange(7.0),) * 3, indexing="ij"), -1).reshape(-1, 3)
-    shell = g[(g == 0).any(1) | (g == 6).any(1)]
+    shell = fixtures.lattice_shell(7)
     return shell + jitter * np.random.default_rng(seed).uniform(-1, 1, shell.shape)
 
 
@@ -299,7 +283,7 @@ def test_soft_hkc_converges_to_beta_over_one_plus_beta():
 
 
 def test_soft_lhf_converges_to_hard_lhf():
-    pts = box_surface(2, N, 0.02)
+    pts = fixtures.box_surface(N, 2, noise=0.02, size=BOX)
     nb = hgjax.neighbourhoods(pts, "lhf")
     hard = np.asarray(hgjax.score(nb, "lhf", ratio=RATIO))
     far = np.asarray(hgjax.soft_score(nb, "lhf", tau=1e-9, ratio=RATIO))
@@ -333,25 +317,11 @@ def test_low_temperature_support_matches_hard_selection(method):
     assert abs(support.size - m) <= 0.05 * m
 
 
-# ------------------------------------------------------------------------- batching, jit
-
-
-@pytest.mark.parametrize("method", ["hkc", "lhf", "gfr"])
-def test_vmap_over_batch_equals_loop(method):
-    nbs = [hgjax.neighbourhoods(box_surface(10 + b, N, 0.01), method, capacity=CAPACITY) for b in range(4)]
-    stacked = jax.tree.map(lambda *x: np.stack(x), *nbs)
-    f = jax.jit(lambda nb, ratio: hgjax.soft_weights(nb, ratio, method=method))
-    batched = jax.jit(jax.vmap(f, in_axes=(0, None)))(stacked, RATIO)
-    assert batched.shape == (4, N)
-    loop = np.stack([f(nb, RATIO) for nb in nbs])
-    np.testing.assert_allclose(batched, loop, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(batched.sum(axis=1), RATIO * N, rtol=1e-9)
-    f(nbs[0], 0.5)
-    assert f._cache_size() == 1  # ratio is traced: a new value does not recompile
+# ------------------------------------------------------------------------- jit boundary, dtype, scale
 
 
 def test_soft_resample_is_soft_weights_of_neighbourhoods_and_rejects_tracers():
-    pts = box_surface(20, N, 0.01)
+    pts = fixtures.box_surface(N, 20, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, "hkc")
     np.testing.assert_array_equal(hgjax.soft_resample(pts, RATIO, method="hkc", tau=0.2),
                                   hgjax.soft_weights(nb, RATIO, method="hkc", tau=0.2))
@@ -362,7 +332,7 @@ def test_soft_resample_is_soft_weights_of_neighbourhoods_and_rejects_tracers():
 
 
 def test_keeps_float32():
-    pts = box_surface(0, N, 0.01).astype(np.float32)
+    pts = fixtures.box_surface(N, 0, noise=0.01, size=BOX).astype(np.float32)
     for method in ("hkc", "ea"):
         w = weights_of(*(lambda nb: (nb.points, nb))(hgjax.neighbourhoods(pts, method)), method, floats_of(method))
         assert w.dtype == np.float32, method
@@ -371,11 +341,12 @@ def test_keeps_float32():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_soft_weights_are_scale_free(method):
-    """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights."""
-    pts = box_surface(9, 96, 0.01)
-    want = np.asarray(hgjax.soft_resample(pts, RATIO, method=method))
-    tiny = np.asarray(hgjax.soft_resample((pts * 1e-8).astype(np.float32), RATIO, method=method))
-    big = np.asarray(hgjax.soft_resample(pts * 1e3, RATIO, method=method))
+    """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights
+    (soft_resample's, which are soft_weights of the neighbourhoods: one compilation per dtype)."""
+    pts = fixtures.box_surface(96, 9, noise=0.01, size=BOX)
+    weights = jax.jit(lambda nb: hgjax.soft_weights(nb, RATIO, method=method))
+    want, tiny, big = (np.asarray(weights(hgjax.neighbourhoods(p, method)))
+                       for p in (pts, (pts * 1e-8).astype(np.float32), pts * 1e3))
     np.testing.assert_allclose(big, want, atol=1e-6)
     np.testing.assert_allclose(tiny, want, atol=2e-3)
 
@@ -407,7 +378,7 @@ def test_bad_tau_and_temperature_raise_value_error_naming_them(name, value):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_soft_resample_rejects_nan_points_and_too_few_points(method):
-    pts = box_surface(0, 40, 0.01)
+    pts = fixtures.box_surface(40, 0, noise=0.01, size=BOX)
     bad = pts.copy()
     bad[3, 1] = np.nan
     with pytest.raises(ValueError, match="points"):

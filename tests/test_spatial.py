@@ -7,11 +7,8 @@ import pytest
 import hgjax
 from hgjax.spatial import SpatialIndex
 
+from fixtures import uniform_cloud
 from naive import knn_rows, resolution
-
-
-def cloud(n=300, seed=0):
-    return np.random.default_rng(seed).random((n, 3))
 
 
 def chebyshev(p):
@@ -24,7 +21,7 @@ def row_sets(idx, n):
 
 def with_duplicates(n=120, seed=0):
     """A cloud whose rows 0..n-1 are distinct and the rest copies of some of them, shuffled."""
-    base = cloud(n, seed)
+    base = uniform_cloud(n, seed)
     p = np.concatenate([base, base[:40], base[:40], base[10:15]])
     return p[np.random.default_rng(seed + 1).permutation(len(p))]
 
@@ -37,7 +34,7 @@ def first_copies(p):
 
 # ---------------------------------------------------------------- knn
 def test_knn_matches_brute_force():
-    p = cloud()
+    p = uniform_cloud(300)
     nb = hgjax.knn(p, 10)
     assert isinstance(nb, hgjax.Neighbourhoods)
     assert nb.idx.dtype == np.int32 and nb.idx.shape == (300, 10) and nb.scale is None
@@ -45,7 +42,7 @@ def test_knn_matches_brute_force():
 
 
 def test_knn_capacity_pads_with_the_sentinel():
-    p = cloud(50)
+    p = uniform_cloud(50)
     nb = hgjax.knn(p, 5, capacity=8)
     assert nb.idx.shape == (50, 8)
     np.testing.assert_array_equal(nb.idx[:, :5], knn_rows(p, 5))
@@ -55,7 +52,7 @@ def test_knn_capacity_pads_with_the_sentinel():
 
 
 def test_knn_self_first_with_duplicates():
-    p = np.repeat(cloud(20), 5, axis=0)  # every point 5 times
+    p = np.repeat(uniform_cloud(20), 5, axis=0)  # every point 5 times
     nb = hgjax.knn(p, 3)  # fewer columns than duplicates
     np.testing.assert_array_equal(nb.idx[:, 0], np.arange(100))
     assert (np.linalg.norm(p[nb.idx] - p[:, None], axis=-1) == 0).all()
@@ -74,14 +71,14 @@ def test_knn_dedupe_gives_every_copy_its_first_copys_neighbourhood():
 
 
 def test_knn_dedupe_pads_when_too_few_distinct_locations():
-    p = np.repeat(cloud(4), 3, axis=0)  # 12 points, 4 locations
+    p = np.repeat(uniform_cloud(4), 3, axis=0)  # 12 points, 4 locations
     nb = hgjax.knn(p, 6, dedupe=True)
     assert (nb.mask.sum(axis=1) == 4).all() and (nb.idx[:, 4:] == 12).all()
 
 
 # ---------------------------------------------------------------- cube
 def test_cube_matches_brute_force():
-    p = cloud(400)
+    p = uniform_cloud(400)
     h = 0.12
     nb = hgjax.cube(p, h)
     want = [set(np.flatnonzero(row < h)) for row in chebyshev(p)]
@@ -95,7 +92,7 @@ def test_cube_matches_brute_force():
 
 
 def test_cube_per_point_half_widths_match_brute_force():
-    p = cloud(300, seed=5)
+    p = uniform_cloud(300, seed=5)
     h = np.random.default_rng(6).uniform(0.02, 0.2, len(p))
     nb = hgjax.cube(p, h)
     want = [set(np.flatnonzero(row < hi)) for row, hi in zip(chebyshev(p), h)]
@@ -105,7 +102,7 @@ def test_cube_per_point_half_widths_match_brute_force():
 
 
 def test_spatial_index_cube_grows_its_capacity():
-    p = cloud(400)
+    p = uniform_cloud(400)
     index = SpatialIndex(p)
     idx, half = index.cube(0.12, capacity=1)  # forces several doublings
     want = [set(np.flatnonzero(row < 0.12)) for row in chebyshev(index.points)]
@@ -151,7 +148,7 @@ def test_max_count_shrinks_cubes_without_dropping_points_inside():
 # ---------------------------------------------------------------- order, frame, resolution
 @pytest.mark.parametrize("build", [lambda p: hgjax.knn(p, 8), lambda p: hgjax.cube(p, 0.1)], ids=["knn", "cube"])
 def test_neighbourhoods_do_not_depend_on_input_order(build):
-    p = cloud(200)
+    p = uniform_cloud(200)
     perm = np.random.default_rng(1).permutation(200)
     a, b = build(p).idx, build(p[perm]).idx
     np.testing.assert_array_equal(np.where(b < 200, perm[np.minimum(b, 199)], 200), a[perm])
@@ -189,9 +186,9 @@ def test_local_frame_is_exact():
 
 
 def test_intrinsic_resolution_small_is_exact_and_large_is_deterministic():
-    p = cloud(500)
+    p = uniform_cloud(500)
     assert hgjax.intrinsic_resolution(p) == pytest.approx(resolution(p), rel=1e-12)
-    big = cloud(5000, seed=3)
+    big = uniform_cloud(5000, seed=3)
     r = hgjax.intrinsic_resolution(big)
     perm = np.random.default_rng(2).permutation(5000)
     assert hgjax.intrinsic_resolution(big) == r  # a seeded sample of global ids: deterministic
@@ -200,7 +197,7 @@ def test_intrinsic_resolution_small_is_exact_and_large_is_deterministic():
 
 
 def test_intrinsic_resolution_robust_ignores_duplicates_and_a_far_outlier():
-    p = cloud(400, seed=9)
+    p = uniform_cloud(400, seed=9)
     d = np.linalg.norm(p[:, None] - p[None], axis=-1)
     np.fill_diagonal(d, np.inf)
     robust = hgjax.intrinsic_resolution(p, robust=True)
@@ -234,7 +231,7 @@ def test_spatial_index_maps_back_to_the_caller():
 def test_spatial_order_breaks_shared_cells_by_coordinates():
     # Two far-apart points stretch the grid, so the 300 points near the origin share a
     # handful of Morton cells and the coordinate tie-break decides their order.
-    p = np.concatenate([cloud(300) * 1e-9, [[1.0, 1.0, 1.0], [-1.0, 0.5, 0.0]]])
+    p = np.concatenate([uniform_cloud(300) * 1e-9, [[1.0, 1.0, 1.0], [-1.0, 0.5, 0.0]]])
     order = hgjax.spatial_order(p)
     np.testing.assert_array_equal(np.sort(order), np.arange(len(p)))
     perm = np.random.default_rng(4).permutation(len(p))

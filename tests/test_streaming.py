@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import box_surface
 from hgjax import _stream
 from hgjax.scores import ea, hkc, hkf, lhf
 
@@ -15,10 +16,6 @@ SCORING = sorted(m for m, entry in hgjax.METHODS.items() if entry.kind is not No
 VARIANTS = [("hkc", {}), ("hkc", {"variant": "reference"}), ("hkf", {}), ("hkf", {"variant": "reference"}),
             ("lhf", {"ratio": 0.2}), ("lhf", {"ratio": 0.2, "variant": "reference"}),
             ("lhf", {"ratio": 0.2, "solver": "eigh"}), ("ea", {}), ("pca_ac", {})]
-
-
-def box_cloud(n, seed=0):
-    return hgjax.eval.box_surface(n, seed=seed)
 
 
 @contextlib.contextmanager
@@ -39,7 +36,7 @@ def backend_compiles():
 
 @pytest.mark.parametrize("method", SCORING)
 def test_every_scoring_method_is_chunk_invariant_through_resample(method):
-    p = box_cloud(3000, seed=1)
+    p = box_surface(3000, seed=1)
     key = jax.random.key(0)
     base = hgjax.resample(p, 0.2, method=method, key=key)
     for chunk in (256, 2500):  # 3 chunks of one block, 1 padded chunk of 3 blocks
@@ -48,7 +45,7 @@ def test_every_scoring_method_is_chunk_invariant_through_resample(method):
 
 @pytest.mark.parametrize("method, params", VARIANTS, ids=[f"{m}-{'-'.join(map(str, p.values()))}" for m, p in VARIANTS])
 def test_scores_are_bitwise_chunk_invariant(method, params):
-    p = box_cloud(3000, seed=2)
+    p = box_surface(3000, seed=2)
     nb = hgjax.neighbourhoods(p, method, **params)
     base = np.asarray(hgjax.score(nb, method, **params))
     for chunk in (1, 1024, 1025, 10_000):
@@ -74,7 +71,7 @@ def test_chunk_rows_is_fixed_and_independent_of_n():
 
 
 def test_large_float32_streaming_run_with_small_chunks():
-    p = box_cloud(100_000, seed=2).astype(np.float32)
+    p = box_surface(100_000, seed=2).astype(np.float32)
     nb = hgjax.neighbourhoods(p, "lhf")
     assert nb.points.dtype == np.float32
     small = np.asarray(hgjax.score(nb, "lhf", ratio=0.2, chunk_size=4096))  # 25 chunks, the last one padded
@@ -91,14 +88,14 @@ def test_one_compilation_for_all_chunks_and_cloud_sizes():
     for fn, n_row_args, method, params in kernels:
         kernel = _stream._jitted(fn, n_row_args)
         # a fixed capacity: the same K for every cloud (the HKC/HKF cube never holds 256 points)
-        first = hgjax.neighbourhoods(box_cloud(5000, seed=3), method, capacity=256, **params)
+        first = hgjax.neighbourhoods(box_surface(5000, seed=3), method, capacity=256, **params)
         hgjax.score(first, method, **params)  # compiles the default chunk shape
         hgjax.score(first, method, chunk_size=4096, **params)  # a new chunk size is a new shape
         compiled = kernel._cache_size()
         assert compiled >= 1
         with backend_compiles() as events:
             for n, seed in ((5000, 4), (3000, 5), (20_000, 6)):  # other data, other sizes, more chunks
-                nb = hgjax.neighbourhoods(box_cloud(n, seed=seed), method, capacity=256, **params)
+                nb = hgjax.neighbourhoods(box_surface(n, seed=seed), method, capacity=256, **params)
                 hgjax.score(nb, method, chunk_size=4096, **params)
                 hgjax.score(nb, method, **params)
         assert kernel._cache_size() == compiled, method
@@ -106,7 +103,7 @@ def test_one_compilation_for_all_chunks_and_cloud_sizes():
 
 
 def test_float_parameter_sweeps_do_not_recompile():
-    nb = hgjax.neighbourhoods(box_cloud(2000, seed=7), "lhf")
+    nb = hgjax.neighbourhoods(box_surface(2000, seed=7), "lhf")
     score = jax.jit(lambda nb, ratio: hgjax.score(nb, "lhf", ratio=ratio))
     weights = jax.jit(lambda nb, ratio, temperature, tau: hgjax.soft_weights(
         nb, ratio, method="lhf", temperature=temperature, tau=tau))
@@ -120,7 +117,7 @@ def test_float_parameter_sweeps_do_not_recompile():
     # HKC's d_factor changes the neighbourhoods (host), never the kernel of a row width: a
     # sweep compiles only the narrow widths (_stream.narrow_groups) its counts newly select
     kernel = _stream._jitted(hkc._kernel(3), 1)
-    p = box_cloud(2000, seed=8)
+    p = box_surface(2000, seed=8)
 
     def widths(nb):
         return {k for _, k in _stream.narrow_groups(np.asarray(nb.idx), len(p))}

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import hgjax
+from fixtures import box_union
 from hgjax import select, spatial, tiles
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
@@ -16,7 +17,7 @@ VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("un
 
 @pytest.fixture(scope="module")
 def smooth():
-    return hgjax.eval.box_union_cloud(seed=1, n_points=3000).points
+    return box_union(3000, seed=1)
 
 
 @pytest.fixture(scope="module")
@@ -154,15 +155,3 @@ def test_one_far_outlier_changes_nothing(smooth, method):
     b = b[b < len(p)]
     overlap = len(np.intersect1d(a, b)) / len(a)
     assert overlap >= 0.99, overlap
-
-
-@pytest.mark.parametrize("method,params", [("hkc", {}), ("hkf", {}), ("lhf", {"ratio": 0.2}), ("ea", {}), ("gfr", {})])
-def test_closed_over_neighbourhoods_score_under_jit(smooth, method, params):
-    nb = hgjax.neighbourhoods(smooth[:600], method)
-    eager = np.asarray(hgjax.score(nb, method, **params))
-    closed = np.asarray(jax.jit(lambda: hgjax.score(nb, method, **params))())
-    argument = np.asarray(jax.jit(lambda nb: hgjax.score(nb, method, **params))(nb))
-    np.testing.assert_allclose(closed, eager, rtol=1e-6)
-    np.testing.assert_allclose(closed, argument, rtol=1e-12)  # XLA may fold a closed-over constant
-    soft = jax.jit(lambda: hgjax.soft_weights(nb, 0.2, method=method))()
-    np.testing.assert_allclose(np.asarray(soft), np.asarray(hgjax.soft_weights(nb, 0.2, method=method)), rtol=1e-6)

@@ -1,0 +1,153 @@
+"""Clouds the tests build, the degenerate clouds, and the variants helper (one matrix per kernel).
+
+Every test file takes its clouds from here, so each kind of cloud is built one way. The
+variants helper runs one function of a :class:`hgjax.Neighbourhoods` the ways a JAX user
+calls it (:data:`VARIANTS`: eager, jit with the neighbourhoods as an argument, jit closing
+over them, vmap over a stacked batch) and asserts that every way gives the eager values
+(dm-pix's ``chex.all_variants``). A variant maps a function and a list of neighbourhoods to
+the per-cloud results, so a new way of calling is one more entry.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+import hgjax
+
+# Agreement between the variants: XLA may fuse the traced program differently from the eager
+# one, so the last bits may differ (float32 rtol 1e-5, jax-md's float32 default; float64
+# 1e-12); infinities coincide.
+VARIANT_RTOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-12}
+
+
+# ----------------------------------------------------------------------------- clouds
+
+
+def uniform_cloud(n, seed=0, scale=1.0):
+    """(n, 3) float64 points uniform in the cube [0, scale)^3."""
+    return np.random.default_rng(seed).random((n, 3)) * scale
+
+
+def normal_cloud(n, seed=0):
+    """(n, 3) float64 standard normal points."""
+    return np.random.default_rng(seed).normal(size=(n, 3))
+
+
+def box_surface(n, seed=0, *, noise=0.0, size=(1.0, 0.8, 0.6)):
+    """(n, 3) points on the surface of a box (:func:`hgjax.eval.box_surface`: sharp edges, no
+    duplicates), plus Gaussian noise of standard deviation ``noise``."""
+    p = hgjax.eval.box_surface(n, seed, size=size)
+    return p + noise * np.random.default_rng(seed).standard_normal((n, 3)) if noise else p
+
+
+def box_union(n, seed=0):
+    """(n, 3) points of :func:`hgjax.eval.box_union_cloud` (a union of boxes, edge-labelled there)."""
+    return hgjax.eval.box_union_cloud(seed=seed, n_points=n).points
+
+
+def sphere(n, seed=0, radius=1.0):
+    """(n, 3) points on the sphere of ``radius`` about the origin, uniform by area."""
+    v = np.random.default_rng(seed).normal(size=(n, 3))
+    return radius * v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def grid(shape, spacing=1.0, *, seed=None):
+    """(prod(shape), len(shape)) points of a rectangular lattice of ``spacing`` from the origin;
+    rows shuffled by ``seed`` (None: lattice order)."""
+    g = np.stack(np.meshgrid(*[np.arange(float(m)) for m in shape], indexing="ij"), axis=-1).reshape(-1, len(shape))
+    g = g * spacing
+    return g if seed is None else g[np.random.default_rng(seed).permutation(len(g))]
+
+
+def lattice_shell(m):
+    """The points of the m x m x m integer lattice on the surface of its cube."""
+    g = grid((m, m, m))
+    return g[((g == 0) | (g == m - 1)).any(axis=1)]
+
+
+def degenerate_clouds(n=40):
+    """Clouds of n points (a multiple of 4) that break naive kernels, by name.
+
+    collinear, diagonal (on the line x = y = z: LHF's row-centred signal is 0), coplanar
+    (random in a plane), planar_grid (an exact grid: symmetric neighbourhoods, HKC beta = inf),
+    duplicates (n / 4 points four times), all_equal, two_points (two locations alternating).
+    """
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 1, n)
+    return {
+        "collinear": np.outer(t, [1.0, 2.0, 3.0]),
+        "diagonal": np.outer(t, [1.0, 1.0, 1.0]),
+        "coplanar": np.c_[rng.random((n, 2)), np.zeros(n)],
+        "planar_grid": np.c_[grid((4, n // 4)), np.zeros(n)],
+        "duplicates": np.concatenate([rng.random((n // 4, 3))] * 4),
+        "all_equal": np.full((n, 3), 0.25),
+        "two_points": np.array([[0.0, 0, 0], [1, 1, 1]] * (n // 2)),
+    }
+
+
+# ----------------------------------------------------------------------------- variants
+
+
+def stack(nbs):
+    """A batch of equal-shape neighbourhoods (leading axis: the cloud)."""
+    return jax.tree.map(lambda *x: np.stack(x), *nbs)
+
+
+def _eager(fn, nbs):
+    return [fn(nb) for nb in nbs]
+
+
+def _jit_argument(fn, nbs):
+    f = jax.jit(fn)
+    return [f(nb) for nb in nbs]
+
+
+def _jit_closed_over(fn, nbs):
+    """jit of a function of no argument that closes over concrete neighbourhoods (the first cloud;
+    each closed-over cloud is a new compilation)."""
+    nb = nbs[0]
+    return [jax.jit(lambda: fn(nb))()]
+
+
+def _vmap(fn, nbs):
+    out = jax.jit(jax.vmap(fn))(stack(nbs))
+    return [out[i] for i in range(len(nbs))]
+
+
+VARIANTS = {"eager": _eager, "jit_argument": _jit_argument, "jit_closed_over": _jit_closed_over, "vmap": _vmap}
+
+
+def assert_close(got, want, rtol, atol=None, err_msg=""):
+    """Same dtype and shape, infinities at the same places, finite values within ``rtol`` and
+    ``atol`` (default ``rtol * 1e-3``)."""
+    got, want = np.asarray(got), np.asarray(want)
+    assert got.dtype == want.dtype and got.shape == want.shape, (err_msg, got.dtype, got.shape, want.dtype, want.shape)
+    np.testing.assert_array_equal(np.isinf(got), np.isinf(want), err_msg=err_msg)
+    f = np.isfinite(want)
+    np.testing.assert_allclose(got[f], want[f], rtol=rtol, atol=rtol * 1e-3 if atol is None else atol, err_msg=err_msg)
+
+
+def assert_variants_agree(fn, nbs, *, rtol=None, atol=None, skip=()):
+    """Run ``fn(nb)`` in every variant of :data:`VARIANTS` but ``skip``; each equals eager.
+
+    Args:
+      fn: a function of one :class:`hgjax.Neighbourhoods` returning an array.
+      nbs: two or more neighbourhoods of the same shapes (one dtype).
+      rtol: relative tolerance; default :data:`VARIANT_RTOL` of the points' dtype.
+      atol: absolute tolerance; default ``rtol * 1e-3``.
+      skip: names of variants not to run.
+
+    Returns:
+      The eager results, one per cloud, as NumPy arrays.
+    """
+    dtype = np.dtype(nbs[0].points.dtype)
+    rtol = VARIANT_RTOL[dtype] if rtol is None else rtol
+    want = [np.asarray(x) for x in _eager(fn, nbs)]
+    assert all(w.dtype == dtype for w in want), [w.dtype for w in want]
+    for name, variant in VARIANTS.items():
+        if name == "eager" or name in skip:
+            continue
+        for i, got in enumerate(variant(fn, nbs)):
+            assert_close(got, want[i], rtol, atol, err_msg=f"variant {name}, cloud {i}")
+    return want
