@@ -3,7 +3,7 @@
 Every test file takes its clouds from here, so each kind of cloud is built one way. The
 variants helper runs one function of a :class:`hgjax.Neighbourhoods` the ways a JAX user
 calls it (:data:`VARIANTS`: eager, jit with the neighbourhoods as an argument, jit closing
-over them, vmap over a stacked batch) and asserts that every way gives the eager values
+over them, vmap over a stacked batch, vmap over a ragged batch of clouds of different N) and asserts that every way gives the eager values
 (dm-pix's ``chex.all_variants``). A variant maps a function and a list of neighbourhoods to
 the per-cloud results, so a new way of calling is one more entry.
 """
@@ -111,11 +111,21 @@ def _jit_closed_over(fn, nbs):
 
 
 def _vmap(fn, nbs):
-    out = jax.jit(jax.vmap(fn))(stack(nbs))
-    return [out[i] for i in range(len(nbs))]
+    """jit(vmap) over the leading clouds that share the first cloud's shapes (plain stacking)."""
+    n = next((i for i, nb in enumerate(nbs) if nb.idx.shape != nbs[0].idx.shape), len(nbs))
+    out = jax.jit(jax.vmap(fn))(stack(nbs[:n]))
+    return [out[i] for i in range(n)]
 
 
-VARIANTS = {"eager": _eager, "jit_argument": _jit_argument, "jit_closed_over": _jit_closed_over, "vmap": _vmap}
+def _ragged(fn, nbs):
+    """jit(vmap) over :func:`hgjax.stack_neighbourhoods` of every cloud (any N and K), each cloud's
+    result cut to its own rows."""
+    out = jax.jit(jax.vmap(fn))(hgjax.stack_neighbourhoods(nbs))
+    return [out[i, :nb.points.shape[0]] for i, nb in enumerate(nbs)]
+
+
+VARIANTS = {"eager": _eager, "jit_argument": _jit_argument, "jit_closed_over": _jit_closed_over, "vmap": _vmap,
+            "ragged": _ragged}
 
 
 def assert_close(got, want, rtol, atol=None, err_msg=""):
@@ -133,7 +143,8 @@ def assert_variants_agree(fn, nbs, *, rtol=None, atol=None, skip=()):
 
     Args:
       fn: a function of one :class:`hgjax.Neighbourhoods` returning an array.
-      nbs: two or more neighbourhoods of the same shapes (one dtype).
+      nbs: two or more neighbourhoods of one dtype; the first two of the same shapes (the plain
+        vmap batch), any others of other sizes (the ragged batch holds them all).
       rtol: relative tolerance; default :data:`VARIANT_RTOL` of the points' dtype.
       atol: absolute tolerance; default ``rtol * 1e-3``.
       skip: names of variants not to run.

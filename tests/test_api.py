@@ -80,7 +80,7 @@ def kernel_cases():
         eager = {**static, **floats, **(ONE_BLOCK if uses_eigh(method, static) else {})}
         # The eigh-based LHF kernels deadlock nondeterministically when several LAPACK eigh calls
         # run in one XLA CPU loop (vmap over a batch): test_lhf_eigh_kernels_finish_... covers them.
-        skip = ("vmap",) if uses_eigh(method, static) else ()
+        skip = ("vmap", "ragged") if uses_eigh(method, static) else ()
         cases.append((f"score-{case_id}", method, static, functools.partial(hgjax.score, method=method, **eager), skip))
     for method in sorted(set(SCORING) - set(SAME_SOFT)):
         floats = {"ratio": 0.2} if method == "lhf" else {}
@@ -107,14 +107,16 @@ def test_shared_soft_scores_are_the_same_functions():
 
 @pytest.mark.parametrize("method,static,fn,skip", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
 def test_variants_agree(method, static, fn, skip, dtype):
-    """eager == jit(argument) == jit(closed-over) == vmap over a batch, in float32 and float64."""
+    """eager == jit(argument) == jit(closed-over) == vmap over a batch == vmap over a ragged batch
+    (a third, smaller cloud), in float32 and float64."""
     capacity = None if hgjax.METHODS[method].kind == "knn" else CAPACITY  # a batch shares one K
-    nbs = [hgjax.neighbourhoods(cloud(s, dtype=dtype), method, capacity=capacity, **static) for s in (1, 2)]
+    clouds = [cloud(1, dtype=dtype), cloud(2, dtype=dtype), cloud(3, n=N - 61, dtype=dtype)]
+    nbs = [hgjax.neighbourhoods(c, method, capacity=capacity, **static) for c in clouds]
     rtol = path_rtol(method, static, dtype)
     # Weights lie in [0, 1] and soft_select's threshold moves them all: an absolute tolerance.
     atol = rtol if fn.func is hgjax.soft_weights else None
     want = fixtures.assert_variants_agree(fn, nbs, rtol=rtol, atol=atol, skip=skip)
-    assert all(w.shape == (N,) and not np.isnan(w).any() for w in want)
+    assert [w.shape for w in want] == [(N,), (N,), (N - 61,)] and not any(np.isnan(w).any() for w in want)
 
 
 def test_lhf_ratio_is_traced_under_jit():
