@@ -339,7 +339,8 @@ class SpatialIndex:
         order = np.lexsort((self.gid[np.minimum(idx, self.n)], dist), axis=1)
         return np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
 
-    def knn(self, k: int, rows: slice | np.ndarray = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    def knn(self, k: int, rows: slice | np.ndarray = slice(None), *,
+            query: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The point itself and its k - 1 nearest neighbours by (distance, global id), sorted frame.
 
         Equal distances are ordered by the neighbours' global ids (``gid``), including at the
@@ -350,6 +351,8 @@ class SpatialIndex:
         Args:
           k: neighbourhood size including the point itself.
           rows: which sorted-frame rows to query (default all).
+          query: these rows' :meth:`nearest` result with at least min(k + 1, n) columns, to
+            reuse instead of a new tree query (same result).
 
         Returns:
           (idx, reach): idx (R, k) int32 indices (sorted frame), column 0 the point itself,
@@ -360,8 +363,7 @@ class SpatialIndex:
         r = len(row_ids)
         k_eff = min(k, self.n)
         q = min(k_eff + 1, self.n)
-        dist, idx = self.tree.query(self.points[row_ids], k=q, workers=-1)
-        dist, idx = dist.reshape(r, q), idx.reshape(r, q)
+        dist, idx = self.nearest(row_ids, q) if query is None else (query[0][:, :q], query[1][:, :q].copy())
         has_self = (idx == row_ids[:, None]).any(axis=1)
         dist = np.where(idx == row_ids[:, None], -1.0, dist)
         # Rows whose order needs fixing: equal distances inside the first k_eff, or at the cut.
@@ -384,8 +386,19 @@ class SpatialIndex:
             idx = np.concatenate([idx, np.full((r, k - k_eff), self.n)], axis=1)
         return idx.astype(np.int32), reach
 
+    def nearest(self, rows: slice | np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The raw tree query of ``rows``: (R, k) distances and indices (sorted frame), k <= n.
+
+        Sorted by distance, equal distances in the tree's order; :meth:`knn` and :meth:`cube`
+        turn it into their exact neighbourhoods, so one query can serve both.
+        """
+        row_ids = self.row_ids(rows)
+        dist, idx = self.tree.query(self.points[row_ids], k=k, workers=-1)
+        return dist.reshape(row_ids.size, k), idx.reshape(row_ids.size, k)
+
     def cube(self, half_width, rows: slice | np.ndarray = slice(None), *, capacity: int = 32,
-             max_count: int | None = None, norm: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+             max_count: int | None = None, norm: float = np.inf,
+             query: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """All points within the axis-aligned cube of ``half_width`` (Chebyshev distance < h),
         or with ``norm=2`` within the ball of that radius (Euclidean distance < h).
 
@@ -401,29 +414,41 @@ class SpatialIndex:
           capacity: initial number of columns queried.
           max_count: the most points a cube may hold (shrinking it), or None.
           norm: the Minkowski norm of the distance, ``np.inf`` (cube) or 2 (ball).
+          query: with ``norm=2``, these rows' :meth:`nearest` result, used as the first
+            round instead of a new query (``capacity`` is then its number of columns).
 
         Returns:
-          (idx, half): idx (R, W) int32 indices (sorted frame) by increasing distance,
+          (idx, half): idx (R, W) int32 indices (sorted frame) by (distance, global id),
           padded with n, W the fullest row's count; half (R,) the half-widths (radii) used.
         """
         row_ids = self.row_ids(rows)
         queries = self.points[row_ids]
         h = np.array(np.broadcast_to(np.asarray(half_width, dtype=np.float64), (len(row_ids),)))
         out = np.full((len(row_ids), 1), self.n, dtype=np.int32)
-        todo, k = np.arange(len(row_ids)), min(capacity, self.n)
+        todo = np.arange(len(row_ids))
+        k = min(capacity if query is None else query[0].shape[1], self.n)
         while todo.size:
             if max_count is not None:
                 k = min(k, max_count)
-            dist, idx = self._cube_query(queries[todo], k, h[todo], norm)
+            if query is None:
+                dist, idx = self._cube_query(queries[todo], k, h[todo], norm)
+            else:
+                dist, idx, query = query[0][:, :k], query[1][:, :k], None
             full = dist[:, -1] < h[todo]
             if k == max_count:  # shrink the full cubes to exclude their max_count-th point
                 h[todo[full]] = dist[full, -1]
                 full[:] = False
             inside = dist < h[todo, None]  # a prefix of each row: sorted by distance
             done = ~full | (k == self.n)
-            width = int(inside[done].sum(axis=1).max(initial=1))
+            count = inside.sum(axis=1)
+            width = int(count[done].max(initial=1))
             if width > out.shape[1]:
                 out = np.pad(out, ((0, 0), (0, width - out.shape[1])), constant_values=self.n)
+            tied = done & (inside[:, 1:] & (dist[:, 1:] == dist[:, :-1])).any(axis=1)
+            if tied.any():  # equal distances inside: by global id, the point itself first
+                dist, idx = dist.copy(), idx.copy()
+                dist[tied], idx[tied] = self._ranked(row_ids[todo[tied]], np.where(inside[tied], dist[tied], np.inf),
+                                                     idx[tied])
             out[todo[done], :width] = np.where(inside[done, :width], idx[done, :width], self.n)
             todo, k = todo[~done], min(2 * k, self.n)
         return out, h
@@ -469,10 +494,12 @@ def pad_queries(index: SpatialIndex, query, capacity, what: str, n_rows: int) ->
       ValueError: when a fixed ``capacity`` is smaller than the fullest row.
     """
     parts = [query(slice(start, min(start + QUERY_ROWS, n_rows))) for start in range(0, n_rows, QUERY_ROWS)]
-    width = max(p.shape[1] for p in parts)
+    width = max((p.shape[1] for p in parts), default=1)
     _validate.check_capacity(capacity, width, what)
-    cols = bucket(width) if capacity is None else capacity
-    return np.concatenate([np.pad(p, ((0, 0), (0, cols - p.shape[1])), constant_values=index.n) for p in parts])
+    out = np.full((n_rows, bucket(width) if capacity is None else capacity), index.n, dtype=np.int32)
+    for start, p in zip(range(0, n_rows, QUERY_ROWS), parts):
+        out[start:start + p.shape[0], :p.shape[1]] = p
+    return out
 
 
 def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, scale_sorted=None, *,
@@ -676,7 +703,9 @@ def resolution(index: SpatialIndex, *, robust: bool) -> float:
     return sample_stats(index).resolution(robust=robust)
 
 
-def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
+def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
+                  query: tuple[np.ndarray, np.ndarray] | None = None,
+                  rk: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-row surface sample spacing 1 / sqrt(areal density), from the k nearest points.
 
     On a surface sampled with areal density rho, the disc holding a point's k nearest other
@@ -691,6 +720,10 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16) -> tuple[n
       index: the (deduplicated) index.
       rows: (R,) sorted-frame rows.
       k: number of nearest other points.
+      query: the rows' :meth:`SpatialIndex.nearest` result with at least k + 1 columns,
+        reused instead of a new query (same result).
+      rk: (n,) float64 r_k of the index's rows, NaN where not yet known: read, and filled in
+        place with the r_k this call finds, so that batches of rows share their neighbours'.
 
     Returns:
       (spacing, reach): (R,) spacing, and (R,) the distance within which every point the
@@ -700,11 +733,12 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16) -> tuple[n
     k = min(k, index.n - 1)
     if k < 1:
         return np.ones(rows.size), np.zeros(rows.size)
-    nbrs, reach = chunked_knn(index, k + 1, rows)
-    need = np.unique(nbrs)
-    extra = need[~np.isin(need, rows)]
-    rk = np.zeros(index.n)
+    nbrs, reach = chunked_knn(index, k + 1, rows) if query is None else index.knn(k + 1, rows, query=query)
+    rk = np.full(index.n, np.nan) if rk is None else rk
     rk[rows] = reach
+    need = np.zeros(index.n, dtype=bool)
+    need[nbrs] = True
+    extra = np.flatnonzero(need & np.isnan(rk))
     if extra.size:
         rk[extra] = chunked_knn(index, k + 1, extra)[1]
     spacing = np.sqrt(np.pi / k * (rk[nbrs] ** 2).mean(axis=1))

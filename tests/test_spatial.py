@@ -238,3 +238,30 @@ def test_spatial_order_breaks_shared_cells_by_coordinates():
     np.testing.assert_array_equal(p[perm][hgjax.spatial_order(p[perm])], p[order])
     tied = p[order][1:-1]  # the near-origin points, between the two far ones in Z order
     assert (np.diff(tied[:, 0]) >= 0).all()  # one cell here: sorted by x
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.01])  # a lattice (distance ties everywhere) and a noisy one
+def test_one_nearest_query_serves_spacing_and_ball_exactly(jitter):
+    from hgjax import spatial
+    g = np.stack(np.meshgrid(np.arange(12.0), np.arange(12.0), np.arange(3.0)), -1).reshape(-1, 3)
+    index = SpatialIndex(g + np.random.default_rng(0).normal(0, jitter, g.shape), dedupe=True)
+    rows = np.arange(index.n)
+    spacing, reach = spatial.local_spacing(index, rows)
+    half = 2.2 * spacing
+    rk, parts = np.full(index.n, np.nan), []
+    for batch in np.array_split(rows, 3):  # batches share their neighbours' r_k
+        nearest = index.nearest(batch, 20)
+        s, r = spatial.local_spacing(index, batch, query=nearest, rk=rk)
+        idx, _ = index.cube(half[batch], batch, max_count=40, norm=2, query=nearest)
+        want, _ = index.cube(half[batch], batch, capacity=7, max_count=40, norm=2)
+        np.testing.assert_array_equal(idx, want)
+        parts.append((s, r))
+    np.testing.assert_array_equal(np.concatenate([s for s, _ in parts]), spacing)
+    np.testing.assert_array_equal(np.concatenate([r for _, r in parts]), reach)
+    # every ball: its points by (distance, global id), the point itself first
+    dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
+    for i, row in enumerate(index.cube(half, norm=2, max_count=40)[0]):
+        row = row[row < index.n]
+        assert row[0] == i
+        key = [(dist[i, j], index.gid[j]) for j in row[1:]]
+        assert key == sorted(key)

@@ -341,23 +341,32 @@ def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
       the row used lies (cube or ball, and spacing estimate).
     """
     rows = np.asarray(rows, dtype=np.int64)
-    if params["resolution"] is None:
-        res, reach = spatial.local_spacing(index, rows, LOCAL_K)
-    else:
-        res, reach = np.full(rows.size, params["resolution"]), np.zeros(rows.size)
     k = params["kernel_size"]
     invariant = params["variant"] == "invariant"
     # The invariant variant turns its cube into the point's local frame, so it queries the
     # ball that holds the cube in every orientation (radius sqrt(3) x the half-width).
     widen = np.sqrt(3.0) if invariant else 1.0
-    half = widen * k / 2 * params["d_factor"] * res
-    reach = np.maximum(reach, half)
+    factor = widen * k / 2 * params["d_factor"]
     max_count = MAX_COUNT if invariant else None
-    start = [32]
+    norm = 2 if invariant else np.inf
+    adaptive = params["resolution"] is None
+    rk = np.full(index.n, np.nan) if adaptive else None
+    half, reach = np.empty(rows.size), np.empty(rows.size)
+    start = [64 if adaptive else 32]
 
     def query(part):
-        idx, half[part] = index.cube(half[part], rows[part], capacity=start[0], max_count=max_count,
-                                     norm=2 if invariant else np.inf)
+        if adaptive:
+            # One query per batch serves the spacing (its first LOCAL_K + 1 columns) and the
+            # ball (a prefix of each row; rows whose ball is longer are queried again).
+            width = min(max(start[0], LOCAL_K + 2), index.n)
+            nearest = index.nearest(rows[part], width)
+            res, reach[part] = spatial.local_spacing(index, rows[part], LOCAL_K, query=nearest, rk=rk)
+        else:
+            nearest, res, reach[part] = None, params["resolution"], 0.0
+        half[part] = factor * res
+        reach[part] = np.maximum(reach[part], half[part])
+        idx, half[part] = index.cube(half[part], rows[part], capacity=start[0], max_count=max_count, norm=norm,
+                                     query=nearest if invariant else None)
         # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
         # percentile count instead of doubling up from 32 again.
         start[0] = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
