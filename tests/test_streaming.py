@@ -82,7 +82,7 @@ def test_large_float32_streaming_run_with_small_chunks():
 
 
 def test_one_compilation_for_all_chunks_and_cloud_sizes():
-    kernels = [(hkc._kernel(3), 1, "hkc", {}), (hkf._kernel(3, "invariant"), 1, "hkf", {}),
+    kernels = [(hkc._kernel(3, "invariant"), 1, "hkc", {}), (hkf._kernel(3, "invariant"), 1, "hkf", {}),
                (lhf._kernel(lhf.DEFAULT_LENGTHS, "invariant", "gram"), 0, "lhf", {"ratio": 0.2}),
                (ea.variation, 0, "ea", {})]
     for fn, n_row_args, method, params in kernels:
@@ -116,7 +116,7 @@ def test_float_parameter_sweeps_do_not_recompile():
     assert score._cache_size() == 1 and weights._cache_size() == 1
     # HKC's d_factor changes the neighbourhoods (host), never the kernel of a row width: a
     # sweep compiles only the narrow widths (_stream.narrow_groups) its counts newly select
-    kernel = _stream._jitted(hkc._kernel(3), 1)
+    kernel = _stream._jitted(hkc._kernel(3, "invariant"), 1)
     p = box_surface(2000, seed=8)
 
     def widths(nb):

@@ -220,6 +220,13 @@ def frame(cov: jax.Array) -> jax.Array:
 
     Returns:
       (3, 3) orthonormal, in the dtype of ``cov``.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores.voxel import frame
+      >>> v = frame(jnp.array([[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 5.0]]))
+      >>> bool(jnp.allclose(v.T @ v, jnp.eye(3), atol=1e-6))
+      True
     """
     return ea._jacobi(cov, vectors=True)[1]
 
@@ -256,6 +263,16 @@ def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
 
     Returns:
       (K, 3) offsets @ V, V from :func:`frame`.
+
+    Examples:
+      >>> import jax.numpy as jnp, numpy as np
+      >>> from hgjax.scores.voxel import oriented
+      >>> x = np.random.default_rng(0).normal(size=(20, 3)) * [3.0, 2.0, 1.0]
+      >>> q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))  # a rotation (or reflection)
+      >>> a, b = (oriented(jnp.asarray(y), jnp.ones(20, bool), 1.0) for y in (x, x @ q.T))
+      >>> spread = lambda y: np.sort(np.linalg.norm(np.asarray(y), axis=0))  # per local axis
+      >>> bool(np.allclose(spread(a), spread(b), rtol=1e-4))
+      True
     """
     x = jnp.where(valid[:, None], offsets / d, 0)
     count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
@@ -281,6 +298,12 @@ def band_energies(s: jax.Array, kernel_size: int, variant: str) -> tuple[jax.Arr
 
     Returns:
       (high2, low2), scalars >= 0 (high2 up to rounding).
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores.voxel import band_energies
+      >>> [float(e) for e in band_energies(jnp.ones(27), 3, "invariant")]  # symmetric: no low band
+      [27.0, 0.0]
     """
     if variant == "reference":
         low, high = low_high(s, kernel_size)
