@@ -79,12 +79,14 @@ def test_survey_equals_the_concatenated_cloud(tmp_path, ext):
 
 @pytest.mark.parametrize("method", ["lhf", "gfr"])
 def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
-    paths, cloud = _survey(tmp_path, n_files=2, n=2000)
+    paths, cloud = _survey(tmp_path, n_files=2, n=1000)
     key = jax.random.key(3) if method == "gfr" else None
-    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=30.0, key=key)
+    tile = 200.0 if method == "gfr" else 30.0  # GFR's radius (10 spacings) wants tiles of more than a few points
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=tile, key=key)
     resolved = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())["resolved"]
-    plan, _ = tiles.plan(cloud, 0.2, method=method, tile=30.0)
-    idx, scores = tiles.resample(cloud, 0.2, method=method, tile=30.0, key=key, return_scores=True)
+    plan, cloud_tiles = tiles.plan(cloud, 0.2, method=method, tile=tile)
+    assert len(cloud_tiles.members) >= 4
+    idx, scores = tiles.resample(cloud, 0.2, method=method, tile=tile, key=key, return_scores=True)
     assert resolved["plan"] == plan.record()
     assert resolved["plan"]["n"] == cloud.shape[0] and resolved["plan"]["m"] == idx.size
     np.testing.assert_array_equal(resolved["plan"]["origin"], plan.origin)
