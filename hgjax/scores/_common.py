@@ -28,6 +28,19 @@ def soft_map(fn: Callable, nb, row_args=(), args=()):
     return jax.vmap(fn, in_axes=in_axes)(offsets, valid, *(jnp.asarray(a) for a in row_args), *args)
 
 
+def centred_scatter(x: jax.Array, valid: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(count, mean (3,), scatter (3, 3)) of the valid rows of x (K, 3): sum (x - mean)(x - mean)^T.
+
+    Padding rows (``valid`` False) take no part, whatever they hold; count is at least 1, so
+    an empty neighbourhood gives a zero mean and scatter.
+    """
+    x = jnp.where(valid[:, None], x, 0)
+    count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
+    mean = jnp.sum(x, axis=0) / count
+    y = jnp.where(valid[:, None], x - mean[None, :], 0)
+    return count, mean, y.T @ y
+
+
 def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:
     """num / den, and ``empty`` where den == 0 (no NaN, finite gradients)."""
     ok = den > 0

@@ -108,11 +108,7 @@ def variation(offsets, valid):
       >>> float(hgjax.scores.ea.variation(flat, jnp.ones(4, bool)))
       0.0
     """
-    x = _common.unit_scale(jnp.where(valid[:, None], offsets, 0))
-    count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
-    mean = jnp.sum(x, axis=0) / count
-    y = jnp.where(valid[:, None], x - mean[None, :], 0)
-    cov = y.T @ y
+    _, _, cov = _common.centred_scatter(_common.unit_scale(jnp.where(valid[:, None], offsets, 0)), valid)
     l0 = jnp.maximum(smallest_eigenvalue(cov), 0)
     trace = jnp.trace(cov)
     return jnp.where(trace > 0, l0 / jnp.where(trace > 0, trace, 1), 0.0)

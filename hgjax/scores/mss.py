@@ -51,12 +51,8 @@ GAP = 1e-6  # relative eigenvalue gap below which the normal's derivative leaves
 
 def _prefix(offsets, valid, k: int):
     """Mean (3,) and covariance (3, 3) of the first k rows (the k nearest points)."""
-    keep = valid[:k]
-    x = jnp.where(keep[:, None], offsets[:k], 0)
-    count = jnp.maximum(jnp.sum(keep), 1).astype(x.dtype)
-    mean = jnp.sum(x, axis=0) / count
-    y = jnp.where(keep[:, None], x - mean[None, :], 0)
-    return mean, y.T @ y / count
+    count, mean, scatter = _common.centred_scatter(offsets[:k], valid[:k])
+    return mean, scatter / count
 
 
 @jax.custom_jvp

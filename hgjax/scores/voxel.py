@@ -274,10 +274,7 @@ def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
       >>> bool(np.allclose(spread(a), spread(b), rtol=1e-4))
       True
     """
-    x = jnp.where(valid[:, None], offsets / d, 0)
-    count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
-    y = jnp.where(valid[:, None], x - (jnp.sum(x, axis=0) / count)[None, :], 0)
-    return offsets @ frame(y.T @ y)
+    return offsets @ frame(_common.centred_scatter(offsets / d, valid)[2])
 
 
 def band_energies(s: jax.Array, kernel_size: int, variant: str) -> tuple[jax.Array, jax.Array]:
