@@ -38,15 +38,6 @@ from hgjax.scores import _common, voxel
 __all__ = ["beta", "score", "soft_beta", "soft_score"]
 
 
-def _signal(offsets, valid, d, kernel_size, variant, tau=None):
-    """Voxel counts (hard, or soft with ``tau``) of the kernel, turned into the local frame for "invariant"."""
-    if variant == "invariant":
-        offsets = voxel.oriented(offsets, valid, d)
-    if tau is None:
-        return voxel.local_signal(offsets, valid, d, kernel_size)
-    return voxel.soft_local_signal(offsets, valid, d, tau, kernel_size)
-
-
 def beta(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant"):
     """beta (Eq. (11)) of one cube (reference) or ball (invariant) neighbourhood.
 
@@ -66,7 +57,7 @@ def beta(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant")
       >>> round(float(hgjax.scores.hkc.beta(offsets, jnp.ones(3, bool), 1.0, variant="reference")), 4)
       8.9443
     """
-    high2, low2 = voxel.band_energies(_signal(offsets, valid, d, kernel_size, variant), kernel_size, variant)
+    high2, low2 = voxel.band_energies(voxel.kernel_signal(offsets, valid, d, kernel_size, variant), kernel_size, variant)
     return _common.safe_div(_common.safe_sqrt(high2), _common.safe_sqrt(low2), jnp.inf)
 
 
@@ -92,7 +83,7 @@ def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3, variant: str = "i
       >>> round(float(hgjax.scores.hkc.soft_beta(offsets, jnp.ones(3, bool), 1.0, 1e-3)), 6)
       1.0
     """
-    s = _signal(offsets, valid, d, kernel_size, variant, tau)
+    s = voxel.kernel_signal(offsets, valid, d, kernel_size, variant, tau)
     return _common.band_ratio(*voxel.band_energies(s, kernel_size, variant))
 
 

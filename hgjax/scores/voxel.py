@@ -277,6 +277,21 @@ def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
     return offsets @ frame(_common.centred_scatter(offsets / d, valid)[2])
 
 
+def kernel_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, kernel_size: int, variant: str,
+                  tau: jax.Array | None = None) -> jax.Array:
+    """The kernel's voxel counts (N_k,) of one neighbourhood, in its local frame for ``"invariant"``.
+
+    :func:`local_signal` (or :func:`soft_local_signal` with ``tau``) of the offsets, first
+    turned by :func:`oriented` in the invariant variant; the reference variant keeps the
+    axis-aligned cube.
+    """
+    if variant == "invariant":
+        offsets = oriented(offsets, valid, d)
+    if tau is None:
+        return local_signal(offsets, valid, d, kernel_size)
+    return soft_local_signal(offsets, valid, d, tau, kernel_size)
+
+
 def band_energies(s: jax.Array, kernel_size: int, variant: str) -> tuple[jax.Array, jax.Array]:
     """Squared high- and low-band norms (||high||^2, ||low||^2) of a voxel signal s (N_k,).
 
