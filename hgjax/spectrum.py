@@ -49,7 +49,7 @@ def centre(x: jax.Array, *, axis: str = "row") -> jax.Array:
 def correlation(x: jax.Array, *, axis: str = "row") -> jax.Array:
     """R = x_c x_c^T (n, n), the stationarity estimate of the spectrum (paper Eq. (7))."""
     xc = centre(x, axis=axis)
-    return xc @ xc.T
+    return jnp.matmul(xc, xc.T, precision=jax.lax.Precision.HIGHEST)
 
 
 def normalise_eigenvalues(lam: jax.Array) -> jax.Array:
@@ -117,12 +117,12 @@ def host_eigh(r: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 def hgft(v: jax.Array, s: jax.Array) -> jax.Array:
     """Simplified hypergraph Fourier transform s_hat = V^T s (paper Eq. (8))."""
-    return v.T @ s
+    return jnp.matmul(v.T, s, precision=jax.lax.Precision.HIGHEST)
 
 
 def ihgft(v: jax.Array, s_hat: jax.Array) -> jax.Array:
     """Inverse transform s = V s_hat (paper Eq. (9))."""
-    return v @ s_hat
+    return jnp.matmul(v, s_hat, precision=jax.lax.Precision.HIGHEST)
 
 
 def band_energies(v: jax.Array, t: jax.Array, s: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:

@@ -93,3 +93,39 @@ def test_tau_gradient_is_finite_however_small_tau_is(method):
     for tau in (1e-30, 1e-8, 0.1):
         g = jax.grad(lambda t: hgjax.soft_weights(nb, 0.2, method=method, tau=t).sum())(tau)
         assert np.isfinite(g), (tau, g)
+
+
+def _dot_precisions(jaxpr) -> list:
+    """The precision of every dot_general in a jaxpr and in the jaxprs its equations hold."""
+    found = []
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "dot_general":
+            found.append(eqn.params["precision"])
+        for value in eqn.params.values():
+            for sub in value if isinstance(value, (tuple, list)) else (value,):
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    found += _dot_precisions(inner)
+    return found
+
+
+@pytest.mark.parametrize("method", SCORING)
+def test_every_product_runs_at_full_precision(cloud, method):
+    """A GPU may run a default-precision float32 product in TF32: a local frame lost its bits
+    on an H100 and moved points across voxel faces. Every product of the scores, soft scores
+    and their gradients asks for HIGHEST."""
+    import dataclasses
+
+    import jax
+
+    nb = hgjax.neighbourhoods(cloud[:300].astype(np.float32), method)
+    kw = {"ratio": 0.2} if method == "lhf" else {}
+
+    def soft_total(points):
+        return hgjax.soft_score(dataclasses.replace(nb, points=points), method, **kw).sum()
+
+    programs = [jax.make_jaxpr(lambda n: hgjax.score(n, method, **kw))(nb),
+                jax.make_jaxpr(jax.grad(soft_total))(nb.points)]
+    found = [p for program in programs for p in _dot_precisions(program.jaxpr)]
+    highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
+    assert all(p == highest for p in found), (method, found)

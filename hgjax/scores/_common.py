@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import jax
@@ -28,6 +29,15 @@ def soft_map(fn: Callable, nb, row_args=(), args=()):
     return jax.vmap(fn, in_axes=in_axes)(offsets, valid, *(jnp.asarray(a) for a in row_args), *args)
 
 
+def matmul(*factors: jax.Array) -> jax.Array:
+    """The product of ``factors``, left to right, at full float precision.
+
+    XLA may run a float32 product on a GPU in TF32 (10-bit mantissa) at its default
+    precision; the local frames and eigenvalues here need every bit of the caller's dtype.
+    """
+    return functools.reduce(functools.partial(jnp.matmul, precision=jax.lax.Precision.HIGHEST), factors)
+
+
 def centred_scatter(x: jax.Array, valid: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """(count, mean (3,), scatter (3, 3)) of the valid rows of x (K, 3): sum (x - mean)(x - mean)^T.
 
@@ -38,7 +48,7 @@ def centred_scatter(x: jax.Array, valid: jax.Array) -> tuple[jax.Array, jax.Arra
     count = jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
     mean = jnp.sum(x, axis=0) / count
     y = jnp.where(valid[:, None], x - mean[None, :], 0)
-    return count, mean, y.T @ y
+    return count, mean, matmul(y.T, y)
 
 
 def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:

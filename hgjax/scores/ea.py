@@ -87,7 +87,7 @@ def _smallest_eigenvalue_jvp(primals, tangents):
     (cov,), (dcov,) = primals, tangents
     lam, v = _jacobi(cov, vectors=True)
     v0 = v[:, jnp.argmin(lam)]
-    return jnp.min(lam), v0 @ dcov @ v0
+    return jnp.min(lam), _common.matmul(v0, dcov, v0)
 
 
 def variation(offsets, valid):

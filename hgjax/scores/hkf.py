@@ -53,7 +53,7 @@ def sigma(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant"
     if variant == "reference":
         s = voxel.local_signal(offsets, valid, d, kernel_size)
         _, v, t = voxel.reference_spectrum(kernel_size)
-        s_hat = jnp.abs(jnp.asarray(v, s.dtype).T @ s)
+        s_hat = jnp.abs(_common.matmul(jnp.asarray(v, s.dtype).T, s))
         return _common.safe_div(jnp.sum(s_hat[:t]), jnp.sum(s_hat), 0.0)
     s = voxel.kernel_signal(offsets, valid, d, kernel_size, variant)
     return _common.band_ratio(*voxel.band_energies(s, kernel_size, variant))

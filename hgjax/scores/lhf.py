@@ -132,7 +132,7 @@ def _eigenvalues_jvp(primals, tangents):
     (cov,), (dcov,) = primals, tangents
     lam, vec = ea._jacobi(cov, vectors=True)
     order = jnp.argsort(lam)
-    return _ascending(lam), jnp.stack([vec[:, i] @ dcov @ vec[:, i] for i in (order[0], order[1], order[2])])
+    return _ascending(lam), jnp.stack([_common.matmul(vec[:, i], dcov, vec[:, i]) for i in (order[0], order[1], order[2])])
 
 
 class Bands(NamedTuple):

@@ -95,9 +95,9 @@ def _smallest_eigenpair_jvp(primals, tangents):
     for j in range(3):
         gap = lam[i] - lam[j]
         far = (j != i) & (jnp.abs(gap) > tol)
-        coef = jnp.where(far, (vec[:, j] @ dcov @ normal) / jnp.where(far, gap, 1), 0)
+        coef = jnp.where(far, _common.matmul(vec[:, j], dcov, normal) / jnp.where(far, gap, 1), 0)
         dn = dn + coef * vec[:, j]
-    return (lam[i], normal), (normal @ dcov @ normal, dn)
+    return (lam[i], normal), (_common.matmul(normal, dcov, normal), dn)
 
 
 def sharpness(offsets, valid):
@@ -129,7 +129,7 @@ def sharpness(offsets, valid):
         trace = jnp.trace(cov)
         if k in BAND_SCALES:
             l0, normal = smallest_eigenpair(cov)
-            high = high + _common.safe_div(jnp.abs(normal @ (mean - low_mean)), _common.safe_sqrt(trace), 0.0)
+            high = high + _common.safe_div(jnp.abs(_common.matmul(normal, mean - low_mean)), _common.safe_sqrt(trace), 0.0)
         else:
             l0 = ea.smallest_eigenvalue(cov)
         variation = variation + _common.safe_div(3 * jnp.maximum(l0, 0), trace, 0.0)

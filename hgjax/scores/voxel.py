@@ -173,7 +173,8 @@ def soft_local_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, tau: j
     faces = jnp.arange(-h, h + 2, dtype=offsets.dtype) - 0.5  # (k + 1,) bin faces in units of d
     cdf = jax.nn.sigmoid(_common.switch_argument(offsets[:, :, None] / d - faces[None, None, :], tau))  # (K, 3, k + 1)
     member = jnp.where(valid[:, None, None], cdf[:, :, :-1] - cdf[:, :, 1:], 0)  # (K, 3, k)
-    return jnp.einsum("ki,kj,kl->ijl", member[:, 0], member[:, 1], member[:, 2]).reshape(-1)
+    return jnp.einsum("ki,kj,kl->ijl", member[:, 0], member[:, 1], member[:, 2],
+                      precision=jax.lax.Precision.HIGHEST).reshape(-1)
 
 
 def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
@@ -243,7 +244,7 @@ def _frame_jvp(primals, tangents):
             if j != k:
                 gap = lam[k] - lam[j]
                 far = jnp.abs(gap) > tol
-                dv = dv + jnp.where(far, (vec[:, j] @ dcov @ vec[:, k]) / jnp.where(far, gap, 1), 0) * vec[:, j]
+                dv = dv + jnp.where(far, _common.matmul(vec[:, j], dcov, vec[:, k]) / jnp.where(far, gap, 1), 0) * vec[:, j]
         cols.append(dv)
     return vec, jnp.stack(cols, axis=1)
 
@@ -274,7 +275,7 @@ def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
       >>> bool(np.allclose(spread(a), spread(b), rtol=1e-4))
       True
     """
-    return offsets @ frame(_common.centred_scatter(offsets / d, valid)[2])
+    return _common.matmul(offsets, frame(_common.centred_scatter(offsets / d, valid)[2]))
 
 
 def kernel_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, kernel_size: int, variant: str,
