@@ -14,8 +14,8 @@ Each (method, N) runs in a fresh subprocess so its peak RSS is its own. Times ar
 time. Two yardsticks are timed in the same run, in one process, in turn: the bare kNN
 ``cKDTree(p).query(p, k=16, workers=-1)`` in random input order, and the floor, the same query
 on the Morton-sorted copy ``p[hgjax.spatial_order(p)]`` (tree build included, sort not).
-Clouds are sampled uniformly on the surface of a box (``hgjax.eval.box_surface``), float32 at
-1e7 and float64 (with x64) below.
+Clouds are sampled uniformly on the surface of a box (``hgjax.eval.box_surface``), float32
+(``--dtype float64`` turns x64 on below 1e7; the scale rows are always float32).
 
 At N = 1e7 (``--scale``) hkc, hkf, lhf, ea and gfr run through the tiled engine,
 ``hgjax.tiles.resample(points, 0.2, method=m, tile=edge)``, with the tile edge taken from the
@@ -67,6 +67,7 @@ DUPLICATE_SHARE = 0.3
 
 
 CLOUDS_ENV = "HGJAX_BENCH_CLOUDS"  # folder where the parent saved the scale cloud for its workers
+DTYPE_ENV = "HGJAX_BENCH_DTYPE"  # the --dtype of the rows below the scale rows, as the parent set it
 SCALE_ENV = "HGJAX_BENCH_SCALE"  # "N,reference N,points per tile" of the scale rows (--scale-n etc.)
 
 
@@ -79,7 +80,12 @@ def _scale_conf() -> tuple[int, int, int]:
 def _cloud(n: int):
     import numpy as np
 
-    return _report.box_cloud(n, np.float32 if n >= _scale_conf()[0] else np.float64, os.environ.get(CLOUDS_ENV))
+    return _report.box_cloud(n, np.dtype(_dtype(n)), os.environ.get(CLOUDS_ENV))
+
+
+def _dtype(n: int) -> str:
+    """The dtype of the cloud of N points: float32 at the scale rows, else the --dtype."""
+    return "float32" if n >= _scale_conf()[0] else os.environ.get(DTYPE_ENV, "float32")
 
 
 def _run_method(method: str, pts, tile=None):
@@ -108,7 +114,7 @@ def _build(method: str, pts):
 def worker(kind: str, n: int, repeats: int) -> dict:
     import jax
 
-    if n < _scale_conf()[0]:
+    if _dtype(n) == "float64":
         jax.config.update("jax_enable_x64", True)
     pts = _cloud(n)
     times = []
@@ -310,6 +316,8 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", default="10000,100000,1000000")
     parser.add_argument("--methods", default=None, help="comma list (default: all registered)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                        help="dtype of the clouds below the scale rows (float64 turns x64 on; default float32)")
     parser.add_argument("--real", action="store_true",
                         help="real scans against synthetic clouds of the same N -> results/speed_real.md")
     parser.add_argument("--out", default=None, help="default results/speed.md (--real: results/speed_real.md)")
@@ -341,6 +349,7 @@ def main(argv=None) -> None:
     methods = args.methods.split(",") if args.methods else sorted(hgjax.METHODS)
     sizes = [int(float(s)) for s in args.sizes.split(",")]
     scale_n = int(args.scale_n)
+    os.environ[DTYPE_ENV] = args.dtype
     os.environ[SCALE_ENV] = f"{scale_n},{int(args.scale_ref)},{int(args.scale_tile)}"  # read by the workers
     sizes = [n for n in sizes if n < scale_n] + ([scale_n] if args.scale else [])
     with tempfile.TemporaryDirectory(prefix="hgjax_speed_") as clouds:
@@ -395,6 +404,7 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
         "bare kNN = `cKDTree(p).query(p, k=16, workers=-1)` in random order; floor = the same on the Morton-sorted",
         "copy `p[hgjax.spatial_order(p)]` (tree build included, sort not), both timed in turn in one process;",
         "/ kNN and / floor = time / that yardstick of the same N in the same run;",
+        f"clouds {args.dtype}{' (x64 on)' * (args.dtype == 'float64')} below {args.scale_n:.0e}, float32 at {args.scale_n:.0e};",
         "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
         "peak = peak RSS of the process that ran the method (MB; the kNN process holds both orders).",
         "",
