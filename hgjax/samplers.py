@@ -394,54 +394,55 @@ def _fps(points, m: int, start):
     return chosen
 
 
-def _segment_sums_f32(v: np.ndarray, starts: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """(S,) float32 sums of the consecutive segments of ``v``, each added left to right.
-
-    A C loop's rounding: one ``np.cumsum`` per segment while segments are few and long,
-    else one vector add per position over all segments still that long.
-    """
-    if starts.size <= sizes.max():
-        return np.array([np.cumsum(v[a:a + s])[-1] for a, s in zip(starts, sizes)], dtype=np.float32)
-    total = np.zeros(starts.size, dtype=np.float32)
-    for k in range(int(sizes.max())):
-        live = np.flatnonzero(sizes > k)
-        total[live] += v[starts[live] + k]
-    return total
-
-
-def _kd_layout(q: np.ndarray) -> np.ndarray:
-    """(U,) rows of (U, 3) float32 points ``q`` after fpsample's QuickFPS tree build.
+def _kd_row(q: np.ndarray, target: int) -> int:
+    """The row of (U, 3) float32 points ``q`` where fpsample's QuickFPS tree build leaves row ``target``.
 
     fpsample 1.0 builds its kd-tree by partitioning the points in place: each node splits
-    its widest axis (the first on ties) at the float32 mean of the node's points, summed in
-    their current order, by a Hoare scan (the i-th point at or above the mean among the
-    node's first ``k`` rows trades places with the i-th point below it counted from the
-    node's end, ``k`` the count below), down to single points. ``start_idx`` then reads a
-    row of that partitioned array. Every node of a level is replayed at once.
-
-    Returns:
-      (U,) int64 ``layout``: ``layout[r]`` is the input row that the build leaves in row ``r``.
+    its widest axis (the first on ties) at the float32 mean of the node's points, summed
+    left to right in their current order, by a Hoare scan (the i-th point at or above the
+    mean among the node's first ``k`` rows trades places with the i-th point below it
+    counted from the node's end, ``k`` the count below), down to single points.
+    ``start_idx`` then reads a row of that partitioned array. Only the nodes that hold
+    ``target`` are replayed: about 2 U points in all.
     """
-    n = q.shape[0]
-    layout = np.arange(n)
-    starts = np.zeros(1, dtype=np.int64)
-    while True:
-        sizes = np.diff(np.append(starts, n))
-        if sizes.max() == 1:
-            return layout
-        x = q[layout]
-        span = np.maximum.reduceat(x, starts) - np.minimum.reduceat(x, starts)
-        seg = np.repeat(np.arange(starts.size), sizes)
-        v = x[np.arange(n), np.argmax(span, axis=1)[seg]]
-        right = v >= (_segment_sums_f32(v, starts, sizes) / sizes.astype(np.float32))[seg]
-        below = sizes - np.add.reduceat(right.astype(np.int64), starts)
-        head = np.arange(n) - starts[seg] < below[seg]
-        up = np.flatnonzero(head & right)
-        down = np.flatnonzero(~head & ~right)
-        down = down[np.lexsort((-down, seg[down]))]
-        layout[up], layout[down] = layout[down], layout[up]
-        n_left = np.clip(below, 1, np.maximum(sizes - 1, 1))
-        starts = np.sort(np.concatenate([starts, (starts + n_left)[sizes > 1]]))
+    axes, node, offset = np.ascontiguousarray(q.T), np.arange(q.shape[0]), 0
+    while node.size > 1:
+        x = axes[:, node]  # (3, S)
+        v = x[int(np.argmax(x.max(axis=1) - x.min(axis=1)))]
+        right = v >= np.cumsum(v)[-1] / np.float32(node.size)  # cumsum: the sequential float32 sum
+        below = node.size - int(right.sum())
+        head = np.arange(node.size) < below
+        up, down = np.flatnonzero(head & right), np.flatnonzero(~head & ~right)[::-1]
+        node[up], node[down] = node[down], node[up]
+        n_left = min(max(below, 1), node.size - 1)
+        if np.flatnonzero(node == target)[0] < n_left:
+            node = node[:n_left]
+        else:
+            node, offset = node[n_left:], offset + n_left
+    return offset
+
+
+def _distinct_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(q, axis=0, return_index=True, return_inverse=True)[1:]`` of (N, 3) float32 ``q``.
+
+    The same rows in the same (lexicographic) order, -0.0 equal to 0.0: one stable sort of
+    (x, y) packed into order-preserving uint64 keys, then z inside the (rare) equal runs.
+    """
+    bits = (q + np.float32(0)).view(np.uint32).astype(np.uint64)
+    bits = np.where(bits >> np.uint64(31) == 1, ~bits & np.uint64(0xFFFFFFFF), bits | np.uint64(1 << 31))
+    xy = bits[:, 0] << np.uint64(32) | bits[:, 1]
+    order = np.argsort(xy, kind="stable")
+    tied = np.zeros(order.size, dtype=bool)
+    tied[1:] = xy[order[1:]] == xy[order[:-1]]
+    tied[:-1] |= tied[1:]
+    if tied.any():
+        sub = order[tied]
+        order[tied] = sub[np.lexsort((bits[sub, 2], xy[sub]))]
+    new = np.ones(order.size, dtype=bool)
+    new[1:] = (xy[order[1:]] != xy[order[:-1]]) | (bits[order[1:], 2] != bits[order[:-1], 2])
+    group = np.empty(order.size, dtype=np.int64)
+    group[order] = np.cumsum(new) - 1
+    return order[new], group
 
 
 def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
@@ -450,20 +451,19 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
     Duplicates are resolved first: each distinct position is represented by its lowest
     index (``start`` for its own), and once all M' <= M distinct positions are taken the
     other points follow in index order, as on the JAX path. ``start_idx`` is the row that
-    the tree build moves ``start`` to (``_kd_layout``). Should the start not come back
+    the tree build moves ``start`` to (``_kd_row``). Should the start not come back
     first (a future fpsample building differently), fpsample's plain O(N M) FPS, which
     takes ``start_idx`` as given, serves instead.
     """
     import fpsample
 
     q = np.ascontiguousarray(p, dtype=np.float32)
-    _, first, group = np.unique(q, axis=0, return_index=True, return_inverse=True)
-    group = group.ravel()
+    first, group = _distinct_rows(q)
     rep = first.copy()
     rep[group[start]] = start
     k = min(m, rep.size)
     distinct = q[rep]
-    row = int(np.flatnonzero(_kd_layout(distinct) == group[start])[0])
+    row = _kd_row(distinct, int(group[start]))
     picked = fpsample.bucket_fps_kdtree_sampling(distinct, k, start_idx=row).astype(np.int64)
     if picked[0] != group[start]:
         picked = fpsample.fps_sampling(distinct, k, start_idx=int(group[start])).astype(np.int64)

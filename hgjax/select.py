@@ -116,12 +116,13 @@ class ExactSum:
             whole = (mant * 2.0**53).astype(np.int64)  # exact: |whole| < 2^53
             high = whole >> 26  # whole = high 2^26 + low, 0 <= low < 2^26
             low = whole - (high << 26)
-            exps, at = np.unique(exp, return_inverse=True)
+            at = exp - exp.min()  # exponents span at most about 2100 values: a bincount, not a sort
+            present = np.flatnonzero(np.bincount(at))
             # float64 bincount sums of |high| < 2^27 and low < 2^26 over < 2^26 terms stay exact
-            sums_high = np.bincount(at, weights=high.astype(np.float64))
-            sums_low = np.bincount(at, weights=low.astype(np.float64))
+            sums_high = np.bincount(at, weights=high.astype(np.float64))[present]
+            sums_low = np.bincount(at, weights=low.astype(np.float64))[present]
             total = total + cls(tuple((int(e), (int(a) << 26) + int(b))
-                                      for e, a, b in zip(exps, sums_high, sums_low)))
+                                      for e, a, b in zip(present + exp.min(), sums_high, sums_low)))
         return total
 
     def __add__(self, other: "ExactSum") -> "ExactSum":

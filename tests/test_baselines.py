@@ -145,6 +145,22 @@ def test_ward_1d_matches_scipy(round_share, monkeypatch):
         assert np.all(np.diff(means) > 0)  # numbered by increasing variation
 
 
+def test_ward_1d_equal_runs_match_scipy_and_per_value(monkeypatch):
+    """Runs of equal values enter as one cluster (cost 0): the same labels as one cluster per value, and scipy's."""
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        base = rng.random(int(rng.integers(2, 60))) ** 2
+        v = np.concatenate([base, np.repeat(rng.choice(base, 3), rng.integers(60, 150, 3)), np.zeros(100)])
+        rng.shuffle(v)
+        k = int(rng.integers(2, 8))
+        ours = hgjax.scores.pca_ac.ward_1d(v, k)
+        monkeypatch.setattr(pca_ac_module, "_RUN_MIN", 10**9)
+        np.testing.assert_array_equal(hgjax.scores.pca_ac.ward_1d(v, k), ours)
+        monkeypatch.undo()
+        theirs = fcluster(linkage(v[:, None], method="ward"), k, criterion="maxclust")
+        assert len(set(zip(ours.tolist(), theirs.tolist()))) == k, trial
+
+
 def test_pca_ac_keeps_what_ea_keeps():
     p = uniform_cloud(500, seed=7)
     a = hgjax.resample(p, 0.2, method="pca_ac", n_clusters=4)

@@ -54,16 +54,25 @@ def test_fps_backends_agree_with_duplicates():
 
 
 @needs_fpsample
-def test_fps_layout_replays_the_tree_build():
+def test_fps_row_replays_the_tree_build():
     # 1e5 points: summation order moves the float32 node means across points, so only a
     # replay of the build's own swaps finds where each row lands.
     import fpsample
 
     d = np.unique(normal_cloud(100_000, seed=8).astype(np.float32), axis=0)
-    layout = samplers._kd_layout(d)
-    rows = np.linspace(0, len(d) - 1, 40).astype(np.int64)
-    landed = [fpsample.bucket_fps_kdtree_sampling(d, 1, start_idx=int(r))[0] for r in rows]
-    np.testing.assert_array_equal(landed, layout[rows])
+    targets = np.linspace(0, len(d) - 1, 40).astype(np.int64)
+    landed = [fpsample.bucket_fps_kdtree_sampling(d, 1, start_idx=samplers._kd_row(d, int(t)))[0] for t in targets]
+    np.testing.assert_array_equal(landed, targets)
+
+
+def test_fps_distinct_rows_match_np_unique():
+    rng = np.random.default_rng(4)
+    q = rng.integers(-3, 4, (3000, 3)).astype(np.float32) * np.float32(0.5)  # many duplicates, equal x and y
+    q[:5] = [[0.0, -0.0, 1.0], [-0.0, 0.0, 1.0], [0.0, 0.0, -0.0], [-0.0, -0.0, 0.0], [1e-30, 0, 0]]
+    first, group = samplers._distinct_rows(q)
+    _, want_first, want_group = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    np.testing.assert_array_equal(first, want_first)
+    np.testing.assert_array_equal(group, want_group.ravel())
 
 
 @needs_fpsample
@@ -81,7 +90,7 @@ def test_fps_fast_path_honours_the_start_on_large_clouds(monkeypatch):
 def test_fps_fallback_when_the_start_is_not_honoured(monkeypatch):
     p = normal_cloud(300, seed=3)
     want = hgjax.farthest_point_sample(p, 0.2, start=11, backend="jax")
-    monkeypatch.setattr(samplers, "_kd_layout", lambda q: np.arange(q.shape[0])[::-1])
+    monkeypatch.setattr(samplers, "_kd_row", lambda q, target: q.shape[0] - 1 - target)
     np.testing.assert_array_equal(hgjax.farthest_point_sample(p, 0.2, start=11, backend="fpsample"), want)
 
 

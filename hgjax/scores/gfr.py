@@ -185,18 +185,24 @@ def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
             d = u[batch][:, None, :] - u[jj]  # (R, k, 3)
             q = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
             valid = real & (q > 0) & (q < r)
-            q = np.where(valid, q, np.inf)
-            order = np.lexsort((np.where(valid, tie[jj], m), q), axis=1)  # by (q, tie) in each row
-            q, j = np.take_along_axis(q, order, axis=1), np.take_along_axis(j, order, axis=1)
             n_valid = valid.sum(axis=1)
-            cap = min(max_nn, k) - 1
-            last = q[np.arange(batch.size), np.maximum(n_valid - 1, 0)]
-            open_rows = real.all(axis=1) & (k < m) & ((n_valid < max_nn) | (q[:, cap] >= last))
+            open_rows = real.all(axis=1) & (k < m)  # the query came back full: more may lie beyond
+            capped = np.flatnonzero(n_valid >= max_nn)  # only these rows rank their partners
+            jc = np.zeros((0, max_nn), dtype=j.dtype)
+            if capped.size:
+                qc = np.where(valid[capped], q[capped], np.inf)
+                order = np.lexsort((np.where(valid[capped], tie[jj[capped]], m), qc), axis=1)  # by (q, tie)
+                qc, jc = np.take_along_axis(qc, order, axis=1), np.take_along_axis(j[capped], order, axis=1)
+                # a full capped row stays open while a tie with its max_nn-th partner may lie beyond
+                open_rows[capped] &= qc[:, max_nn - 1] >= qc[np.arange(capped.size), n_valid[capped] - 1]
             again.append(batch[open_rows])
-            take = (np.arange(k) < max_nn) & np.isfinite(q) & ~open_rows[:, None]
-            a = np.broadcast_to(batch[:, None], j.shape)[take]
-            rows.append(np.minimum(a, j[take]))
-            cols.append(np.maximum(a, j[take]))
+            free = valid & ~open_rows[:, None]
+            free[capped] = False
+            kept = ~open_rows[capped]
+            a = np.concatenate([np.broadcast_to(batch[:, None], j.shape)[free], np.repeat(batch[capped][kept], max_nn)])
+            b = np.concatenate([j[free], jc[kept, :max_nn].ravel()])
+            rows.append(np.minimum(a, b))
+            cols.append(np.maximum(a, b))
         todo, k = np.concatenate(again), min(2 * k, m)
     return _split_keys(np.concatenate(rows) * m + np.concatenate(cols), m)
 
@@ -459,9 +465,11 @@ def symmetric(a: np.ndarray, b: np.ndarray, n: int, tie: np.ndarray) -> np.ndarr
     ids), padded with n: the order in which :func:`laplacian_norms` sums a row, so a point's
     score does not depend on how the graph was cut or padded.
     """
-    src, dst = np.concatenate([a, b]), np.concatenate([b, a])
-    order = np.lexsort((tie[dst], src))
-    src, dst = src[order], dst[order]
+    by_tie = np.argsort(tie, kind="stable")
+    rank = np.empty(n, dtype=np.int64)
+    rank[by_tie] = np.arange(n)
+    key = np.sort(np.concatenate([a * n + rank[b], b * n + rank[a]]))  # one sort of packed (node, rank) keys
+    src, dst = key // n, by_tie[key % n]
     counts = np.bincount(src, minlength=n)
     out = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
     out[src, np.arange(src.size) - (np.cumsum(counts) - counts)[src]] = dst

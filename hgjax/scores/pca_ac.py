@@ -19,6 +19,12 @@ O(N^2) time and memory; it has no inversions, so cutting it into ``n_clusters`` 
 removes the ``n_clusters - 1`` boundaries of highest cost. The tests check the partition
 against ``scipy.cluster.hierarchy.linkage(method="ward")``.
 
+Runs of equal values (98 % of a box surface's variations are exactly 0) merge at cost 0
+before any other merge touches them, left to right (each step the leftmost zero-cost
+pair): a run of ``_RUN_MIN`` or more values enters as one cluster whose total is that
+left-to-right sum, so its sizes, totals and every later cost keep the same bits, without
+one round or heap step per value.
+
 A consequence worth knowing: because the clusters are intervals of the variation, the kept
 set equals EA's (the largest variations) except for the order among exactly equal
 variations; the clustering adds the cluster numbers, not a different ranking.
@@ -36,6 +42,7 @@ __all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
 
 DEFAULT_N_CLUSTERS = 2  # sharp versus smooth, the two classes of edge detection
 _ROUND_MIN_SHARE = 64  # finish with the heap once a round merges fewer than 1/64 of clusters
+_RUN_MIN = 64  # runs of at least this many equal values enter as one cluster
 
 
 def _merge_rounds(size, total, end, heights):
@@ -89,6 +96,24 @@ def _merge_heap(size, total, end, heights):
             heapq.heappush(heap, (cost(left[a], a), left[a], a, version[left[a]], version[a]))
 
 
+def _equal_runs(x):
+    """(size, total, end) of the initial clusters of sorted ``x``: one per value, runs of at
+    least ``_RUN_MIN`` equal values merged (at cost 0) into one, summed left to right."""
+    n = x.size
+    new = np.ones(n, dtype=bool)
+    new[1:] = x[1:] != x[:-1]
+    starts = np.flatnonzero(new)
+    lengths = np.diff(np.append(starts, n))
+    long = lengths >= _RUN_MIN
+    heads = np.flatnonzero(new | ~np.repeat(long, lengths))
+    size = np.diff(np.append(heads, n))
+    total = x[heads]
+    at = np.searchsorted(heads, starts[long])
+    for a, s, length in zip(at, starts[long], lengths[long]):
+        total[a] = np.cumsum(x[s:s + length])[-1]  # the sequential sum of the cost-0 merges
+    return size.astype(np.float64), total, heads + size - 1
+
+
 def ward_1d(values, n_clusters: int) -> np.ndarray:
     """Ward agglomerative clustering of one-dimensional values, O(N log N).
 
@@ -116,7 +141,7 @@ def ward_1d(values, n_clusters: int) -> np.ndarray:
     n_clusters = min(_validate.check_int(n_clusters, "n_clusters", minimum=1), v.size)
     order = np.argsort(v, kind="stable")
     heights = np.zeros(max(v.size - 1, 0))  # heights[j]: cost of the merge across j | j + 1
-    rest = _merge_rounds(np.ones(v.size), v[order], np.arange(v.size), heights)
+    rest = _merge_rounds(*_equal_runs(v[order]), heights)
     _merge_heap(*rest, heights)
     cut = np.zeros(heights.size, dtype=np.int64)
     cut[np.argsort(-heights, kind="stable")[: n_clusters - 1]] = 1
