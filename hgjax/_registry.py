@@ -94,6 +94,10 @@ class Method:
         """The parameters resampling uses: every stage's but the soft score's."""
         return self.params["build"] | self.params["score"] | self.params["select"]
 
+    def with_ratio(self, stage: str, params: dict, ratio) -> dict:
+        """``params`` with ``ratio`` added where ``stage`` takes it (LHF's score, Eqs. (15)-(16))."""
+        return {**params, "ratio": ratio} if "ratio" in self.params[stage] else params
+
 
 @dataclasses.dataclass(frozen=True)
 class Sampler:
@@ -133,3 +137,7 @@ class Sampler:
     def resample_params(self) -> frozenset:
         """The parameters resampling uses (all of them)."""
         return self.params
+
+    def draw(self, points, ratio, key, **params):
+        """``sample(points, ratio, **params)``, given ``key`` when the sampler draws random numbers."""
+        return self.sample(points, ratio, **({"key": key} if self.needs_key else {}), **params)

@@ -506,11 +506,9 @@ def _score(entry, points, ratio, params, progress: bool, args) -> np.ndarray:
     start = time.perf_counter()
     nb = hgjax.neighbourhoods(points, entry.name, **params)
     _stage(args, "neighbourhoods", start)
-    extra = {"ratio": ratio} if "ratio" in entry.params["score"] else {}
-    if progress and "progress" in entry.params["score"]:
-        extra["progress"] = True
+    extra = {"progress": True} if progress and "progress" in entry.params["score"] else {}
     start = time.perf_counter()
-    scores = np.asarray(hgjax.score(nb, entry.name, **params, **extra))
+    scores = np.asarray(hgjax.score(nb, entry.name, **entry.with_ratio("score", params, ratio), **extra))
     _stage(args, "score", start)
     return scores
 
@@ -526,10 +524,8 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
     start = time.perf_counter()
     points = hgjax.local_frame(points)[0]
     if isinstance(entry, hgjax.Sampler):
-        extra = {"key": key} if entry.needs_key else {}
-        if voxel_size is not None:
-            extra["voxel_size"] = voxel_size
-        idx, scores = np.asarray(entry.sample(points, ratio, **extra, **params)), None
+        extra = {} if voxel_size is None else {"voxel_size": voxel_size}
+        idx, scores = np.asarray(entry.draw(points, ratio, key, **extra, **params)), None
         _stage(args, "sample", start)
     else:
         scores = _score(entry, points, ratio, params, progress, args)

@@ -264,7 +264,7 @@ def _whole(points, ratio, entry: Method, key, params: dict) -> tuple[np.ndarray,
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
     nb = neighbourhoods(pts, entry.name, **params)
-    scores = score(nb, entry.name, **params, **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
+    scores = score(nb, entry.name, **entry.with_ratio("score", params, ratio))
     return keep(scores, ratio, method=entry.name, key=key, **params), np.asarray(scores)
 
 
@@ -296,9 +296,7 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
       20.0
     """
     entry = _scoring(method)
-    if "ratio" in entry.params["soft_score"]:
-        params["ratio"] = ratio
-    s = soft_score(nb, method, **params)
+    s = soft_score(nb, method, **entry.with_ratio("soft_score", params, ratio))
     return soft_select(s, ratio, temperature=temperature, largest=entry.largest,
                        valid=None if nb.count is None else nb.row_mask)
 

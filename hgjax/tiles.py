@@ -521,7 +521,7 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
         if distributed and method in _TILED_SAMPLERS:
             return _Run(_TILED_SAMPLERS[method](points, ratio, tile, client, **params))
         pts, ratio = _validate.check_points(points), _validate.check_ratio(ratio)
-        return _Run(entry.sample(pts, ratio, **({"key": key} if entry.needs_key else {}), **params))
+        return _Run(entry.draw(pts, ratio, key, **params))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
     if refused is not None:
