@@ -331,12 +331,16 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
     Returns:
       (plan, cloud): the :class:`Plan` and the tiled cloud it was made for.
     """
-    plan_, cloud = _base(points, ratio, pipeline._entry(method), tile, params)
+    plan_, cloud = _base(points, ratio, method, tile, params)
     return _resolved(plan_, _runner(cloud, client, _reach_k(plan_.build))), cloud
 
 
-def _base(points, ratio, entry: pipeline.Method, tile, params: dict) -> tuple[Plan, _Cloud]:
+def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]:
     """The plan before any decision that needs neighbours, and the tiled cloud."""
+    entry = pipeline._entry(method)
+    if not _planned(entry):
+        raise ValueError(f"method {method!r} has no tiled plan; expected one of"
+                         f" {sorted(m for m, e in pipeline.METHODS.items() if _planned(e))}")
     pts = _validate.check_points(points)
     n = pts.shape[0]
     m = _validate.n_keep(n, _validate.check_ratio(ratio))
@@ -354,6 +358,11 @@ def _base(points, ratio, entry: pipeline.Method, tile, params: dict) -> tuple[Pl
     spacing = 0.0 if tile is None else tile * np.sqrt(len(cloud.members) / n)
     halo = HALO_SPACINGS * _reach_radii(build) * spacing * np.sqrt(_reach_k(build))
     return Plan(entry.name, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo)), cloud
+
+
+def _planned(entry) -> bool:
+    """Whether a registry entry is a scoring method with a tiled plan."""
+    return isinstance(entry, pipeline.Method) and entry.tile_params is not None
 
 
 def _resolved(plan_: Plan, runner: _Here) -> Plan:
@@ -530,7 +539,7 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
     if entry.check_key is not None:
         key = entry.check_key(key, params)
-    plan_, cloud = _base(points, ratio, entry, tile, params)
+    plan_, cloud = _base(points, ratio, method, tile, params)
     runner = _runner(cloud, client, _reach_k(plan_.build))
     plan_ = _resolved(plan_, runner)
     parts = _gfr_scores(runner, plan_, stream) if entry.kind == "graph" else runner.tiles(tile_scores, plan_, stream)
