@@ -106,7 +106,7 @@ def _build(method: str, pts):
     import hgjax
 
     method, _, variant = method.partition(":")
-    if hgjax.METHODS[method].kind is None:
+    if isinstance(hgjax.METHODS[method], hgjax.Sampler):
         return None  # samplers work on the points directly: no build
     return hgjax.neighbourhoods(pts, method, **({"variant": variant} if variant else {}))
 
@@ -427,7 +427,7 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
             if "error" in r:
                 lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | |")
                 continue
-            if hgjax.METHODS[m.partition(":")[0]].kind is None:  # samplers: no neighbourhood build
+            if isinstance(hgjax.METHODS[m.partition(":")[0]], hgjax.Sampler):  # samplers: no neighbourhood build
                 build, jax_part = "", ""
             else:
                 ratio = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7

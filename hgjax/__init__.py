@@ -10,9 +10,11 @@ from importlib.metadata import PackageNotFoundError, version as _version
 
 from hgjax import eval, io, scores, spectrum  # noqa: A004 (hgjax.eval is the evaluation package)
 from hgjax import samplers as _samplers
+from hgjax import tiles  # noqa: F401  (hgjax.tiles.resample: the tiled path)
 from hgjax.pipeline import (
     METHODS,
     Method,
+    Sampler,
     keep,
     neighbourhoods,
     resample,
@@ -44,6 +46,7 @@ __all__ = [
     "METHODS",
     "Method",
     "Neighbourhoods",
+    "Sampler",
     "PrecisionWarning",
     "cube",
     "eval",

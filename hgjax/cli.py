@@ -166,10 +166,10 @@ def _param(text: str) -> tuple[str, object]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``hgjax`` command (exposed for documentation tools)."""
-    from hgjax import METHODS, __version__, io
+    from hgjax import METHODS, Method, __version__, io
 
     methods = sorted(METHODS)
-    scoring = [m for m in methods if METHODS[m].kind is not None]
+    scoring = [m for m in methods if isinstance(METHODS[m], Method)]
     formats = [ext[1:] for ext in io.WRITE_EXTENSIONS]
     parser = argparse.ArgumentParser(prog="hgjax", description="Point-cloud resampling with hypergraph signal"
                                      " processing (HKC, HKF, LHF) and baselines, in JAX.",
@@ -474,7 +474,7 @@ def _method_params(args, entry) -> dict:
         if "variant" in params:
             raise UsageError("give the variant once: --variant or -p variant=...")
         params["variant"] = args.variant
-    accepted = entry.params["build"] | entry.params["score"] | entry.params["select"]
+    accepted = entry.resample_params
     unknown = sorted(set(params) - accepted)
     if unknown:
         takes = ", ".join(sorted(accepted - set(CLI_PARAMS))) or "no parameters"
@@ -506,11 +506,9 @@ def _score(entry, points, ratio, params, progress: bool, args) -> np.ndarray:
     start = time.perf_counter()
     nb = hgjax.neighbourhoods(points, entry.name, **params)
     _stage(args, "neighbourhoods", start)
-    extra = {"ratio": ratio} if "ratio" in entry.params["score"] else {}
-    if progress and "progress" in entry.params["score"]:
-        extra["progress"] = True
+    extra = {"progress": True} if progress and "progress" in entry.params["score"] else {}
     start = time.perf_counter()
-    scores = np.asarray(hgjax.score(nb, entry.name, **params, **extra))
+    scores = np.asarray(hgjax.score(nb, entry.name, **entry.with_ratio("score", params, ratio), **extra))
     _stage(args, "score", start)
     return scores
 
@@ -525,11 +523,9 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
 
     start = time.perf_counter()
     points = hgjax.local_frame(points)[0]
-    if entry.kind is None:
-        extra = {"key": key} if entry.needs_key else {}
-        if voxel_size is not None:
-            extra["voxel_size"] = voxel_size
-        idx, scores = np.asarray(entry.select(points, ratio, **extra, **params)), None
+    if isinstance(entry, hgjax.Sampler):
+        extra = {} if voxel_size is None else {"voxel_size": voxel_size}
+        idx, scores = np.asarray(entry.draw(points, ratio, key, **extra, **params)), None
         _stage(args, "sample", start)
     else:
         scores = _score(entry, points, ratio, params, progress, args)
@@ -615,7 +611,9 @@ def _ratio_of(args, path: str, n: int) -> float | None:
 def _score_placeholder(entry, args, n: int) -> np.ndarray | None:
     """A stand-in for the score column, of the dtype the method writes, to check the output
     format before computing."""
-    return None if entry.kind is None else np.zeros(n, np.dtype(args.dtype))
+    from hgjax import Method
+
+    return np.zeros(n, np.dtype(args.dtype)) if isinstance(entry, Method) else None
 
 
 def cmd_resample(args) -> None:

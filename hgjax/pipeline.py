@@ -6,168 +6,55 @@
 * :func:`score` (pure JAX: jit, vmap) and its differentiable twin :func:`soft_score`;
 * :func:`keep` (host) turns scores into indices; :func:`soft_weights` into keep weights.
 
-One :class:`Method` entry per method records its neighbourhood kind, its score and soft
-score, which end is kept, whether it needs a key, and which parameters each stage takes.
+Each method module declares its entry (a :class:`Method`: neighbourhood kind, score and soft
+score, which end is kept, whether it needs a key, the parameters of each stage, and the hooks
+of the tiled engine; or a :class:`Sampler`, which picks points without scores);
+:data:`METHODS` collects them.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import inspect
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate, samplers, spatial, tiles
-from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, pca_ac, voxel
-from hgjax.select import ExactSum, soft_select, top_k, weighted_sample
+from hgjax import _validate, samplers, spatial
+from hgjax._registry import Method, Sampler
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, pca_ac
+from hgjax.select import soft_select, top_k
 
-__all__ = ["METHODS", "Method", "keep", "neighbourhoods", "resample", "score", "soft_resample", "soft_score",
-           "soft_weights"]
+__all__ = ["METHODS", "Method", "Sampler", "keep", "neighbourhoods", "resample", "score", "soft_resample",
+           "soft_score", "soft_weights"]
 
-_STAGES = ("build", "score", "soft_score", "select")
-
-
-@dataclasses.dataclass(frozen=True)
-class Method:
-    """A registered resampling method.
-
-    Attributes:
-      name: registry key.
-      kind: neighbourhood kind, ``"cube"``, ``"knn"`` or ``"graph"``; None for the samplers,
-        which work on the points directly.
-      largest: True when the largest scores are kept, False for the smallest (None for
-        samplers).
-      needs_key: whether the default selection draws random numbers (explicit ``key``).
-      summary: one line for the README and ``--help``.
-      citation: where the method comes from.
-      build: ``build(points, **params) -> Neighbourhoods`` (host).
-      score: ``score(nb, **params) -> (N,)`` pure JAX.
-      soft_score: differentiable twin of ``score``.
-      select: ``select(scores, m, *, key, **params) -> (m,) indices`` (host); for samplers
-        ``select(points, ratio, *, key, **params)``.
-      params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
-        keyword parameters it accepts.
-
-    Examples:
-      >>> import hgjax
-      >>> entry = hgjax.METHODS["hkc"]
-      >>> entry.kind, entry.largest, entry.citation
-      ('cube', False, 'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)')
-    """
-
-    name: str
-    kind: str | None
-    largest: bool | None
-    needs_key: bool
-    summary: str
-    citation: str
-    build: Callable | None
-    score: Callable | None
-    soft_score: Callable | None
-    select: Callable
-    params: dict = dataclasses.field(default_factory=dict)
-
-    @property
-    def accepted(self) -> frozenset:
-        """Every keyword parameter of any stage."""
-        return frozenset().union(*self.params.values())
+METHODS: dict[str, Method | Sampler] = {m.name: m for m in (
+    hkc.METHOD, hkf.METHOD, lhf.METHOD, gfr.METHOD, ea.METHOD, pca_ac.METHOD, mss.METHOD, *samplers.SAMPLERS)}
 
 
-def _keywords(fn: Callable | None, skip: int) -> frozenset:
-    if fn is None:
-        return frozenset()
-    params = list(inspect.signature(fn).parameters.values())[skip:]
-    return frozenset(p.name for p in params if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD))
-
-
-def _method(name, kind, largest, needs_key, summary, citation, build, score_fn, soft, select) -> Method:
-    skip = {"build": 1, "score": 1, "soft_score": 1, "select": 2}
-    fns = {"build": build, "score": score_fn, "soft_score": soft, "select": select}
-    params = {stage: _keywords(fns[stage], skip[stage]) - {"key"} for stage in _STAGES}
-    return Method(name, kind, largest, needs_key, summary, citation, build, score_fn, soft, select, params)
-
-
-def _top(largest: bool) -> Callable:
-    def select(scores, m, *, key=None):
-        del key  # deterministic
-        return top_k(scores, m, largest=largest)
-
-    return select
-
-
-def _gfr_select(scores, m, *, key=None, mode="random"):
-    """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores."""
-    mode = _validate.check_choice(mode, "mode", gfr.MODES)
-    if mode == "top":
-        return top_k(scores, m, largest=True)
-    _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
-    values = np.asarray(scores, dtype=np.float64)
-    return weighted_sample(key, gfr.inclusion(values, ExactSum.of(values).value(), values.shape[0]), m)
-
-
-def _pca_ac_select(scores, m, *, key=None, n_clusters=pca_ac.DEFAULT_N_CLUSTERS):
-    del key  # deterministic
-    return pca_ac.keep(scores, m, n_clusters=n_clusters)
-
-
-PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
-DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
-
-METHODS: dict[str, Method] = {m.name: m for m in (
-    _method("hkc", "cube", False, False,
-            "hypergraph kernel convolution: keep the smallest high/low band ratio beta",
-            f"{PAPER}, Alg. 1, Eq. (11)", voxel.neighbourhoods, hkc.score, hkc.soft_score, _top(False)),
-    _method("hkf", "cube", False, False,
-            "hypergraph kernel filtering: keep the smallest high-band share sigma",
-            f"{PAPER}, Alg. 2, Eq. (12)", voxel.neighbourhoods, hkf.score, hkc.soft_score, _top(False)),
-    _method("lhf", "knn", True, False,
-            "local hypergraph filtering: keep the largest two-length sharpness gamma",
-            f"{PAPER}, Alg. 3, Eqs. (14)-(16)", lhf.neighbourhoods, lhf.score, lhf.soft_score, _top(True)),
-    _method("gfr", "graph", True, True,
-            'graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
-            "Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", gfr.neighbourhoods, gfr.score,
-            gfr.soft_score, _gfr_select),
-    _method("ea", "knn", True, False,
-            "eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)", DICTA,
-            ea.neighbourhoods, ea.score, ea.soft_score, _top(True)),
-    _method("pca_ac", "knn", True, False,
-            "PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
-            DICTA, ea.neighbourhoods, ea.score, ea.soft_score, _pca_ac_select),
-    _method("mss", "knn", True, False,
-            "multi-scale sharpness: surface variation at 8/16/32 neighbours plus the normal graph high-pass",
-            "Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", mss.neighbourhoods, mss.score,
-            mss.soft_score, _top(True)),
-    _method("uniform", None, None, True, "uniformly random subset (needs key)", "random down-sampling",
-            None, None, None, samplers.uniform_sample),
-    _method("voxel", None, None, False, "one point per voxel of a grid sized to reach the count",
-            "voxel-grid down-sampling", None, None, None, samplers.voxel_sample),
-    _method("fps", None, None, False, "farthest point sampling from point 0",
-            "Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997", None, None, None,
-            samplers.farthest_point_sample),
-)}
-
-
-def _entry(method: str) -> Method:
+def _entry(method: str) -> Method | Sampler:
     return METHODS[_validate.check_choice(method, "method", METHODS)]
 
 
 def _scoring(method: str) -> Method:
     entry = _entry(method)
-    if entry.kind is None:
+    if not isinstance(entry, Method):
         raise ValueError(f"method {method!r} is a sampler without scores; expected one of"
-                         f" {sorted(m for m, e in METHODS.items() if e.kind is not None)}")
+                         f" {sorted(m for m, e in METHODS.items() if isinstance(e, Method))}")
     return entry
 
 
-def _split(entry: Method, stage: str, params: dict) -> dict:
-    """The parameters of ``params`` that ``stage`` accepts; unknown names raise."""
+def _check_known(entry: Method | Sampler, params: dict) -> None:
+    """Raise TypeError naming the parameters of ``params`` that no stage of ``entry`` takes."""
     unknown = set(params) - entry.accepted
     if unknown:
         raise TypeError(f"method {entry.name!r} got unexpected parameter(s) {sorted(unknown)};"
                         f" it accepts {sorted(entry.accepted)}")
+
+
+def _split(entry: Method, stage: str, params: dict) -> dict:
+    """The parameters of ``params`` that ``stage`` accepts; unknown names raise."""
+    _check_known(entry, params)
     return {k: v for k, v in params.items() if k in entry.params[stage]}
 
 
@@ -181,7 +68,7 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
 
     Args:
       points: (N, 3) float32 or float64; never modified.
-      method: a scoring method of :data:`METHODS` (``kind`` not None).
+      method: a scoring method of :data:`METHODS` (a :class:`Method`).
       **params: the method's neighbourhood parameters (e.g. ``variant``, ``d_factor``,
         ``lengths``, ``k``, ``dedupe``, ``capacity``: a fixed K so that a batch of clouds can
         share one shape; a cloud that needs more raises, naming the capacity it needs).
@@ -331,14 +218,17 @@ def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray
     entry = _scoring(method)
     values = _validate.check_scores(scores)
     m = _validate.n_keep(values.shape[0], _validate.check_ratio(ratio))
-    return entry.select(values, m, key=key, **_split(entry, "select", params))
+    chosen = _split(entry, "select", params)
+    if entry.select is None:
+        return top_k(values, m, largest=entry.largest)
+    return entry.select(values, m, key=key, **chosen)
 
 
 def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -> np.ndarray:
     """Indices of the ceil(ratio * N) points that a method keeps.
 
     The composition ``keep(score(neighbourhoods(points, method)), ratio)`` for scoring
-    methods; samplers (``kind`` None) work on the points directly.
+    methods (:class:`Method`); samplers (:class:`Sampler`) work on the points directly.
 
     Args:
       points: (N, 3) float32 or float64 (NumPy or JAX array); never modified.
@@ -364,19 +254,18 @@ def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -
       >>> idx.shape, len(set(idx.tolist()))
       ((400,), 400)
     """
+    from hgjax import tiles  # the tiled engine builds on this registry
+
     return tiles.resample(points, ratio, method=method, key=key, **params)
 
 
-def _whole(points, ratio, entry: Method, key, params: dict, return_scores: bool = False):
-    """The methods that run on the whole cloud at once (samplers, PCA-AC): their own selection."""
+def _whole(points, ratio, entry: Method, key, params: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(kept indices, scores) of a scoring method on the whole cloud at once (PCA-AC, GFR's reference)."""
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
-    if entry.kind is None:
-        return entry.select(pts, ratio, **({"key": key} if entry.needs_key else {}), **params)
     nb = neighbourhoods(pts, entry.name, **params)
-    scores = score(nb, entry.name, **params, **({"ratio": ratio} if "ratio" in entry.params["score"] else {}))
-    idx = keep(scores, ratio, method=entry.name, key=key, **params)
-    return (idx, np.asarray(scores)) if return_scores else idx
+    scores = score(nb, entry.name, **entry.with_ratio("score", params, ratio))
+    return keep(scores, ratio, method=entry.name, key=key, **params), np.asarray(scores)
 
 
 def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=0.05, **params) -> jax.Array:
@@ -407,9 +296,7 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
       20.0
     """
     entry = _scoring(method)
-    if "ratio" in entry.params["soft_score"]:
-        params["ratio"] = ratio
-    s = soft_score(nb, method, **params)
+    s = soft_score(nb, method, **entry.with_ratio("soft_score", params, ratio))
     return soft_select(s, ratio, temperature=temperature, largest=entry.largest,
                        valid=None if nb.count is None else nb.row_mask)
 

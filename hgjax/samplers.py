@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate, spatial
+from hgjax import _registry, _validate, spatial
 from hgjax.select import keyed_top
 
 __all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"]
@@ -555,3 +555,18 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
         return _fps_fpsample(local, m, start)
     p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))
     return np.asarray(_fps(p, m, jnp.int32(start))).astype(np.int64)
+
+
+def _fps_untiled(params: dict) -> tuple[str, str]:
+    return "", "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles"
+
+
+SAMPLERS = (
+    _registry.Sampler("uniform", needs_key=True, summary="uniformly random subset (needs key)",
+                      citation="random down-sampling", sample=uniform_sample, params=frozenset()),
+    _registry.Sampler("voxel", needs_key=False, summary="one point per voxel of a grid sized to reach the count",
+                      citation="voxel-grid down-sampling", sample=voxel_sample, params=frozenset({"voxel_size"})),
+    _registry.Sampler("fps", needs_key=False, summary="farthest point sampling from point 0",
+                      citation="Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997", sample=farthest_point_sample,
+                      params=frozenset({"backend", "start"}), untiled=_fps_untiled),
+)

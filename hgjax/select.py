@@ -91,6 +91,12 @@ def order_keys(scores, *, largest: bool) -> np.ndarray:
     return ~ascending if largest else ascending
 
 
+def part_keys(part, largest: bool, column: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(keys, gids) of a tile's (gids, scores) part: its scores, or one column of them, as :func:`order_keys`."""
+    gids, scores = part
+    return order_keys(scores if column is None else scores[:, column], largest=largest), gids
+
+
 @dataclasses.dataclass(frozen=True)
 class ExactSum:
     """The exact sum of float64 values: integer mantissa sums per binary exponent.

@@ -43,18 +43,13 @@ import tempfile
 import jax
 import numpy as np
 
-from hgjax import _stream, _validate, samplers, select, spatial
-from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, voxel
+from hgjax import _stream, _validate, pipeline, samplers, select, spatial
+from hgjax.scores import ea, gfr, voxel
 
 __all__ = ["Plan", "SurveyResult", "plan", "resample", "resample_files", "tile_scores"]
 
-TILED = ("ea", "gfr", "hkc", "hkf", "lhf", "mss", "uniform", "voxel")
-GLOBAL_ONLY = {
-    "pca_ac": "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into"
-              " tiles",
-    "fps": "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles",
-}
-CUBE = ("hkc", "hkf")
+TILED = tuple(sorted(name for name, entry in pipeline.METHODS.items()  # with their default parameters
+                    if entry.untiled is None or entry.untiled({}) is None))
 HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K) per k-nearest radius reached
 KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's index (or GFR graph) between passes
 SUB = 16  # a tile's members are grouped in SUB^3 sub-cells, so that a halo reads slabs of its neighbours
@@ -227,28 +222,6 @@ class _Cloud:
         return bool((left & right).all())
 
 
-def _scoring_params(method: str, params: dict) -> tuple[dict, dict]:
-    """Validated (build, score) parameters of a scoring method, before any whole-cloud decision."""
-    if method in CUBE:
-        build = voxel.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
-                                                              "dedupe") if k in params})
-        return build, {"kernel_size": build["kernel_size"], "variant": build["variant"]}
-    if method == "lhf":
-        b = lhf.build_params(**{k: params[k] for k in ("lengths", "variant", "dedupe") if k in params})
-        solver = _validate.check_choice(params.get("solver", "gram"), "solver", lhf.SOLVERS)
-        return ({"k": max(b["lengths"]), "dedupe": b["dedupe"]},
-                {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
-    if method == "gfr":
-        variant, factor, max_nn = gfr.graph_params(params.get("variant", "invariant"), params.get("radius_factor"),
-                                                   params.get("max_nn", gfr.MAX_NN))
-        return ({"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn},
-                {"mode": _validate.check_choice(params.get("mode", "random"), "mode", gfr.MODES)})
-    if method == "mss":
-        return {"k": max(mss.SCALES), "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
-    k = _validate.check_int(params.get("k", ea.DEFAULT_K), "k", minimum=2)
-    return {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}, {}
-
-
 def _reach_k(build: dict) -> int:
     return voxel.LOCAL_K + 1 if "kernel_size" in build else build.get("k", ea.DEFAULT_K)
 
@@ -364,17 +337,16 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
 
 def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]:
     """The plan before any decision that needs neighbours, and the tiled cloud."""
+    entry = pipeline._entry(method)
+    if not _planned(entry):
+        raise ValueError(f"method {method!r} has no tiled plan; expected one of"
+                         f" {sorted(m for m, e in pipeline.METHODS.items() if _planned(e))}")
     pts = _validate.check_points(points)
     n = pts.shape[0]
     m = _validate.n_keep(n, _validate.check_ratio(ratio))
     if tile is not None:
         tile = _validate.check_positive(tile, "tile")
-    build, score = _scoring_params(method, params)
-    if method in CUBE:
-        _validate.check_min_points(n, 2, "HKC/HKF")
-    elif method != "gfr":
-        what = f"LHF lengths={score['lengths']}" if method == "lhf" else f"k={build['k']} nearest neighbours"
-        _validate.check_min_points(n, build["k"], what)
+    build, score = entry.tile_params(n, params)
     bmin, bmax = _bounds(pts)
     origin = (bmin + bmax) / 2
     lo, hi = bmin - origin, bmax - origin
@@ -385,18 +357,25 @@ def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]
     # spacing of about t / sqrt(n)).
     spacing = 0.0 if tile is None else tile * np.sqrt(len(cloud.members) / n)
     halo = HALO_SPACINGS * _reach_radii(build) * spacing * np.sqrt(_reach_k(build))
-    return Plan(method, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo)), cloud
+    return Plan(entry.name, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo)), cloud
+
+
+def _planned(entry) -> bool:
+    """Whether a registry entry is a scoring method with a tiled plan."""
+    return isinstance(entry, pipeline.Method) and entry.tile_params is not None
 
 
 def _resolved(plan_: Plan, runner: _Here) -> Plan:
-    """The plan with the build parameters that depend on the sample's nearest distances resolved."""
-    build = dict(plan_.build)
-    if plan_.method in CUBE and voxel.needs_stats(build):
-        build = voxel.resolve(build, _sample_stats(runner, plan_))
-    elif plan_.method == "gfr":
-        build["r"] = gfr.squared_radius(build["radius_factor"], _sample_stats(runner, plan_))
-        plan_ = dataclasses.replace(plan_, halo=max(plan_.halo, 2.5 * np.sqrt(build["r"])))
-    return dataclasses.replace(plan_, build=build)
+    """The plan with the build parameters that depend on the sample's nearest distances resolved.
+
+    A graph's first halo holds 2.5 times its radius (a core location sees its whole R-ball).
+    """
+    entry = pipeline.METHODS[plan_.method]
+    if entry.resolve is None:
+        return plan_
+    build = entry.resolve(dict(plan_.build), lambda: _sample_stats(runner, plan_))
+    halo = max(plan_.halo, 2.5 * np.sqrt(build["r"])) if entry.kind == "graph" else plan_.halo
+    return dataclasses.replace(plan_, build=build, halo=halo)
 
 
 def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -443,21 +422,19 @@ def tile_scores(cloud: _Cloud, cell, plan_: Plan, stream: dict | None = None) ->
     Returns:
       (gids (R,) ascending, scores (R,) or (R, 2) for LHF's two lengths) of the core points.
     """
+    entry = pipeline.METHODS[plan_.method]
     halo = plan_.halo
     while True:
         gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
         rows = _core_rows(index, core)
-        if plan_.method in CUBE:
-            idx, scale, reach = voxel.build_rows(index, rows, plan_.build)
-            row_args = (scale.astype(plan_.dtype),)
-        else:
-            idx, reach = spatial.chunked_knn(index, plan_.build["k"], rows)
-            row_args = ()
+        idx, row_args, reach = entry.rows(index, rows, plan_.build, plan_.dtype)
         if cloud.covers(cell, halo, index.points[rows], reach):
             break
         halo *= 2
     cloud.release(cell)
-    values = _kernel_scores(plan_, index.points, rows, idx, row_args, stream or {})
+    kernel, narrow = entry.kernel(plan_.score)
+    values = _stream.map_rows(kernel, index.points, rows, idx, row_args=row_args, dtype=plan_.dtype, narrow=narrow,
+                              **(stream or {}))
     return gids[core], _per_point(index, rows, core, values)
 
 
@@ -473,20 +450,6 @@ def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
     mine = np.zeros(index.n, bool)
     mine[index.row[core]] = True
     return np.flatnonzero(mine)
-
-
-def _kernel_scores(plan_: Plan, points, rows, idx, row_args, stream: dict) -> np.ndarray:
-    """The method's kernel on each row's neighbourhood (:func:`hgjax._stream.map_rows`)."""
-    method, p = plan_.method, plan_.score
-    run = lambda fn, narrow: _stream.map_rows(fn, points, rows, idx, row_args=row_args, dtype=plan_.dtype,  # noqa: E731
-                                              narrow=narrow, **stream)
-    if method == "hkc":
-        return run(hkc._kernel(p["kernel_size"], p["variant"]), True)
-    if method == "hkf":
-        return run(hkf._kernel(p["kernel_size"], p["variant"]), True)
-    if method == "lhf":
-        return run(lhf._kernel(p["lengths"], p["variant"], p["solver"]), False)
-    return run(mss.sharpness if method == "mss" else ea.variation, False)
 
 
 def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None, key=None,
@@ -555,47 +518,35 @@ class _Run:
 
 def _resample(points, ratio, method: str, tile, client, key, return_scores: bool, params: dict) -> _Run:
     """:func:`resample`'s work, returning the :class:`_Run` that a survey's manifest records."""
-    from hgjax import pipeline  # the registry imports this module
-
     entry = pipeline._entry(method)
     return_scores = _validate.check_bool(return_scores, "return_scores")
-    if return_scores and entry.kind is None:
-        return _resample(points, ratio, method, tile, client, key, False, params)
     distributed = tile is not None or client is not None
-    if distributed and method in GLOBAL_ONLY:
-        raise ValueError(f"method {method!r} cannot run in tiles (tile={tile!r}): {GLOBAL_ONLY[method]};"
+    refused = None if entry.untiled is None else entry.untiled(params)
+    if distributed and refused is not None:
+        raise ValueError(f"method {method!r}{refused[0]} cannot run in tiles (tile={tile!r}): {refused[1]};"
                          " pass tile=None")
-    pipeline._split(entry, "build", params)  # unknown names raise
+    pipeline._check_known(entry, params)
+    if isinstance(entry, pipeline.Sampler):
+        if distributed and method in _TILED_SAMPLERS:
+            return _Run(_TILED_SAMPLERS[method](points, ratio, tile, client, **params))
+        pts, ratio = _validate.check_points(points), _validate.check_ratio(ratio)
+        return _Run(entry.draw(pts, ratio, key, **params))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
-    if method == "gfr" and params.get("variant") == "reference":
-        if distributed:
-            raise ValueError(f"method 'gfr' with variant='reference' cannot run in tiles (tile={tile!r}): its squared"
-                             " radius comes from the min and max nearest distance of the whole cloud; pass tile=None")
-        return _Run(*_whole_run(pipeline._whole(points, ratio, entry, key, params, return_scores), return_scores))
-    if method == "uniform":
-        return _Run(samplers.uniform_sample(points, ratio, key=key))
-    if method == "voxel" and distributed:
-        return _Run(_voxel(points, ratio, tile, params.get("voxel_size"), client))
-    if method not in TILED or entry.kind is None:
-        return _Run(*_whole_run(pipeline._whole(points, ratio, entry, key, params, return_scores), return_scores))
+    if refused is not None:
+        idx, scores = pipeline._whole(points, ratio, entry, key, params)
+        return _Run(idx, scores if return_scores else None)
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
-    if method == "gfr" and params.get("mode", "random") == "random":
-        key = _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
+    if entry.check_key is not None:
+        key = entry.check_key(key, params)
     plan_, cloud = _base(points, ratio, method, tile, params)
     runner = _runner(cloud, client, _reach_k(plan_.build))
     plan_ = _resolved(plan_, runner)
-    parts = _gfr_scores(runner, plan_, stream) if method == "gfr" else runner.tiles(tile_scores, plan_, stream)
-    selection = {}
-    if method == "lhf":
-        parts, selection["gamma_a"], selection["gamma_b"] = _lhf_combine(runner, parts, plan_.m)
-    largest = bool(entry.largest)
-    if method == "gfr" and plan_.score["mode"] == "random":
-        selection["score_sum"] = total = sum(runner.gather(runner.each(_exact_sum, parts)), select.ExactSum()).value()
-        keyed = runner.each(_gfr_keys, parts, total, plan_.n, np.asarray(jax.random.key_data(key)))
-        largest = True
+    parts = _gfr_scores(runner, plan_, stream) if entry.kind == "graph" else runner.tiles(tile_scores, plan_, stream)
+    if entry.tiled_select is None:
+        keyed, selection, largest = runner.each(select.part_keys, parts, entry.largest), {}, entry.largest
     else:
-        keyed = runner.each(_keys, parts, largest)
+        parts, keyed, selection, largest = entry.tiled_select(runner, parts, plan_, key)
     idx, (last_key, last_gid) = select.top_pairs(keyed, plan_.m, run=runner.run(keyed), boundary=True)
     threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
     scores = None
@@ -604,42 +555,6 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
         for gids, values in runner.gather(parts):
             scores[gids] = values
     return _Run(idx, scores, plan_, selection, threshold)
-
-
-def _whole_run(result, return_scores: bool) -> tuple:
-    """(idx, scores) of :func:`hgjax.pipeline._whole`'s result."""
-    return result if return_scores else (result, None)
-
-
-def _keys(part, largest: bool, column: int | None = None):
-    """(keys, gids) of a part's scores (:func:`hgjax.select.order_keys`)."""
-    gids, scores = part
-    return select.order_keys(scores if column is None else scores[:, column], largest=largest), gids
-
-
-def _lhf_combine(runner: _Here, parts, m: int):
-    """LHF's gamma (Eqs. (15)-(16)) per tile, and the two global order statistics Gamma_a, Gamma_b it used."""
-    big = []
-    for col in range(2):
-        keyed = runner.each(_keys, parts, True, col)
-        big.append(select.key_value(select.kth_pair(keyed, m, run=runner.run(keyed))[0], largest=True))
-    return runner.each(_lhf_mix, parts, big[0], big[1]), big[0], big[1]
-
-
-def _lhf_mix(part, big_a: float, big_b: float):
-    gids, g = part
-    return gids, lhf.mix(g[:, 0], g[:, 1], g.dtype.type(big_a), g.dtype.type(big_b))
-
-
-def _exact_sum(part) -> select.ExactSum:
-    return select.ExactSum.of(part[1])
-
-
-def _gfr_keys(part, total: float, n: int, key_data: np.ndarray):
-    """GFR's Gumbel-top-k keys: log pi + Gumbel(key, gid), pi = 0.8 s / sum(s) + 0.2 / N (Chen et al.)."""
-    gids, s = part
-    perturbed = select.gumbel_log_weights(key_data, gfr.inclusion(s, total, n), gids)
-    return select.order_keys(perturbed, largest=True), gids
 
 
 def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
@@ -698,7 +613,7 @@ def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
     return runner.tiles(_gfr_tile, plan_, mean_q, two_var, stream)
 
 
-def _voxel(points, ratio, tile, voxel_size, client) -> np.ndarray:
+def _voxel(points, ratio, tile, client, *, voxel_size=None) -> np.ndarray:
     """``voxel`` in tiles: :func:`hgjax.voxel_sample`'s grid, voxels owned by the tile of their lowest id.
 
     The edge is searched once on the whole cloud (or given); each tile assigns its core
@@ -738,6 +653,9 @@ def _voxel_part(cloud: _Cloud, cell, grid) -> tuple[np.ndarray, np.ndarray]:
 
 def _count(part) -> int:
     return int(part[1].size)
+
+
+_TILED_SAMPLERS = {"voxel": _voxel}  # samplers with an engine of their own here; uniform's draw is per global id
 
 
 @dataclasses.dataclass(frozen=True)

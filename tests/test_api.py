@@ -41,7 +41,7 @@ SCORE_CASES = [
     ("mss", {}, {}),
 ]
 CASE_IDS = ["-".join([m, *map(str, s.values())]) for m, s, _ in SCORE_CASES]
-SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
+SCORING = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
 
 
 def cloud(seed=0, n=N, dtype=np.float64):

@@ -420,4 +420,4 @@ def test_every_method_resamples_to_ply_with_its_score(tmp_path, capsys, method):
     assert code == 0, err
     kept = io.read_points(out)
     assert len(kept) == 60
-    assert ("score" in kept.attributes) == (hgjax.METHODS[method].kind is not None)
+    assert ("score" in kept.attributes) == isinstance(hgjax.METHODS[method], hgjax.Method)

@@ -8,7 +8,7 @@ import hgjax
 from fixtures import box_union, uniform_cloud
 from hgjax import io
 
-SCORING = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
+SCORING = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
 
 
 @pytest.fixture(scope="module")

@@ -67,8 +67,8 @@ def test_n_keep_is_ceil_without_float_surprises():
 def test_methods_registry_and_unknown_method():
     assert {"hkc", "hkf", "lhf"} <= set(hgjax.METHODS)
     for name, entry in hgjax.METHODS.items():
-        assert isinstance(entry, hgjax.Method) and entry.name == name
-        assert (entry.kind is None) == (entry.score is None) == (entry.largest is None)
+        assert isinstance(entry, (hgjax.Method, hgjax.Sampler)) and entry.name == name
+    assert sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Sampler)) == ["fps", "uniform", "voxel"]
     assert [hgjax.METHODS[m].largest for m in HGSP] == [False, False, True]
     with pytest.raises(ValueError, match=r"unknown method 'nope'; expected one of \["):
         hgjax.resample(uniform_cloud(N), 0.2, method="nope")

@@ -17,7 +17,7 @@ import fixtures
 import hgjax
 from hgjax.scores import hkc, lhf, voxel
 
-METHODS = sorted(m for m, e in hgjax.METHODS.items() if e.kind is not None)
+METHODS = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
 TAU_METHODS = ("hkc", "hkf", "lhf")  # soft scores with a tau
 N = 160
 RATIO = 0.25  # RATIO * N is an integer: the hard top-k keeps exactly that many

@@ -11,7 +11,7 @@ from fixtures import box_surface
 from hgjax import _stream
 from hgjax.scores import ea, hkc, hkf, lhf
 
-SCORING = sorted(m for m, entry in hgjax.METHODS.items() if entry.kind is not None)
+SCORING = sorted(m for m, entry in hgjax.METHODS.items() if isinstance(entry, hgjax.Method))
 # (method, params) pairs covering every streamed kernel and variant
 VARIANTS = [("hkc", {}), ("hkc", {"variant": "reference"}), ("hkf", {}), ("hkf", {"variant": "reference"}),
             ("lhf", {"ratio": 0.2}), ("lhf", {"ratio": 0.2, "variant": "reference"}),

@@ -20,7 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from hgjax import _stream, _validate, spatial
+from hgjax import _registry, _stream, _validate, spatial
 from hgjax.scores import _common
 
 __all__ = ["DEFAULT_K", "neighbourhoods", "score", "smallest_eigenvalue", "soft_score", "variation"]
@@ -182,3 +182,39 @@ def soft_score(nb):
       (100,)
     """
     return _common.soft_map(variation, nb)
+
+
+def knn_params(n: int, k: int, params: dict) -> dict:
+    """Build parameters ``{"k", "dedupe"}`` of a k-nearest method for ``n`` points.
+
+    Raises:
+      TypeError, ValueError: invalid ``dedupe``, or fewer than k points.
+    """
+    build = {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}
+    _validate.check_min_points(n, k, f"k={k} nearest neighbours")
+    return build
+
+
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of EA for a tiled run of ``n`` points.
+
+    Raises:
+      TypeError, ValueError: invalid parameters, or fewer than k points.
+    """
+    return knn_params(n, _validate.check_int(params.get("k", DEFAULT_K), "k", minimum=2), params), {}
+
+
+def tile_rows(index, rows, build: dict, dtype):
+    """(idx, (), reach): the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.spatial.chunked_knn`)."""
+    del dtype  # no per-row arguments
+    idx, reach = spatial.chunked_knn(index, build["k"], rows)
+    return idx, (), reach
+
+
+KNN_PARAMS = _registry.stages(build=("capacity", "dedupe", "k"), score=("chunk_size", "progress"))
+
+METHOD = _registry.Method(
+    "ea", "knn", largest=True, needs_key=False,
+    summary="eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
+    citation=_registry.DICTA, build=neighbourhoods, score=score, soft_score=soft_score, params=KNN_PARAMS,
+    tile_params=tile_params, rows=tile_rows, kernel=lambda params: (variation, False))

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
-from hgjax import _stream, _validate, select, spatial
+from hgjax import _registry, _stream, _validate, select, spatial
 from hgjax.scores import _common
 
 __all__ = ["graph", "high_pass", "neighbourhoods", "score", "soft_score"]
@@ -557,3 +557,84 @@ def soft_score(nb, *, variant: str = "invariant"):
     mean_q = _common.safe_div(jnp.sum(pair * jax.vmap(_sq_length)(offsets, valid)), jnp.sum(pair), 0.0)
     unit = _common.safe_sqrt(mean_q)  # the RMS pair length
     return _common.safe_div(high_pass(points, idx, first=nb.first, weights_dtype=_weights_dtype(variant)), unit, 0.0)
+
+
+def _select(scores, m: int, *, key=None, mode: str = "random") -> np.ndarray:
+    """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores."""
+    mode = _validate.check_choice(mode, "mode", MODES)
+    if mode == "top":
+        return select.top_k(scores, m, largest=True)
+    check_key(key, {"mode": mode})
+    values = np.asarray(scores, dtype=np.float64)
+    return select.weighted_sample(key, inclusion(values, select.ExactSum.of(values).value(), values.shape[0]), m)
+
+
+def _untiled(params: dict) -> tuple[str, str] | None:
+    if params.get("variant") != "reference":
+        return None
+    return (" with variant='reference'",
+            "its squared radius comes from the min and max nearest distance of the whole cloud")
+
+
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of the invariant GFR for a tiled run (``r`` resolved later).
+
+    Raises:
+      TypeError, ValueError: invalid parameters.
+    """
+    del n  # any number of points
+    variant, factor, max_nn = graph_params(params.get("variant", "invariant"), params.get("radius_factor"),
+                                           params.get("max_nn", MAX_NN))
+    mode = _validate.check_choice(params.get("mode", "random"), "mode", MODES)
+    return {"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn}, {"mode": mode}
+
+
+def check_key(key, params: dict):
+    """The validated ``key`` of the random mode (``params["mode"]``, default "random"); None in the top mode.
+
+    Raises:
+      TypeError: the random mode without a valid key.
+    """
+    if params.get("mode", "random") != "random":
+        return None
+    return _validate.check_key(key, "gfr", ' (or mode="top" for the deterministic top scores)')
+
+
+def resolve_build(build: dict, stats) -> dict:
+    """``build`` with the squared radius ``r`` from the seeded sample's nearest distances ``stats()``."""
+    return {**build, "r": squared_radius(build["radius_factor"], stats())}
+
+
+def tiled_select(runner, parts, plan, key=None):
+    """GFR's selection over the tiles: the top scores, or Gumbel-top-k of the weights pi by global id.
+
+    Returns:
+      (parts, their order keys, {"score_sum"} in the random mode, True).
+    """
+    if plan.score["mode"] == "top":
+        return parts, runner.each(select.part_keys, parts, True), {}, True
+    total = sum(runner.gather(runner.each(_exact_sum, parts)), select.ExactSum()).value()
+    keyed = runner.each(_gumbel_keys, parts, total, plan.n, np.asarray(jax.random.key_data(key)))
+    return parts, keyed, {"score_sum": total}, True
+
+
+def _exact_sum(part) -> select.ExactSum:
+    return select.ExactSum.of(part[1])
+
+
+def _gumbel_keys(part, total: float, n: int, key_data: np.ndarray):
+    """GFR's Gumbel-top-k keys: log pi + Gumbel(key, gid), pi = 0.8 s / sum(s) + 0.2 / N (Chen et al.)."""
+    gids, s = part
+    perturbed = select.gumbel_log_weights(key_data, inclusion(s, total, n), gids)
+    return select.order_keys(perturbed, largest=True), gids
+
+
+METHOD = _registry.Method(
+    "gfr", "graph", largest=True, needs_key=True,
+    summary='graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
+    citation="Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", build=neighbourhoods, score=score,
+    soft_score=soft_score,
+    params=_registry.stages(build=("capacity", "max_nn", "radius_factor", "variant"),
+                            score=("chunk_size", "progress", "variant"), soft_score=("variant",), select=("mode",)),
+    select=_select, check_key=check_key, untiled=_untiled, tile_params=tile_params, resolve=resolve_build,
+    tiled_select=tiled_select)

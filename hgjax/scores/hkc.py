@@ -32,7 +32,7 @@ import functools
 
 import jax.numpy as jnp
 
-from hgjax import _stream, _validate
+from hgjax import _registry, _stream, _validate
 from hgjax.scores import _common, voxel
 
 __all__ = ["beta", "score", "soft_beta", "soft_score"]
@@ -145,3 +145,45 @@ def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3)
     tau = _validate.check_traced_positive(tau, "tau")
     fn = functools.partial(soft_beta, kernel_size=kernel_size, variant=variant)
     return _common.soft_map(fn, nb, (nb.scale,), (tau,))
+
+
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of HKC or HKF for a tiled run of ``n`` points.
+
+    The build parameters still to be decided from the whole cloud (``d_factor``, the
+    reference resolution) stay None until :func:`resolve_build`.
+
+    Raises:
+      TypeError, ValueError: invalid parameters, or fewer than 2 points.
+    """
+    build = voxel.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
+                                                          "dedupe") if k in params})
+    _validate.check_min_points(n, 2, "HKC/HKF")
+    return build, {"kernel_size": build["kernel_size"], "variant": build["variant"]}
+
+
+def resolve_build(build: dict, stats) -> dict:
+    """``build`` with the cube's spacing decided from the seeded sample's nearest distances ``stats()``."""
+    return voxel.resolve(build, stats()) if voxel.needs_stats(build) else build
+
+
+def tile_rows(index, rows, build: dict, dtype):
+    """(idx, (d,), reach): the cube neighbourhoods of ``rows`` (:func:`hgjax.scores.voxel.build_rows`)."""
+    idx, scale, reach = voxel.build_rows(index, rows, build)
+    return idx, (scale.astype(dtype),), reach
+
+
+def _tile_kernel(params: dict):
+    return _kernel(params["kernel_size"], params["variant"]), True
+
+
+CUBE_PARAMS = _registry.stages(build=("capacity", "d_factor", "dedupe", "kernel_size", "resolution", "variant"),
+                               score=("chunk_size", "kernel_size", "progress", "variant"),
+                               soft_score=("kernel_size", "tau", "variant"))
+
+METHOD = _registry.Method(
+    "hkc", "cube", largest=False, needs_key=False,
+    summary="hypergraph kernel convolution: keep the smallest high/low band ratio beta",
+    citation=f"{_registry.PAPER}, Alg. 1, Eq. (11)", build=voxel.neighbourhoods, score=score,
+    soft_score=soft_score, params=CUBE_PARAMS, tile_params=tile_params, resolve=resolve_build, rows=tile_rows,
+    kernel=_tile_kernel)

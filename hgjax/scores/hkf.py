@@ -25,8 +25,8 @@ import functools
 
 import jax.numpy as jnp
 
-from hgjax import _stream, _validate
-from hgjax.scores import _common, voxel
+from hgjax import _registry, _stream, _validate
+from hgjax.scores import _common, hkc, voxel
 
 __all__ = ["score", "sigma"]
 
@@ -91,3 +91,15 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
     _validate.check_scale(nb, "hkf")
     return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,),
                                       chunk_size=chunk_size, progress=progress, narrow=True)
+
+
+def _tile_kernel(params: dict):
+    return _kernel(params["kernel_size"], params["variant"]), True
+
+
+METHOD = _registry.Method(
+    "hkf", "cube", largest=False, needs_key=False,
+    summary="hypergraph kernel filtering: keep the smallest high-band share sigma",
+    citation=f"{_registry.PAPER}, Alg. 2, Eq. (12)", build=voxel.neighbourhoods, score=score,
+    soft_score=hkc.soft_score, params=hkc.CUBE_PARAMS, tile_params=hkc.tile_params, resolve=hkc.resolve_build,
+    rows=hkc.tile_rows, kernel=_tile_kernel)

@@ -58,7 +58,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _validate, spatial, spectrum
+from hgjax import _registry, _stream, _validate, select, spatial, spectrum
 from hgjax.scores import _common, ea
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
@@ -492,3 +492,54 @@ def soft_score(nb, *, ratio, tau=0.1, lengths=DEFAULT_LENGTHS):
     g = _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
     ratio = jnp.asarray(_validate.check_traced_ratio(ratio), g.dtype)
     return combine(g[:, 0], g[:, 1], ratio, count=nb.count)
+
+
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of LHF for a tiled run of ``n`` points.
+
+    Raises:
+      TypeError, ValueError: invalid parameters, or fewer than max(lengths) points.
+    """
+    b = build_params(**{k: params[k] for k in ("lengths", "variant", "dedupe") if k in params})
+    solver = _validate.check_choice(params.get("solver", "gram"), "solver", SOLVERS)
+    _validate.check_min_points(n, max(b["lengths"]), f"LHF lengths={b['lengths']}")
+    return ({"k": max(b["lengths"]), "dedupe": b["dedupe"]},
+            {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
+
+
+def _tile_kernel(params: dict):
+    return _kernel(params["lengths"], params["variant"], params["solver"]), False
+
+
+def tiled_select(runner, parts, plan, key=None):
+    """Eqs. (15)-(16) over the tiles: the two global order statistics, then each tile's combined gamma.
+
+    Gamma_a and Gamma_b are the m-th largest single-length gammas of the whole cloud, found
+    exactly from per-tile histograms (:func:`hgjax.select.kth_pair`).
+
+    Returns:
+      (parts of combined gamma, their order keys, {"gamma_a", "gamma_b"}, True).
+    """
+    del key  # deterministic
+    big = []
+    for column in range(2):
+        keyed = runner.each(select.part_keys, parts, True, column)
+        big.append(select.key_value(select.kth_pair(keyed, plan.m, run=runner.run(keyed))[0], largest=True))
+    mixed = runner.each(_mix_part, parts, big[0], big[1])
+    return mixed, runner.each(select.part_keys, mixed, True), {"gamma_a": big[0], "gamma_b": big[1]}, True
+
+
+def _mix_part(part, big_a: float, big_b: float):
+    gids, g = part
+    return gids, mix(g[:, 0], g[:, 1], g.dtype.type(big_a), g.dtype.type(big_b))
+
+
+METHOD = _registry.Method(
+    "lhf", "knn", largest=True, needs_key=False,
+    summary="local hypergraph filtering: keep the largest two-length sharpness gamma",
+    citation=f"{_registry.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
+    soft_score=soft_score,
+    params=_registry.stages(build=("capacity", "dedupe", "lengths", "variant"),
+                            score=("chunk_size", "lengths", "progress", "ratio", "solver", "variant"),
+                            soft_score=("lengths", "ratio", "tau")),
+    tile_params=tile_params, rows=ea.tile_rows, kernel=_tile_kernel, tiled_select=tiled_select)

@@ -37,7 +37,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from hgjax import _stream, spatial
+from hgjax import _registry, _stream, spatial
 from hgjax.scores import _common, ea
 
 __all__ = ["BAND_SCALES", "LOW", "SCALES", "neighbourhoods", "score", "sharpness", "smallest_eigenpair",
@@ -196,3 +196,20 @@ def soft_score(nb):
       (100,)
     """
     return _common.soft_map(sharpness, nb)
+
+
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of MSS for a tiled run of ``n`` points.
+
+    Raises:
+      TypeError, ValueError: invalid ``dedupe``, or fewer than max(SCALES) points.
+    """
+    return ea.knn_params(n, max(SCALES), params), {}
+
+
+METHOD = _registry.Method(
+    "mss", "knn", largest=True, needs_key=False,
+    summary="multi-scale sharpness: surface variation at 8/16/32 neighbours plus the normal graph high-pass",
+    citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
+    soft_score=soft_score, params=_registry.stages(build=("capacity", "dedupe"), score=("chunk_size", "progress")),
+    tile_params=tile_params, rows=ea.tile_rows, kernel=lambda params: (sharpness, False))

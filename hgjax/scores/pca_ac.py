@@ -36,7 +36,8 @@ import heapq
 
 import numpy as np
 
-from hgjax import _validate
+from hgjax import _registry, _validate
+from hgjax.scores import ea
 
 __all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
 
@@ -175,3 +176,19 @@ def keep(variation, m: int, *, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarr
     labels = ward_1d(v, _validate.check_int(n_clusters, "n_clusters", minimum=1))
     order = np.lexsort((np.arange(v.shape[0]), -v, -labels))
     return order[:m].astype(np.int64)
+
+
+def _select(scores, m: int, *, key=None, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarray:
+    del key  # deterministic
+    return keep(scores, m, n_clusters=n_clusters)
+
+
+def _untiled(params: dict) -> tuple[str, str]:
+    return "", "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into tiles"
+
+
+METHOD = _registry.Method(
+    "pca_ac", "knn", largest=True, needs_key=False,
+    summary="PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
+    citation=_registry.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
+    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select, untiled=_untiled)

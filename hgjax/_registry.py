@@ -1,0 +1,143 @@
+"""The two kinds of registry entry: scoring methods and samplers.
+
+Each method module declares its own entry (``METHOD`` in :mod:`hgjax.scores.hkc` and its
+siblings, ``SAMPLERS`` in :mod:`hgjax.samplers`), naming the parameters of each stage
+explicitly; :data:`hgjax.METHODS` collects them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+STAGES = ("build", "score", "soft_score", "select")
+PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
+DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
+
+
+def stages(**names) -> dict:
+    """{stage: frozenset of keyword parameters} for every stage of :data:`STAGES` (missing ones empty)."""
+    return {stage: frozenset(names.get(stage, ())) for stage in STAGES}
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A registered scoring method: neighbourhoods, a per-point score, a selection.
+
+    Attributes:
+      name: registry key.
+      kind: neighbourhood kind, ``"cube"``, ``"knn"`` or ``"graph"``.
+      largest: True when the largest scores are kept, False for the smallest.
+      needs_key: whether the default selection draws random numbers (explicit ``key``).
+      summary: one line for the README and ``--help``.
+      citation: where the method comes from.
+      build: ``build(points, **params) -> Neighbourhoods`` (host).
+      score: ``score(nb, **params) -> (N,)`` pure JAX.
+      soft_score: differentiable twin of ``score``.
+      params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
+        keyword parameters it accepts, as declared by the method's module.
+      select: ``select(scores, m, *, key, **params) -> (m,) indices`` (host); None keeps the
+        m top scores (:func:`hgjax.top_k`, ties by index).
+      check_key: ``check_key(key, params) -> key``: the validated key that the selection
+        with these parameters draws from (raising before any work when it is missing);
+        None for a method that never draws.
+      untiled: ``untiled(params) -> (qualifier, reason) | None``: why these parameters need
+        the whole cloud at once (the tiled path refuses a tile size, naming the reason);
+        None when the method always tiles.
+      tile_params: ``tile_params(n, params) -> (build, score)``: the validated build and
+        score parameters of a tiled run of ``n`` points, before any whole-cloud decision.
+      resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
+        whole cloud, ``stats()`` giving the seeded sample's nearest distances
+        (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
+      rows: ``rows(index, rows, build, dtype) -> (idx, row_args, reach)``: a tile's
+        neighbourhoods of the sorted-frame ``rows``, the per-row kernel arguments and the
+        radius each neighbourhood reaches; None for the graph method.
+      kernel: ``kernel(score_params) -> (row kernel, narrow)``: the per-neighbourhood kernel
+        the tiles stream (:func:`hgjax._stream.map_rows`); None for the graph method.
+      tiled_select: ``tiled_select(runner, parts, plan, key) -> (parts, keyed parts,
+        statistics, largest)``: the global selection over the tiles' (gids, scores) parts,
+        as order keys for :func:`hgjax.select.top_pairs`; None keeps the top scores.
+
+    Examples:
+      >>> import hgjax
+      >>> entry = hgjax.METHODS["hkc"]
+      >>> entry.kind, entry.largest, entry.citation
+      ('cube', False, 'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)')
+    """
+
+    name: str
+    kind: str
+    largest: bool
+    needs_key: bool
+    summary: str
+    citation: str
+    build: Callable
+    score: Callable
+    soft_score: Callable
+    params: dict
+    select: Callable | None = None
+    check_key: Callable | None = None
+    untiled: Callable | None = None
+    tile_params: Callable | None = None
+    resolve: Callable | None = None
+    rows: Callable | None = None
+    kernel: Callable | None = None
+    tiled_select: Callable | None = None
+
+    @property
+    def accepted(self) -> frozenset:
+        """Every keyword parameter of any stage."""
+        return frozenset().union(*self.params.values())
+
+    @property
+    def resample_params(self) -> frozenset:
+        """The parameters resampling uses: every stage's but the soft score's."""
+        return self.params["build"] | self.params["score"] | self.params["select"]
+
+    def with_ratio(self, stage: str, params: dict, ratio) -> dict:
+        """``params`` with ``ratio`` added where ``stage`` takes it (LHF's score, Eqs. (15)-(16))."""
+        return {**params, "ratio": ratio} if "ratio" in self.params[stage] else params
+
+
+@dataclasses.dataclass(frozen=True)
+class Sampler:
+    """A registered sampler: it picks points from the points themselves, without scores.
+
+    Attributes:
+      name: registry key.
+      needs_key: whether it draws random numbers (explicit ``key``).
+      summary: one line for the README and ``--help``.
+      citation: where the method comes from.
+      sample: ``sample(points, ratio, *, key, **params) -> (M,) indices`` (host; ``key``
+        passed only when ``needs_key``).
+      params: the keyword parameters ``sample`` accepts (``key`` aside).
+      untiled: as :attr:`Method.untiled`.
+
+    Examples:
+      >>> import hgjax
+      >>> entry = hgjax.METHODS["fps"]
+      >>> isinstance(entry, hgjax.Sampler), entry.needs_key, sorted(entry.params)
+      (True, False, ['backend', 'start'])
+    """
+
+    name: str
+    needs_key: bool
+    summary: str
+    citation: str
+    sample: Callable
+    params: frozenset
+    untiled: Callable | None = None
+
+    @property
+    def accepted(self) -> frozenset:
+        """Every keyword parameter of the sampler."""
+        return self.params
+
+    @property
+    def resample_params(self) -> frozenset:
+        """The parameters resampling uses (all of them)."""
+        return self.params
+
+    def draw(self, points, ratio, key, **params):
+        """``sample(points, ratio, **params)``, given ``key`` when the sampler draws random numbers."""
+        return self.sample(points, ratio, **({"key": key} if self.needs_key else {}), **params)
