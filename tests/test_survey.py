@@ -2,8 +2,12 @@
 
 import json
 import os
+import pickle
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import jax
@@ -18,9 +22,14 @@ laspy = pytest.importorskip("laspy")
 OFFSET = np.array([500000.0, 4000000.0, 0.0])
 
 
-def _survey(directory, ext=".las", n_files=4, n=3000):
-    """Four LAS/LAZ tiles of one surface with UTM-like offsets and an extra dimension; returns (paths, cloud)."""
+def _survey(directory, ext=".las", n_files=4, n=3000, slabs=False):
+    """Four LAS/LAZ tiles of one surface with UTM-like offsets and an extra dimension; returns (paths, cloud).
+
+    The files interleave over the whole surface, or with ``slabs`` hold consecutive slabs along x (as survey tiles do).
+    """
     base = hgjax.eval.box_union_cloud(seed=7, n_points=n_files * n).points * 50
+    if slabs:
+        base = base[np.argsort(base[:, 0], kind="stable")]
     paths, parts = [], []
     for i in range(n_files):
         header = laspy.LasHeader(point_format=3, version="1.2")
@@ -103,6 +112,47 @@ def test_survey_on_a_local_cluster(tmp_path, client):
     tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0, client=client)
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.2, method="ea")))
+
+
+def test_each_tile_reads_only_the_files_its_box_meets(tmp_path, monkeypatch):
+    paths, cloud = _survey(tmp_path, n_files=4, n=1500, slabs=True)
+    chunks, gather = tiles._chunks, tiles._Survey.gather
+    reads, per_tile, surveys = [], [], []
+    monkeypatch.setattr(tiles, "_chunks", lambda path: reads.append(path) or chunks(path))
+
+    def watched(self, cell, halo):
+        surveys.append(self)
+        start = len(reads)
+        out = gather(self, cell, halo)
+        per_tile.append(set(reads[start:]))
+        return out
+
+    monkeypatch.setattr(tiles._Survey, "gather", watched)
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=25.0)
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
+    assert len(surveys[0].occupied()) >= 4 and max(len(r) for r in per_tile) < 4 and min(len(r) for r in per_tile) == 1
+    assert len(pickle.dumps(surveys[0])) < cloud.nbytes / 4  # what the client holds and sends: no coordinates
+
+
+def test_a_worker_killed_mid_survey_changes_nothing(tmp_path, client):
+    paths, _ = _survey(tmp_path, n_files=4, n=1500, slabs=True)
+    tiles.resample_files(paths, tmp_path / "want", 0.2, method="ea", tile=25.0)
+    pids = client.run(os.getpid)
+    done = {}
+    run = threading.Thread(target=lambda: done.update(result=tiles.resample_files(
+        paths, tmp_path / "got", 0.2, method="ea", tile=25.0, client=client)))
+    run.start()
+    deadline = time.monotonic() + 60
+    while not any(str(k).startswith("_task") for keys in client.processing().values() for k in keys):
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    os.kill(next(iter(pids.values())), signal.SIGKILL)
+    run.join(timeout=120)
+    assert len(done["result"].written) == 4
+    for p in paths:
+        name = os.path.basename(p)
+        assert (tmp_path / "got" / name).read_bytes() == (tmp_path / "want" / name).read_bytes()
+    client.wait_for_workers(2, timeout=60)  # the nanny restarted it
 
 
 def test_a_point_on_a_tile_edge_is_owned_once(tmp_path):
