@@ -38,7 +38,9 @@ import dataclasses
 import glob
 import json
 import os
+import sys
 import tempfile
+import threading
 
 import jax
 import numpy as np
@@ -107,6 +109,8 @@ class _Cloud:
     only the sub-cells of its neighbours that meet its box. ``keep`` (set by the runner) keeps
     every tile's host index once built, instead of only the last one, until :meth:`release`.
     """
+
+    progress = False  # a survey reports each finished tile on stderr (:class:`_Ticker`)
 
     def __init__(self, points: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  tile: float | None, source=None):
@@ -252,9 +256,13 @@ class _Source:
 
 @dataclasses.dataclass(frozen=True)
 class _Sources:
-    """A survey's files as one cloud, described by their :class:`_Source` records (no coordinates)."""
+    """A survey's files as one cloud, described by their :class:`_Source` records (no coordinates).
+
+    ``progress``: report each finished tile task on stderr.
+    """
 
     files: tuple
+    progress: bool = False
 
     @property
     def n(self) -> int:
@@ -278,6 +286,7 @@ class _Survey(_Cloud):
                  client=None):
         self.origin, self.lo, self.hi, self.tile, self.files = origin, lo, hi, tile, sources.files
         self.source, self.keep, self._indices, self.n = None, False, {}, sources.n
+        self.progress = sources.progress
         self.shape = (1, 1, 1) if tile is None else tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
         wanted = spatial.sample_ids(self.n)
         counts, self._owners = {}, {}
@@ -317,6 +326,18 @@ class _Survey(_Cloud):
                 xs.append(x[keep])
                 cores.append(core[keep])
         return np.concatenate(gids), np.concatenate(xs), np.concatenate(cores)
+
+
+class _Ticker:
+    """Writes one line on stderr per finished tile task of a pass: ``hgjax tiles: <pass> 3/12 tile (i, j, k)``."""
+
+    def __init__(self, fn, total: int):
+        self.what, self.total, self.done, self.lock = fn.__name__.strip("_").replace("_", " "), total, 0, threading.Lock()
+
+    def __call__(self, cell) -> None:
+        with self.lock:
+            self.done += 1
+            print(f"hgjax tiles: {self.what} {self.done}/{self.total} tile {tuple(cell)}", file=sys.stderr, flush=True)
 
 
 def _map(client, fn, items, *args) -> list:
@@ -388,7 +409,14 @@ class _Here:
         cloud.keep = cloud.n <= KEEP_POINTS
 
     def tiles(self, fn, *args, cells=None) -> list:
-        return [fn(self.cloud, cell, *args) for cell in (cells or self.cloud.occupied())]
+        cells = cells or self.cloud.occupied()
+        tick = _Ticker(fn, len(cells)) if self.cloud.progress else None
+        out = []
+        for cell in cells:
+            out.append(fn(self.cloud, cell, *args))
+            if tick:
+                tick(cell)
+        return out
 
     def each(self, fn, parts, *args) -> list:
         return [fn(part, *args) for part in parts]
@@ -419,6 +447,10 @@ class _Dask(_Here):
         cells = cells or self.cloud.occupied()
         futures = [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True) for cell in cells]
         self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
+        if self.cloud.progress:
+            tick = _Ticker(fn, len(cells))
+            for f, cell in zip(futures, cells):
+                f.add_done_callback(lambda _, cell=cell: tick(cell))
         return futures
 
     def each(self, fn, parts, *args) -> list:
@@ -977,7 +1009,8 @@ def _run_record(paths, method, ratio, tile, key, params) -> dict:
 
 
 def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None,
-                   key=None, keep_going: bool = False, skip_existing: bool = False, **params) -> SurveyResult:
+                   key=None, keep_going: bool = False, skip_existing: bool = False, progress: bool = False,
+                   **params) -> SurveyResult:
     """Resample a survey of files as one cloud, writing the kept points of each file beside the others.
 
     Global ids run in file order, then point order within each file, and the kept ids are
@@ -1004,6 +1037,8 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
       skip_existing: keep outputs that exist when the manifest in ``out_dir`` records the
         same method, ratio, tile, key, parameters and inputs (paths, sizes, modification
         times); only missing outputs are written.
+      progress: write one line on stderr as each tile task of each pass finishes
+        (``hgjax tiles: tile scores 3/12 tile (0, 1, 0)``).
 
     Returns:
       :class:`SurveyResult`. Each output holds its input's kept points in input order, with
@@ -1025,6 +1060,7 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
 
     keep_going = _validate.check_bool(keep_going, "keep_going")
     skip_existing = _validate.check_bool(skip_existing, "skip_existing")
+    progress = _validate.check_bool(progress, "progress")
     files = _survey_paths(paths)
     out_dir = os.fspath(out_dir)
     targets = {p: os.path.join(out_dir, os.path.basename(p)) for p in files}
@@ -1062,7 +1098,7 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
         sources.append(_Source(os.path.abspath(p), sum(counts.values()) - got[0], *got))
     if not sources:
         raise io.PointCloudReadError(f"no input could be read: {failures}")
-    survey, n = _Sources(tuple(sources)), sum(counts.values())
+    survey, n = _Sources(tuple(sources), progress), sum(counts.values())
     starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
     if method in TILED and method not in ("uniform", "voxel") and (method, params.get("variant")) != ("gfr", "reference"):
