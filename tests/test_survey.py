@@ -274,3 +274,18 @@ def test_cli_survey_progress_only_on_a_terminal(tmp_path, capsys, monkeypatch, t
     assert cli.main(["resample", *paths, "-o", str(tmp_path / "kept"), "--method", "ea", "--tile", "100"]) == 0
     ticks = [line for line in capsys.readouterr().err.splitlines() if line.startswith("hgjax tiles: tile scores ")]
     assert len(ticks) >= 4 if terminal else ticks == []
+
+
+def test_cli_survey_skip_existing_resumes(tmp_path, capsys):
+    from hgjax import cli
+
+    paths, _ = _survey(tmp_path, n_files=2, n=1500, slabs=True)
+    argv = ["resample", *paths, "-o", str(tmp_path / "kept"), "--method", "ea", "--tile", "100"]
+    assert cli.main(argv) == 0
+    first = (tmp_path / "kept" / "tile0.las").read_bytes()
+    os.unlink(tmp_path / "kept" / "tile1.las")
+    capsys.readouterr()
+    assert cli.main([*argv, "--skip-existing"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("(--skip-existing)") == 1 and "tile0.las" in err and "wrote 1 of 2" in err
+    assert (tmp_path / "kept" / "tile0.las").read_bytes() == first and (tmp_path / "kept" / "tile1.las").exists()
