@@ -101,6 +101,11 @@ class Plan:
         return json.loads(json.dumps(fields, default=_jsonable))
 
 
+def _grid_shape(lo: np.ndarray, hi: np.ndarray, tile: float) -> tuple:
+    """The number of tiles of edge ``tile`` along each axis of the box [lo, hi]."""
+    return tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+
+
 class _Cloud:
     """Points by global id, and the global ids of each tile (host; the points are never copied whole).
 
@@ -121,7 +126,7 @@ class _Cloud:
         if tile is None:
             self.shape, self.members, self.subs = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}, {}
             return
-        self.shape = tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+        self.shape = _grid_shape(lo, hi, tile)
         code = np.empty(n, dtype=np.int64)  # each point's tile and sub-cell, one chunk of the cloud at a time
         sub = np.empty(n, dtype=np.int16)
         for s in range(0, n, PASS_ROWS):
@@ -287,7 +292,7 @@ class _Survey(_Cloud):
         self.origin, self.lo, self.hi, self.tile, self.files = origin, lo, hi, tile, sources.files
         self.source, self.keep, self._indices, self.n = None, False, {}, sources.n
         self.progress = sources.progress
-        self.shape = (1, 1, 1) if tile is None else tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+        self.shape = (1, 1, 1) if tile is None else _grid_shape(lo, hi, tile)
         wanted = spatial.sample_ids(self.n)
         counts, self._owners = {}, {}
         for codes, sizes, gids, owner in _map(client, _census, range(len(self.files)), self, wanted):
@@ -308,7 +313,9 @@ class _Survey(_Cloud):
 
     def codes(self, x: np.ndarray) -> np.ndarray:
         """(R,) int64 raveled grid cell owning each point of frame coordinates ``x``."""
-        return np.zeros(x.shape[0], np.int64) if self.tile is None else np.ravel_multi_index(self.cells(x).T, self.shape)
+        if self.tile is None:
+            return np.zeros(x.shape[0], np.int64)
+        return np.ravel_multi_index(self.cells(x).T, self.shape)
 
     def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         box_lo, box_hi = self.box(cell, halo)
@@ -332,7 +339,8 @@ class _Ticker:
     """Writes one line on stderr per finished tile task of a pass: ``hgjax tiles: <pass> 3/12 tile (i, j, k)``."""
 
     def __init__(self, fn, total: int):
-        self.what, self.total, self.done, self.lock = fn.__name__.strip("_").replace("_", " "), total, 0, threading.Lock()
+        self.what, self.total = fn.__name__.strip("_").replace("_", " "), total
+        self.done, self.lock = 0, threading.Lock()
 
     def __call__(self, cell) -> None:
         with self.lock:
@@ -1101,7 +1109,8 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     survey, n = _Sources(tuple(sources), progress), sum(counts.values())
     starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
-    if method in TILED and method not in ("uniform", "voxel") and (method, params.get("variant")) != ("gfr", "reference"):
+    whole = method in ("uniform", "voxel") or (method, params.get("variant")) == ("gfr", "reference")
+    if method in TILED and not whole:
         run = _resample(survey, ratio, method, tile, client, key, False, dict(params))
     else:  # methods that need the whole cloud at once read it from a float64 memmap beside the outputs
         with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
