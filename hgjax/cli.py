@@ -690,7 +690,7 @@ def _resample_survey(args, params: dict) -> None:
         client = None if args.workers is None and args.scheduler is None else stack.enter_context(_dask_client(args))
         result = tiles.resample_files(inputs, args.output, ratio, method=args.method, tile=args.tile, client=client,
                                       key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
-                                      **params)
+                                      progress=_progress(args), **params)
     _stage(args, "survey", start)
     for target in result.skipped:
         print(f"skipped {target}: it exists and the manifest matches (--skip-existing)", file=sys.stderr)

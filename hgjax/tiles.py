@@ -38,7 +38,9 @@ import dataclasses
 import glob
 import json
 import os
+import sys
 import tempfile
+import threading
 
 import jax
 import numpy as np
@@ -94,6 +96,11 @@ class Plan:
         return json.loads(json.dumps(fields, default=_jsonable))
 
 
+def _grid_shape(lo: np.ndarray, hi: np.ndarray, tile: float) -> tuple:
+    """The number of tiles of edge ``tile`` along each axis of the box [lo, hi]."""
+    return tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+
+
 class _Cloud:
     """Points by global id, and the global ids of each tile (host; the points are never copied whole).
 
@@ -103,16 +110,18 @@ class _Cloud:
     every tile's host index once built, instead of only the last one, until :meth:`release`.
     """
 
+    progress = False  # a survey reports each finished tile on stderr (:class:`_Ticker`)
+
     def __init__(self, points: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  tile: float | None, source=None):
         self.points, self.origin, self.lo, self.hi, self.tile = points, origin, lo, hi, tile
         self.source = source  # the caller's array (an np.memmap is pickled as its file name)
         self.keep, self._indices = False, {}
-        n = points.shape[0]
+        self.n = n = points.shape[0]
         if tile is None:
             self.shape, self.members, self.subs = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}, {}
             return
-        self.shape = tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+        self.shape = _grid_shape(lo, hi, tile)
         code = np.empty(n, dtype=np.int64)  # each point's tile and sub-cell, one chunk of the cloud at a time
         sub = np.empty(n, dtype=np.int16)
         for s in range(0, n, PASS_ROWS):
@@ -141,10 +150,22 @@ class _Cloud:
         return state
 
     def __setstate__(self, state: dict) -> None:
-        if isinstance(state["points"], tuple):
+        if isinstance(state.get("points"), tuple):
             filename, dtype, offset, shape = state["points"]
             state["points"] = state["source"] = np.memmap(filename, dtype=dtype, mode="r", offset=offset, shape=shape)
         self.__dict__.update(state)
+
+    def occupied(self) -> list:
+        """The cells that own at least one point, in grid order."""
+        return list(self.members)
+
+    def core_size(self, cell) -> int:
+        """The number of points ``cell`` owns."""
+        return int(self.members[cell].size)
+
+    def owners(self, wanted: np.ndarray) -> list:
+        """The cells that own at least one of the global ids ``wanted``."""
+        return [cell for cell, core in self.members.items() if np.isin(core, wanted).any()]
 
     def indexed(self, cell, halo: float, dedupe: bool):
         """(gids, x, core, index) of :meth:`gather` with a host index over it, reused until released.
@@ -222,6 +243,127 @@ class _Cloud:
         return bool((left & right).all())
 
 
+@dataclasses.dataclass(frozen=True)
+class _Source:
+    """One file of a survey: its path, the global id of its first point, its point count, its exact bounds."""
+
+    path: str
+    start: int
+    count: int
+    lo: np.ndarray  # (3,) float64 per-axis minimum of its coordinates
+    hi: np.ndarray  # (3,) float64 per-axis maximum
+
+
+@dataclasses.dataclass(frozen=True)
+class _Sources:
+    """A survey's files as one cloud, described by their :class:`_Source` records (no coordinates).
+
+    ``progress``: report each finished tile task on stderr.
+    """
+
+    files: tuple
+    progress: bool = False
+
+    @property
+    def n(self) -> int:
+        return sum(f.count for f in self.files)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per-axis float64 min and max of the whole survey (the exact reduction of the files' bounds)."""
+        return np.min([f.lo for f in self.files], axis=0), np.max([f.hi for f in self.files], axis=0)
+
+
+class _Survey(_Cloud):
+    """A survey of files tiled as one cloud, read lazily: a tile reads its core and halo from the files its box meets.
+
+    The grid and ownership are :class:`_Cloud`'s. The client holds the files' records, each
+    occupied tile's point count and the owners of the sampled ids (:func:`hgjax.spatial.sample_ids`),
+    taken by one census task per file; never the coordinates. :meth:`gather` reads, one chunk
+    at a time, only the files whose exact bounds meet the tile's box.
+    """
+
+    def __init__(self, sources: _Sources, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile: float | None,
+                 client=None):
+        self.origin, self.lo, self.hi, self.tile, self.files = origin, lo, hi, tile, sources.files
+        self.source, self.keep, self._indices, self.n = None, False, {}, sources.n
+        self.progress = sources.progress
+        self.shape = (1, 1, 1) if tile is None else _grid_shape(lo, hi, tile)
+        wanted = spatial.sample_ids(self.n)
+        counts, self._owners = {}, {}
+        for codes, sizes, gids, owner in _map(client, _census, range(len(self.files)), self, wanted):
+            for c, r in zip(codes.tolist(), sizes.tolist()):
+                counts[c] = counts.get(c, 0) + r
+            self._owners.update(zip(gids.tolist(), owner.tolist()))
+        self.counts = {tuple(int(i) for i in np.unravel_index(c, self.shape)): counts[c] for c in sorted(counts)}
+
+    def occupied(self) -> list:
+        return list(self.counts)
+
+    def core_size(self, cell) -> int:
+        return self.counts[cell]
+
+    def owners(self, wanted: np.ndarray) -> list:
+        mine = {tuple(int(i) for i in np.unravel_index(self._owners[g], self.shape)) for g in wanted.tolist()}
+        return [cell for cell in self.counts if cell in mine]
+
+    def codes(self, x: np.ndarray) -> np.ndarray:
+        """(R,) int64 raveled grid cell owning each point of frame coordinates ``x``."""
+        if self.tile is None:
+            return np.zeros(x.shape[0], np.int64)
+        return np.ravel_multi_index(self.cells(x).T, self.shape)
+
+    def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        box_lo, box_hi = self.box(cell, halo)
+        slack = 1e-9 * (self.hi - self.lo + 1.0)  # a core point may sit an ulp outside its cell's box
+        code = np.ravel_multi_index(cell, self.shape)
+        gids, xs, cores = [], [], []
+        for f in self.files:
+            if ((f.hi - self.origin < box_lo - slack) | (f.lo - self.origin > box_hi + slack)).any():
+                continue
+            for first, xyz in _chunks(f.path):
+                x = xyz - self.origin
+                core = self.codes(x) == code
+                keep = np.flatnonzero(core | ((x >= box_lo) & (x < box_hi)).all(axis=1))
+                gids.append(f.start + first + keep)
+                xs.append(x[keep])
+                cores.append(core[keep])
+        return np.concatenate(gids), np.concatenate(xs), np.concatenate(cores)
+
+
+class _Ticker:
+    """Writes one line on stderr per finished tile task of a pass: ``hgjax tiles: <pass> 3/12 tile (i, j, k)``."""
+
+    def __init__(self, fn, total: int):
+        self.what, self.total = fn.__name__.strip("_").replace("_", " "), total
+        self.done, self.lock = 0, threading.Lock()
+
+    def __call__(self, cell) -> None:
+        with self.lock:
+            self.done += 1
+            print(f"hgjax tiles: {self.what} {self.done}/{self.total} tile {tuple(cell)}", file=sys.stderr, flush=True)
+
+
+def _map(client, fn, items, *args) -> list:
+    """``[fn(item, *args) for item in items]``, as Dask tasks on ``client`` when given."""
+    if client is None:
+        return [fn(item, *args) for item in items]
+    return client.gather([client.submit(fn, item, *args, pure=False) for item in items])
+
+
+def _census(i: int, survey: _Survey, wanted: np.ndarray) -> tuple:
+    """(occupied cell codes, their point counts, the sampled global ids in file ``i``, their cell codes)."""
+    f = survey.files[i]
+    cells, sizes, mine, owner = [], [], wanted[(wanted >= f.start) & (wanted < f.start + f.count)], []
+    for first, xyz in _chunks(f.path):
+        c = survey.codes(xyz - survey.origin)
+        u, r = np.unique(c, return_counts=True)
+        cells.append(u)
+        sizes.append(r)
+        owner.append(c[mine[(mine >= f.start + first) & (mine < f.start + first + c.size)] - f.start - first])
+    cells, at = np.unique(np.concatenate(cells), return_inverse=True)
+    return cells, np.bincount(at, weights=np.concatenate(sizes)).astype(np.int64), mine, np.concatenate(owner)
+
+
 def _reach_k(build: dict) -> int:
     return voxel.LOCAL_K + 1 if "kernel_size" in build else build.get("k", ea.DEFAULT_K)
 
@@ -245,10 +387,17 @@ class _Here:
 
     def __init__(self, cloud: _Cloud):
         self.cloud = cloud
-        cloud.keep = cloud.points.shape[0] <= KEEP_POINTS
+        cloud.keep = cloud.n <= KEEP_POINTS
 
     def tiles(self, fn, *args, cells=None) -> list:
-        return [fn(self.cloud, cell, *args) for cell in (cells or list(self.cloud.members))]
+        cells = cells or self.cloud.occupied()
+        tick = _Ticker(fn, len(cells)) if self.cloud.progress else None
+        out = []
+        for cell in cells:
+            out.append(fn(self.cloud, cell, *args))
+            if tick:
+                tick(cell)
+        return out
 
     def each(self, fn, parts, *args) -> list:
         return [fn(part, *args) for part in parts]
@@ -276,9 +425,13 @@ class _Dask(_Here):
         self.cells = {}  # task key -> the tile it computes or derives from
 
     def tiles(self, fn, *args, cells=None) -> list:
-        cells = cells or list(self.cloud.members)
+        cells = cells or self.cloud.occupied()
         futures = [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True) for cell in cells]
         self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
+        if self.cloud.progress:
+            tick = _Ticker(fn, len(cells))
+            for f, cell in zip(futures, cells):
+                f.add_done_callback(lambda _, cell=cell: tick(cell))
         return futures
 
     def each(self, fn, parts, *args) -> list:
@@ -299,7 +452,7 @@ class _Dask(_Here):
         cell = self.cells.get(task)
         if cell is None:
             return f"Dask workers died running task {task!r} (out of memory?)"
-        r = self.cloud.members[cell].size
+        r = self.cloud.core_size(cell)
         need = r * self.k * TASK_BYTES
         return (f"Dask workers died running tile {cell} (task {task!r}): its {r} core points' neighbourhoods need"
                 f" at least {need / 2**20:.1f} MiB ({r} x K={self.k} x {TASK_BYTES} bytes) plus the halo's; give"
@@ -331,31 +484,35 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
     Returns:
       (plan, cloud): the :class:`Plan` and the tiled cloud it was made for.
     """
-    plan_, cloud = _base(points, ratio, method, tile, params)
+    plan_, cloud = _base(points, ratio, method, tile, params, client)
     return _resolved(plan_, _runner(cloud, client, _reach_k(plan_.build))), cloud
 
 
-def _base(points, ratio, method: str, tile, params: dict) -> tuple[Plan, _Cloud]:
-    """The plan before any decision that needs neighbours, and the tiled cloud."""
+def _base(points, ratio, method: str, tile, params: dict, client=None) -> tuple[Plan, _Cloud]:
+    """The plan before any decision that needs neighbours, and the tiled cloud (a survey's census on ``client``)."""
     entry = pipeline._entry(method)
     if not _planned(entry):
         raise ValueError(f"method {method!r} has no tiled plan; expected one of"
                          f" {sorted(m for m, e in pipeline.METHODS.items() if _planned(e))}")
-    pts = _validate.check_points(points)
-    n = pts.shape[0]
+    if isinstance(points, _Sources):
+        n, (bmin, bmax), dtype = points.n, points.bounds(), spatial.working_dtype(np.float64)
+    else:
+        pts = _validate.check_points(points)
+        n, (bmin, bmax), dtype = pts.shape[0], _bounds(pts), spatial.working_dtype(pts.dtype)
     m = _validate.n_keep(n, _validate.check_ratio(ratio))
     if tile is not None:
         tile = _validate.check_positive(tile, "tile")
     build, score = entry.tile_params(n, params)
-    bmin, bmax = _bounds(pts)
     origin = (bmin + bmax) / 2
     lo, hi = bmin - origin, bmax - origin
-    dtype = spatial.working_dtype(pts.dtype)
-    cloud = _Cloud(pts, origin, lo, hi, tile, points if isinstance(points, np.memmap) else None)
+    if isinstance(points, _Sources):
+        cloud = _Survey(points, origin, lo, hi, tile, client)
+    else:
+        cloud = _Cloud(pts, origin, lo, hi, tile, points if isinstance(points, np.memmap) else None)
     # The first halo: a few k-nearest radii per radius a neighbourhood reaches (_reach_radii) at the
     # mean density of the occupied tiles (a surface crossing a cube of edge t with n points has a
     # spacing of about t / sqrt(n)).
-    spacing = 0.0 if tile is None else tile * np.sqrt(len(cloud.members) / n)
+    spacing = 0.0 if tile is None else tile * np.sqrt(len(cloud.occupied()) / n)
     halo = HALO_SPACINGS * _reach_radii(build) * spacing * np.sqrt(_reach_k(build))
     return Plan(entry.name, n, m, origin, lo, hi, tile, dtype, build, score, halo=float(halo)), cloud
 
@@ -387,7 +544,7 @@ def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
     """Nearest distances of the seeded sample (:func:`hgjax.spatial.sample_ids`), from the tiles that own it."""
     wanted = spatial.sample_ids(plan_.n)
-    cells = [cell for cell, core in runner.cloud.members.items() if np.isin(core, wanted).any()]
+    cells = runner.cloud.owners(wanted)
     found = {}
     for part in runner.gather(runner.tiles(_tile_stats, plan_, wanted, cells=cells)):
         found.update(part)
@@ -397,11 +554,10 @@ def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
 
 def _tile_stats(cloud: _Cloud, cell, plan_: Plan, wanted: np.ndarray) -> dict:
     """{gid: (distinct, other)} nearest distances of the sampled core points of one tile."""
-    core = cloud.members[cell]
-    mine = core[np.isin(core, wanted)]
     halo = plan_.halo
     while True:
-        gids, x, _, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
+        gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
+        mine = gids[core & np.isin(gids, wanted)]
         pos = np.searchsorted(gids, mine)
         distinct, other = spatial.nearest_distances(index, index.row[pos])
         reach = np.where(np.isfinite(distinct), distinct, np.inf)
@@ -539,7 +695,7 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
     if entry.check_key is not None:
         key = entry.check_key(key, params)
-    plan_, cloud = _base(points, ratio, method, tile, params)
+    plan_, cloud = _base(points, ratio, method, tile, params, client)
     runner = _runner(cloud, client, _reach_k(plan_.build))
     plan_ = _resolved(plan_, runner)
     parts = _gfr_scores(runner, plan_, stream) if entry.kind == "graph" else runner.tiles(tile_scores, plan_, stream)
@@ -691,12 +847,16 @@ def _survey_paths(paths) -> list[str]:
     return found
 
 
-def _point_count(path: str) -> int:
-    """The number of points of a file: a LAS/LAZ header alone, any other format read whole."""
+def _is_las(path: str) -> bool:
+    return os.path.splitext(path)[1].lower() in (".las", ".laz")
+
+
+def _header_count(path: str) -> int | None:
+    """The number of points a LAS/LAZ file's header announces (read alone); None for other formats."""
     from hgjax import io
 
-    if os.path.splitext(path)[1].lower() not in (".las", ".laz"):
-        return len(io.read_points(path))
+    if not _is_las(path):
+        return None
     if not os.path.isfile(path):
         raise io.PointCloudNotFoundError(f"cannot read {path}: no such file")
     laspy, _ = io._require("las", f"reading {path}")
@@ -707,28 +867,55 @@ def _point_count(path: str) -> int:
         raise io.PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
 
 
-def _fill(disk: np.memmap, start: int, path: str, n: int) -> None:
-    """Copy the float64 coordinates of ``path`` into ``disk[start:start + n]`` (LAS/LAZ in chunks)."""
+def _chunks(path: str):
+    """(index of the first point in the file, (R, 3) float64 coordinates): LAS/LAZ PASS_ROWS points at a time
+    (laspy's chunked reading), any other format whole (:func:`hgjax.io.read_points`)."""
     from hgjax import io
 
-    if os.path.splitext(path)[1].lower() not in (".las", ".laz"):
-        pts = io.read_points(path).points
-        if pts.shape[0] != n:
-            raise io.PointCloudReadError(f"cannot read {path}: it changed while being read")
-        disk[start:start + n] = pts
+    if not _is_las(path):
+        yield 0, io.read_points(path).points
         return
     laspy, _ = io._require("las", f"reading {path}")
-    at = start
+    at = 0
     try:
         with laspy.open(path) as f:
             for chunk in f.chunk_iterator(PASS_ROWS):
-                disk[at:at + len(chunk)] = np.stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], 1)
+                yield at, np.stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1)
                 at += len(chunk)
     except Exception as err:
         raise io.PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
-    if at - start != n or not np.isfinite(disk[start:at]).all():
-        raise io.PointCloudReadError(f"cannot read {path}: the file holds {at - start} points; its header"
-                                     f" announces {n} (truncated or corrupt)")
+
+
+def _scan(entry: tuple):
+    """(count, lo (3,), hi (3,)) of a file from a read of all its coordinates, or the message of why it cannot be read.
+
+    ``entry`` is (path, the point count its header announces or None); a LAS/LAZ file must hold
+    the points its header announces, all finite.
+    """
+    from hgjax import io
+
+    path, announced = entry
+    n, lo, hi = 0, np.full(3, np.inf), np.full(3, -np.inf)
+    try:
+        for _, xyz in _chunks(path):
+            if not np.isfinite(xyz).all():
+                raise io.PointCloudReadError(f"cannot read {path}: non-finite coordinates (corrupt scale or offset)")
+            n += xyz.shape[0]
+            lo, hi = np.minimum(lo, xyz.min(axis=0, initial=np.inf)), np.maximum(hi, xyz.max(axis=0, initial=-np.inf))
+        if announced is not None and n != announced:
+            raise io.PointCloudReadError(f"cannot read {path}: the file holds {n} points; its header announces"
+                                         f" {announced} (truncated or corrupt)")
+        if n == 0:
+            raise io.PointCloudReadError(f"cannot read {path}: the file holds no points")
+    except io.PointCloudReadError as err:
+        return str(err)
+    return n, lo, hi
+
+
+def _stage(disk: np.memmap, start: int, path: str) -> None:
+    """Copy the float64 coordinates of ``path`` into ``disk[start:]``, one chunk at a time."""
+    for first, xyz in _chunks(path):
+        disk[start + first:start + first + xyz.shape[0]] = xyz
 
 
 def _jsonable(value):
@@ -748,17 +935,22 @@ def _run_record(paths, method, ratio, tile, key, params) -> dict:
 
 
 def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: float | None = None, client=None,
-                   key=None, keep_going: bool = False, skip_existing: bool = False, **params) -> SurveyResult:
+                   key=None, keep_going: bool = False, skip_existing: bool = False, progress: bool = False,
+                   **params) -> SurveyResult:
     """Resample a survey of files as one cloud, writing the kept points of each file beside the others.
 
     Global ids run in file order, then point order within each file, and the kept ids are
-    exactly those of :func:`resample` on the concatenated cloud. Every input is checked
-    (LAS/LAZ headers, then all coordinates) before any output is written. The coordinates
-    are copied, one file and one chunk of a LAS/LAZ file at a time, into a float64 memmap in
-    a hidden temporary directory of ``out_dir``; :func:`resample` reads its tiles from it,
-    and Dask workers open it by name (they must see ``out_dir``'s file system). The client
-    never holds the survey's coordinates in memory; it holds one int64 tile id per point
-    and, while writing, one input file with its attributes.
+    exactly those of :func:`resample` on the concatenated cloud. The survey is read lazily:
+    the LAS/LAZ headers first (point counts), then one task per file reads its coordinates
+    (LAS/LAZ in chunks of PASS_ROWS points, through laspy) for its exact bounds and checks
+    them, so every input is checked before any output is written; one census task per file
+    counts the points of each tile; each tile's task reads its core and halo from only the
+    files whose bounds meet its box. The client holds per file its path, count and bounds,
+    per tile its count, and, while writing, one input file with its attributes; never the
+    survey's coordinates. Tasks read the inputs by absolute path, so Dask workers must see
+    them. Methods that need the whole cloud at once (``uniform``, ``voxel``, GFR's
+    ``variant="reference"`` and those :func:`resample` runs untiled) read it from a float64
+    memmap in a hidden temporary directory of ``out_dir`` instead.
 
     Args:
       paths: files or glob patterns (each pattern's matches sorted), any format
@@ -771,6 +963,8 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
       skip_existing: keep outputs that exist when the manifest in ``out_dir`` records the
         same method, ratio, tile, key, parameters and inputs (paths, sizes, modification
         times); only missing outputs are written.
+      progress: write one line on stderr as each tile task of each pass finishes
+        (``hgjax tiles: tile scores 3/12 tile (0, 1, 0)``).
 
     Returns:
       :class:`SurveyResult`. Each output holds its input's kept points in input order, with
@@ -792,6 +986,7 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
 
     keep_going = _validate.check_bool(keep_going, "keep_going")
     skip_existing = _validate.check_bool(skip_existing, "skip_existing")
+    progress = _validate.check_bool(progress, "progress")
     files = _survey_paths(paths)
     out_dir = os.fspath(out_dir)
     targets = {p: os.path.join(out_dir, os.path.basename(p)) for p in files}
@@ -810,36 +1005,39 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
             done = {p for p in files if os.path.exists(targets[p])}
     if done and len(done) == len(files):
         return SurveyResult([], [targets[p] for p in files], {}, manifest)
-    failures, counts = {}, {}
-    for p in files:
+    failures, announced = {}, {}
+    for p in files:  # headers first: a LAS/LAZ file whose header cannot be read fails before any coordinate is
         try:
-            counts[p] = _point_count(p)
+            announced[p] = _header_count(p)
         except io.PointCloudReadError as err:
             if not keep_going:
                 raise
             failures[p] = str(err)
+    sources, counts = [], {}
+    for p, got in zip(announced, _map(client, _scan, [(os.path.abspath(p), c) for p, c in announced.items()])):
+        if isinstance(got, str):
+            if not keep_going:
+                raise io.PointCloudReadError(got)
+            failures[p] = got
+            continue
+        counts[p] = got[0]
+        sources.append(_Source(os.path.abspath(p), sum(counts.values()) - got[0], *got))
+    if not sources:
+        raise io.PointCloudReadError(f"no input could be read: {failures}")
+    survey, n = _Sources(tuple(sources), progress), sum(counts.values())
+    starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
-        raw = os.path.join(work, "xyz.f8")
-        upper = sum(counts.values())
-        disk = np.memmap(raw, dtype=np.float64, mode="w+", shape=(max(upper, 1), 3))
-        starts, n = {}, 0
-        for p, count in counts.items():
-            try:
-                _fill(disk, n, p, count)
-            except io.PointCloudReadError as err:
-                if not keep_going:
-                    raise
-                failures[p] = str(err)
-                continue
-            starts[p], n = n, n + count
-        disk.flush()
-        del disk
-        if n == 0:
-            raise io.PointCloudReadError(f"no input could be read: {failures}")
-        cloud = np.memmap(raw, dtype=np.float64, mode="r", shape=(n, 3))
-        run = _resample(cloud, ratio, method, tile, client, key, False, dict(params))
-        del cloud
+    whole = method in ("uniform", "voxel") or (method, params.get("variant")) == ("gfr", "reference")
+    if method in TILED and not whole:
+        run = _resample(survey, ratio, method, tile, client, key, False, dict(params))
+    else:  # methods that need the whole cloud at once read it from a float64 memmap beside the outputs
+        with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
+            disk = np.memmap(os.path.join(work, "xyz.f8"), dtype=np.float64, mode="w+", shape=(n, 3))
+            for f in sources:
+                _stage(disk, f.start, f.path)
+            disk.flush()
+            run = _resample(disk, ratio, method, tile, client, key, False, dict(params))
+            del disk
     kept = np.sort(run.idx)
     written, skipped, outputs = [], [], {}
     for p, start in starts.items():
