@@ -664,7 +664,7 @@ def _dask_client(args):
             yield client
         return
     with distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                                  dashboard_address=None, host="127.0.0.1") as cluster, distributed.Client(cluster) as client:
+                                  dashboard_address=":0", host="127.0.0.1") as cluster, distributed.Client(cluster) as client:
         yield client
 
 

@@ -20,7 +20,7 @@ CASES = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("gfr", {"key": jax.
 
 @pytest.fixture(scope="module")
 def client():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
         yield c
 
