@@ -23,10 +23,7 @@ SCAN = DATA / "scans" / "scan_table_mug.ply"
 LAMPPOST = DATA / "scans" / "scan_lamppost.ply"
 
 
-@pytest.fixture(autouse=True)
-def _cache_dir(monkeypatch, tmp_path_factory):
-    """Compiled kernels go to a temporary cache, never the user's."""
-    monkeypatch.setenv("HGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "jax-cache"))
+pytestmark = pytest.mark.usefixtures("cli_cache")
 
 
 def run(*args, env=None):

@@ -55,14 +55,6 @@ def _kept_ids(paths, out_dir):
     return np.concatenate(ids)
 
 
-@pytest.fixture(scope="module")
-def client():
-    distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                                  host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
-        yield c
-
-
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 def test_survey_equals_the_concatenated_cloud(tmp_path, ext):
     paths, cloud = _survey(tmp_path, ext)
