@@ -1,5 +1,5 @@
-"""Strict settings for the whole suite: x64 available, no implicit rank promotion; the CLI's
-compilation cache and the one Dask cluster."""
+"""Strict settings for the whole suite: x64 available, no implicit rank promotion; one persistent
+compilation cache for the session and the one Dask cluster."""
 
 import jax
 import numpy as np
@@ -17,11 +17,26 @@ def dtype(request):
     return np.dtype(request.param)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def compilation_cache(tmp_path_factory):
+    """JAX's persistent compilation cache in a temporary folder for the session, for this process
+    and (JAX_COMPILATION_CACHE_DIR) every process it starts: CLI runs, notebook kernels, Dask
+    workers load the streamed kernels (whose shapes do not depend on N) that another compiled."""
+    directory = str(tmp_path_factory.getbasetemp() / "jax-cache")
+    before = jax.config.jax_compilation_cache_dir
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("JAX_COMPILATION_CACHE_DIR", directory)
+        jax.config.update("jax_compilation_cache_dir", directory)
+        try:
+            yield directory
+        finally:
+            jax.config.update("jax_compilation_cache_dir", before)
+
+
 @pytest.fixture
-def cli_cache(monkeypatch, tmp_path_factory):
-    """The CLI's compiled kernels go to one temporary cache for the session (never the user's), so
-    a kernel that one CLI run (in this process or a subprocess) compiled, the next one loads."""
-    monkeypatch.setenv("HGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "jax-cache"))
+def cli_cache(monkeypatch, compilation_cache):
+    """The CLI's own cache setting (HGJAX_CACHE_DIR) names the session's cache, never the user's."""
+    monkeypatch.setenv("HGJAX_CACHE_DIR", compilation_cache)
 
 
 @pytest.fixture(scope="session")
