@@ -193,9 +193,10 @@ def test_score_command(tmp_path, capsys):
     np.testing.assert_allclose(np.load(tmp_path / "s.npy")["score"], expected, rtol=1e-6)
 
 
-def test_score_float64(tmp_path):
-    proc = run("score", LAMPPOST, "-o", tmp_path / "s.ply", "--method", "hkf", "--dtype", "float64")
-    assert proc.returncode == 0, proc.stderr
+def test_score_float64(tmp_path, capsys):
+    code, _, err = run_here(capsys, "score", LAMPPOST, "-o", tmp_path / "s.ply", "--method", "hkf", "--dtype",
+                            "float64")
+    assert code == 0, err
     score = io.read_points(tmp_path / "s.ply").attributes["score"]
     assert score.dtype == np.float64
 
