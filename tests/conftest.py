@@ -1,4 +1,5 @@
-"""Strict settings for the whole suite: x64 available, no implicit rank promotion."""
+"""Strict settings for the whole suite: x64 available, no implicit rank promotion; one persistent
+compilation cache for the session and the one Dask cluster."""
 
 import jax
 import numpy as np
@@ -14,3 +15,35 @@ TOL = {np.dtype(np.float32): 2e-4, np.dtype(np.float64): 1e-10}
 @pytest.fixture(params=[np.float32, np.float64], ids=["f32", "f64"])
 def dtype(request):
     return np.dtype(request.param)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compilation_cache(tmp_path_factory):
+    """JAX's persistent compilation cache in a temporary folder for the session, for this process
+    and (JAX_COMPILATION_CACHE_DIR) every process it starts: CLI runs, notebook kernels, Dask
+    workers load the streamed kernels (whose shapes do not depend on N) that another compiled."""
+    directory = str(tmp_path_factory.getbasetemp() / "jax-cache")
+    before = jax.config.jax_compilation_cache_dir
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("JAX_COMPILATION_CACHE_DIR", directory)
+        jax.config.update("jax_compilation_cache_dir", directory)
+        try:
+            yield directory
+        finally:
+            jax.config.update("jax_compilation_cache_dir", before)
+
+
+@pytest.fixture
+def cli_cache(monkeypatch, compilation_cache):
+    """The CLI's own cache setting (HGJAX_CACHE_DIR) names the session's cache, never the user's."""
+    monkeypatch.setenv("HGJAX_CACHE_DIR", compilation_cache)
+
+
+@pytest.fixture(scope="session")
+def client():
+    """A Dask client of one 2-process LocalCluster on 127.0.0.1, started once for the session (its
+    workers keep their compiled kernels from one test file to the next)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
+        yield c

@@ -23,10 +23,7 @@ SCAN = DATA / "scans" / "scan_table_mug.ply"
 LAMPPOST = DATA / "scans" / "scan_lamppost.ply"
 
 
-@pytest.fixture(autouse=True)
-def _cache_dir(monkeypatch, tmp_path_factory):
-    """Compiled kernels go to a temporary cache, never the user's."""
-    monkeypatch.setenv("HGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "jax-cache"))
+pytestmark = pytest.mark.usefixtures("cli_cache")
 
 
 def run(*args, env=None):
@@ -196,9 +193,10 @@ def test_score_command(tmp_path, capsys):
     np.testing.assert_allclose(np.load(tmp_path / "s.npy")["score"], expected, rtol=1e-6)
 
 
-def test_score_float64(tmp_path):
-    proc = run("score", LAMPPOST, "-o", tmp_path / "s.ply", "--method", "hkf", "--dtype", "float64")
-    assert proc.returncode == 0, proc.stderr
+def test_score_float64(tmp_path, capsys):
+    code, _, err = run_here(capsys, "score", LAMPPOST, "-o", tmp_path / "s.ply", "--method", "hkf", "--dtype",
+                            "float64")
+    assert code == 0, err
     score = io.read_points(tmp_path / "s.ply").attributes["score"]
     assert score.dtype == np.float64
 

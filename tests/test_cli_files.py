@@ -17,9 +17,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 UTM = np.array([512345.0, 4012345.0, 87.0])
 
 
-@pytest.fixture(autouse=True)
-def _cache_dir(monkeypatch, tmp_path_factory):
-    monkeypatch.setenv("HGJAX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "jax-cache"))
+pytestmark = pytest.mark.usefixtures("cli_cache")
 
 
 def run_here(capsys, *args):

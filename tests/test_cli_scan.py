@@ -18,6 +18,8 @@ HGJAX = shutil.which("hgjax")
 PACKAGE_ROOT = str(pathlib.Path(hgjax.__file__).resolve().parents[1])
 N = 2000
 
+pytestmark = pytest.mark.usefixtures("cli_cache")
+
 HOOK = '''
 """Test hook: at one stage of an hgjax run, send a signal to this process or pause."""
 import os, signal, sys, threading, time
@@ -110,14 +112,14 @@ def scan(tmp_path_factory):
 
 
 def env(tmp_path, hook=None):
-    """The environment of a subprocess: this package first on the path, a private cache, and
-    with ``hook`` ("STAGE:ACTION"), the test hook above."""
+    """The environment of a subprocess: this package first on the path, the session's compilation
+    cache (``cli_cache``), and with ``hook`` ("STAGE:ACTION"), the test hook above."""
     paths = [PACKAGE_ROOT]
     if hook is not None:
         (tmp_path / "hook").mkdir(exist_ok=True)
         (tmp_path / "hook" / "sitecustomize.py").write_text(HOOK)
         paths.insert(0, str(tmp_path / "hook"))
-    result = {**os.environ, "PYTHONPATH": os.pathsep.join(paths), "HGJAX_CACHE_DIR": str(tmp_path / "cache")}
+    result = {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}
     if hook is not None:
         result["HGJAX_TEST_HOOK"] = hook
     return result
@@ -158,14 +160,17 @@ def test_truncated_las_is_an_error_naming_the_file(tmp_path, scan):
     assert not (tmp_path / "out.las").exists()
 
 
-def test_dash_is_refused_and_never_made_a_file(tmp_path, scan):
-    proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", "-")
-    assert proc.returncode == 2 and "standard output" in proc.stderr
-    proc = hgjax_cli(tmp_path, "resample", "-", "-o", "kept.ply")
-    assert proc.returncode == 2 and "standard input" in proc.stderr
-    proc = hgjax_cli(tmp_path, "compare", scan / "c.npy", "-o", "-", "--methods", "fps")
-    assert proc.returncode == 2 and "standard output" in proc.stderr
-    assert sorted(os.listdir(tmp_path)) == ["cache"]
+def test_dash_is_refused_and_never_made_a_file(tmp_path, scan, capsys, monkeypatch):
+    from hgjax import cli
+
+    monkeypatch.chdir(tmp_path)
+    for args, message in [(["resample", scan / "c.npy", "-o", "-"], "standard output"),
+                          (["resample", "-", "-o", "kept.ply"], "standard input"),
+                          (["compare", scan / "c.npy", "-o", "-", "--methods", "fps"], "standard output")]:
+        assert cli.main([str(a) for a in args]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, err
+    assert os.listdir(tmp_path) == []
 
 
 def test_kept_points_keep_the_scan_order(tmp_path, scan):
@@ -198,7 +203,7 @@ def test_ctrl_c_during_a_laz_write_exits_130(tmp_path, scan):
     proc = hgjax_cli(tmp_path, "resample", scan / "scan.las", "-o", tmp_path / "kept.laz", "--method", "fps",
                      hook="write:SIGINT")
     assert proc.returncode == 130 and "LazrsError" not in proc.stderr, proc.stderr
-    assert sorted(os.listdir(tmp_path)) == ["cache", "hook"]
+    assert os.listdir(tmp_path) == ["hook"]
 
 
 def test_kill_9_during_a_write_is_cleaned_up_by_the_next_run(tmp_path, scan):

@@ -19,13 +19,6 @@ CASES = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("gfr", {"key": jax.
 
 
 @pytest.fixture(scope="module")
-def client():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def clouds():
     smooth = hgjax.eval.box_union_cloud(seed=3, n_points=2500).points
     return {"smooth": smooth, "rounded": np.round(smooth * 50) / 50}
