@@ -496,9 +496,10 @@ def pad_queries(index: SpatialIndex, query, capacity, what: str, n_rows: int) ->
     parts = [query(slice(start, min(start + QUERY_ROWS, n_rows))) for start in range(0, n_rows, QUERY_ROWS)]
     width = max((p.shape[1] for p in parts), default=1)
     _validate.check_capacity(capacity, width, what)
-    out = np.full((n_rows, bucket(width) if capacity is None else capacity), index.n, dtype=np.int32)
-    for start, p in zip(range(0, n_rows, QUERY_ROWS), parts):
+    out = np.empty((n_rows, bucket(width) if capacity is None else capacity), dtype=np.int32)
+    for start, p in zip(range(0, n_rows, QUERY_ROWS), parts):  # each element written once
         out[start:start + p.shape[0], :p.shape[1]] = p
+        out[start:start + p.shape[0], p.shape[1]:] = index.n
     return out
 
 

@@ -1,0 +1,212 @@
+"""Where the time of ``hgjax.resample`` goes, stage by stage, beside the floor in the same process.
+
+Usage:
+  python bench/stages.py --n 1000000 --methods hkc,hkf,lhf,ea --repeats 3 --out bench/results/speed_hkc_stages.md
+
+One process, float32 box surface (``hgjax.eval.box_surface(n, seed=0)``). Each round times, in
+turn: the floor (``cKDTree(q).query(q, k=16, workers=-1)`` on the Morton-sorted copy
+``q = p[hgjax.spatial_order(p)]``, tree build included), the bare kNN64 query on the same tree
+(the width the invariant HKC/HKF build queries), and one ``hgjax.resample(p, 0.2, method=m)``
+per method with the library's stage functions wrapped by timers (inclusive times: a stage's
+time contains the stages called inside it, marked by indentation). Times are medians over the
+rounds after a warm-up round (compiles). The JAX kernel rows of HKC/HKF split the kernel on one
+streamed chunk of the real neighbourhoods: the gather only, the gather + local frame, the gather
++ frame + voxel counts, and the whole kernel, each a separate jitted program, scaled to N rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import functools
+import statistics
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+import _report  # noqa: E402
+
+# (label, module path, attribute, depth): the wrapped stage functions, in the order of a call.
+STAGES = [
+    ("resample (whole call)", "hgjax.tiles", "resample", 0),
+    ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.spatial.SpatialIndex", "__init__", 1),
+    ("sample statistics (d_factor)", "hgjax.spatial", "nearest_distances", 1),
+    ("build_rows (HKC/HKF build)", "hgjax.scores.voxel", "build_rows", 1),
+    ("tree queries (nearest: the batch kNN~64, and kNN18 of outside rows)", "hgjax.spatial.SpatialIndex", "nearest", 2),
+    ("local_spacing", "hgjax.spatial", "local_spacing", 2),
+    ("knn: exact kNN17 + tie ranking", "hgjax.spatial.SpatialIndex", "knn", 3),
+    ("chunked_knn (rows outside the batch)", "hgjax.spatial", "chunked_knn", 3),
+    ("cube: the ball rows", "hgjax.spatial.SpatialIndex", "cube", 2),
+    ("_cube_query (re-queries of wider rows)", "hgjax.spatial.SpatialIndex", "_cube_query", 3),
+    ("_ranked (tie ranking: lexsort)", "hgjax.spatial.SpatialIndex", "_ranked", 2),
+    ("pad_queries (batches + padding)", "hgjax.spatial", "pad_queries", 2),
+    ("chunked_knn (LHF/EA build)", "hgjax.spatial", "chunked_knn", 1),
+    ("covers (halo check)", "hgjax.tiles._Cloud", "covers", 1),
+    ("_kernel_scores (JAX stream)", "hgjax.tiles", "_kernel_scores", 1),
+    ("narrow_groups", "hgjax._stream", "narrow_groups", 2),
+    ("_stream (chunks through the kernel)", "hgjax._stream", "_stream", 2),
+    ("selection (exact top-k)", "hgjax.tiles", "_whole_run", 1),
+]
+
+
+def _install(totals: dict) -> None:
+    """Wrap every stage function with a timer adding into ``totals[label]`` (outermost call only)."""
+    import importlib
+
+    active = collections.Counter()
+    done = set()
+    for label, path, attr, _ in STAGES:
+        if (path, attr) in done:
+            continue
+        done.add((path, attr))
+        last = path.rpartition(".")[2]
+        mod_path, _, cls = path.rpartition(".") if last.lstrip("_")[0].isupper() else (path, "", "")
+        owner = importlib.import_module(mod_path)
+        if cls:
+            owner = getattr(owner, cls)
+        fn = getattr(owner, attr)
+        labels = [lab for lab, p, a, _ in STAGES if (p, a) == (path, attr)]
+
+        def wrapped(*args, _fn=fn, _key=(path, attr), _labels=tuple(labels), **kwargs):
+            active[_key] += 1
+            t = time.perf_counter()
+            try:
+                return _fn(*args, **kwargs)
+            finally:
+                active[_key] -= 1
+                if not active[_key]:
+                    for lab in _labels:
+                        totals[lab] += time.perf_counter() - t
+
+        setattr(owner, attr, wrapped)
+
+
+def _kernel_split(p, method: str, repeats: int) -> dict:
+    """Seconds per N rows of the HKC/HKF kernel's parts on one streamed chunk of real rows."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from hgjax import _stream, spatial
+    from hgjax.scores import _common, hkc, hkf, voxel
+
+    index = spatial.SpatialIndex(spatial.local_frame(p)[0], dedupe=True)
+    params = voxel.resolve(voxel.build_params(), spatial.sample_stats(index))
+    c = _stream.chunk_rows()
+    rows = np.arange(index.n // 2, index.n // 2 + c)
+    idx, scale, _ = voxel.build_rows(index, rows, params)
+    idx = idx[:, :max(int((idx < index.n).sum(axis=1).max()), 1)]
+    hi = jnp.asarray(index.points.astype(p.dtype))
+    n = index.n
+    own, nbr, d = jnp.asarray(rows.astype(np.int32)), jnp.asarray(idx), jnp.asarray(scale.astype(p.dtype))
+    full = (hkc if method == "hkc" else hkf)._kernel(3, "invariant")
+
+    def gather_only(o, v, d):
+        return jnp.sum(o) + d
+
+    def frame_only(o, v, d):
+        return jnp.sum(voxel.oriented(o, v, d)) + d
+
+    def counts(o, v, d):
+        return jnp.sum(voxel.kernel_signal(o, v, d, 3, "invariant"))
+
+    def cov_only(o, v, d):
+        return jnp.sum(_common.centred_scatter(o / d, v)[2])
+
+    parts = {"gather": gather_only, "centred scatter": cov_only, "frame (scatter + Jacobi + turn)": frame_only,
+             "frame + voxel counts": counts, "whole kernel": full}
+    out = {}
+    for name, fn in parts.items():
+        run = jax.jit(functools.partial(_stream._gathered, fn))
+        jax.block_until_ready(run(hi, None, n, own, nbr, (d,), ()))
+        times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            jax.block_until_ready(run(hi, None, n, own, nbr, (d,), ()))
+            times.append(time.perf_counter() - t)
+        out[name] = statistics.median(times) * index.n / c
+    out["columns"] = idx.shape[1]
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=10**6)
+    ap.add_argument("--methods", default="hkc,hkf,lhf,ea")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+
+    import jax
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    import hgjax
+
+    methods = args.methods.split(",")
+    p = _report.box_cloud(args.n, np.float32)
+    q = p[hgjax.spatial_order(p)]
+    per = {m: collections.defaultdict(list) for m in methods}
+    yard = collections.defaultdict(list)
+    totals = collections.defaultdict(float)
+    _install(totals)
+    for r in range(args.repeats + 1):
+        t = time.perf_counter()
+        tree = cKDTree(q)
+        tree.query(q, k=16, workers=-1)
+        yard["floor"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        tree.query(q, k=64, workers=-1)
+        yard["kNN64 query (tree reused)"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1)
+        yard["kNN64 with its tree (as SpatialIndex builds it)"].append(time.perf_counter() - t)
+        del tree
+        for m in methods:
+            totals.clear()
+            hgjax.resample(p, 0.2, method=m, key=jax.random.key(0))
+            if r:
+                for label, _, _, _ in STAGES:
+                    per[m][label].append(totals.get(label, 0.0))
+        print(f"round {r}: floor {yard['floor'][-1]:.3f} s", file=sys.stderr, flush=True)
+    floor = statistics.median(yard["floor"][1:])
+    lines = ["| stage | " + " | ".join(f"{m} s | {m} / floor" for m in methods) + " |",
+             "|---|" + "---|---|" * len(methods)]
+    for label, _, _, depth in STAGES:
+        vals = [statistics.median(per[m][label]) for m in methods]
+        if not any(v > 0.0005 for v in vals):
+            continue
+        name = "&nbsp;&nbsp;" * 2 * depth + label
+        lines.append(f"| {name} | " + " | ".join(f"{v:.3f} | {v / floor:.2f}" for v in vals) + " |")
+    yard_lines = ["| yardstick | s | / floor |", "|---|---|---|"]
+    for name, v in yard.items():
+        yard_lines.append(f"| {name} | {statistics.median(v[1:]):.3f} | {statistics.median(v[1:]) / floor:.2f} |")
+    kern_lines = []
+    for m in methods:
+        if m in ("hkc", "hkf"):
+            split = _kernel_split(p, m, args.repeats)
+            cols = split.pop("columns")
+            kern_lines += [f"| {m} ({cols} columns) | {name} | {v:.3f} | {v / floor:.2f} |" for name, v in split.items()]
+    paragraphs = [
+        f"Machine: {_report.machine()}.",
+        f"N = {args.n:,}, float32 box surface; medians of {args.repeats} rounds after a warm-up round, all in one "
+        "process. Stage times are inclusive (indented stages are inside the one above); / floor = stage time / "
+        "the floor of the same run.",
+    ]
+    table = yard_lines + [""] + lines
+    if kern_lines:
+        table += ["", "JAX kernel parts (one chunk of real rows, each part its own jitted program, scaled to N rows):",
+                  "", "| method | part | s per N rows | / floor |", "|---|---|---|---|"] + kern_lines
+    text = "\n".join(table)
+    print(text)
+    if args.out:
+        _report.write(args.out, "stages.py", None, title=f"Where the time goes at N = {args.n:,}",
+                      paragraphs=paragraphs, table=table)
+
+
+if __name__ == "__main__":
+    main()
