@@ -478,8 +478,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
 
     Returns:
       (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first, ties by index;
-      with ``return_scores``, (indices, scores) with scores (N,) in the working dtype (LHF's
-      combined gamma), or None for the samplers.
+      with ``return_scores``, (indices, scores) with scores (N,) in the working dtype: the
+      values ranked (LHF: its two lengths combined at the kept count, Eqs. (15)-(16)), or None
+      for the samplers.
 
     Raises:
       TypeError, ValueError: invalid arguments, or a method that cannot be tiled given a tile.
