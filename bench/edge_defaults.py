@@ -89,7 +89,7 @@ def score_cloud(cloud, ratio, methods=tuple(SWEEPS)):
     out = {}
 
     def run(method, nb, setting, score_params=None, keep_params=None):
-        s = hgjax.score(nb, method, **(score_params or {}), **({"ratio": ratio} if method == "lhf" else {}))
+        s = hgjax.score(nb, method, **(score_params or {}))
         idx = hgjax.keep(s, ratio, method=method, **(keep_params or {}))
         out[method, setting] = kept_metrics(cloud, idx)
 
@@ -103,7 +103,7 @@ def score_cloud(cloud, ratio, methods=tuple(SWEEPS)):
         # (hgjax.score refuses lengths other than those the rows were built for).
         nb = hgjax.neighbourhoods(p, "lhf", lengths=max(SWEEPS["lhf"][1], key=max))
         for ln in SWEEPS["lhf"][1]:
-            out["lhf", ln] = kept_metrics(cloud, hgjax.keep(lhf.score(nb, ratio=ratio, lengths=ln), ratio, method="lhf"))
+            out["lhf", ln] = kept_metrics(cloud, hgjax.keep(lhf.score(nb, lengths=ln), ratio, method="lhf"))
         run("lhf", hgjax.neighbourhoods(p, "lhf"), DEFAULT)
     for rf in SWEEPS["gfr"][1] + (DEFAULT,) if "gfr" in methods else ():
         run("gfr", hgjax.neighbourhoods(p, "gfr", **({} if rf == DEFAULT else {"radius_factor": rf})), rf,

@@ -61,11 +61,14 @@ def detect(points, positives, method):
     """(MCC keeping exactly E, AP) of one method's default ranking on one labelled cloud."""
     e, n = int(positives.sum()), len(points)
     params = {"mode": "top"} if method == "gfr" else {}
-    nb = hgjax.neighbourhoods(points, method)
-    extra = {"ratio": e / n} if method == "lhf" else {}
-    scores = np.asarray(hgjax.score(nb, method, **extra))
-    kept = hgjax.keep(scores, e / n, method=method, **params)
-    order = hgjax.keep(scores, 1.0, method=method, **params)
+    entry = hgjax.METHODS[method]
+    scores = np.asarray(hgjax.score(hgjax.neighbourhoods(points, method), method))
+    kept = hgjax.keep(scores, count=e, method=method, **params)
+    if entry.combine is not None:  # LHF ranks its two lengths combined at the kept count E
+        scores = entry.combine(scores, e)
+        order = hgjax.top_k(scores, n, largest=entry.largest)
+    else:
+        order = hgjax.keep(scores, 1.0, method=method, **params)
     rank = np.empty(n)
     rank[order] = np.arange(n, 0, -1)
     m = hgjax.eval.edge_metrics(points, positives, kept, scores=rank, resolution=1.0)

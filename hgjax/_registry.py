@@ -32,12 +32,18 @@ class Method:
       summary: one line for the README and ``--help``.
       citation: where the method comes from.
       build: ``build(points, **params) -> Neighbourhoods`` (host).
-      score: ``score(nb, **params) -> (N,)`` pure JAX.
-      soft_score: differentiable twin of ``score``.
+      score: ``score(nb, **params) -> (N,)``, or (N, ``columns``), pure JAX; never depends on
+        the ratio.
+      soft_score: differentiable twin of ``score``, of the same shape.
       params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
         keyword parameters it accepts, as declared by the method's module.
+      columns: None for (N,) scores; C for (N, C) (LHF's two lengths, C = 2).
+      combine: ``combine(scores, m, *, count=None) -> (N,)``: the value each point is ranked
+        by, from its (N, ``columns``) scores and the kept count m (traced in
+        :func:`hgjax.soft_weights`; ``count`` the real rows of a padded cloud), LHF's
+        Eqs. (15)-(16); None ranks (N,) scores as they are.
       select: ``select(scores, m, *, key, **params) -> (m,) indices`` (host); None keeps the
-        m top scores (:func:`hgjax.top_k`, ties by index).
+        m top ranked values (:func:`hgjax.top_k`, ties by index).
       check_key: ``check_key(key, params) -> key``: the validated key that the selection
         with these parameters draws from (raising before any work when it is missing);
         None for a method that never draws.
@@ -75,6 +81,8 @@ class Method:
     score: Callable
     soft_score: Callable
     params: dict
+    columns: int | None = None
+    combine: Callable | None = None
     select: Callable | None = None
     check_key: Callable | None = None
     untiled: Callable | None = None
@@ -93,10 +101,6 @@ class Method:
     def resample_params(self) -> frozenset:
         """The parameters resampling uses: every stage's but the soft score's."""
         return self.params["build"] | self.params["score"] | self.params["select"]
-
-    def with_ratio(self, stage: str, params: dict, ratio) -> dict:
-        """``params`` with ``ratio`` added where ``stage`` takes it (LHF's score, Eqs. (15)-(16))."""
-        return {**params, "ratio": ratio} if "ratio" in self.params[stage] else params
 
 
 @dataclasses.dataclass(frozen=True)

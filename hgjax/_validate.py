@@ -85,6 +85,37 @@ def n_keep(n_points: int, ratio: float) -> int:
     return int(min(max(m, 1), n_points))
 
 
+def check_keep(n_points: int, ratio: Any, count: Any) -> int:
+    """The kept count of ``n_points``: ``count`` (1 <= count <= N) or ceil(ratio N) (:func:`n_keep`).
+
+    Raises:
+      TypeError: both or neither of ``ratio`` and ``count`` given, or ``count`` not an integer.
+      ValueError: ``count`` or ``ratio`` out of range.
+    """
+    if (ratio is None) == (count is None):
+        raise TypeError(f"give the ratio or the count kept, one of them; got ratio={ratio!r}, count={count!r}")
+    if ratio is not None:
+        return n_keep(n_points, check_ratio(ratio))
+    count = check_int(count, "count", minimum=1)
+    if count > n_points:
+        raise ValueError(f"count must be at most the {n_points} scores; got {count}")
+    return count
+
+
+def n_keep_any(n_points, ratio):
+    """:func:`n_keep` where ``n_points`` or ``ratio`` may be traced (jit, vmap).
+
+    The host's count whenever ``ratio`` is concrete (:func:`n_keep_traced` for a traced
+    ``n_points``); a traced ratio's product is rounded in its own dtype.
+    """
+    if is_concrete(ratio):
+        ratio = check_traced_ratio(ratio)
+        return n_keep(int(n_points), ratio) if is_concrete(n_points) else n_keep_traced(n_points, ratio)
+    x = ratio * n_points
+    m = jnp.where(jnp.abs(x - jnp.round(x)) <= 1e-9 * x, jnp.round(x), jnp.ceil(x))
+    return jnp.clip(m, 1, n_points).astype(jnp.int32)
+
+
 KEEP_LIMB = 12  # bits per limb of n_keep_traced's exact product
 KEEP_LIMBS = 7  # fractional limbs of the ratio: every bit of a float64 ratio >= 2^-31
 
@@ -268,20 +299,22 @@ def check_graph(points, idx, first, weights_dtype) -> None:
         raise TypeError(f"weights_dtype must be None, float32 or float64; got {weights_dtype!r}")
 
 
-def check_scores(scores, name="scores") -> np.ndarray:
-    """Return per-point scores as an (N,) float NumPy array, N >= 1, without NaN (inf is allowed:
-    HKC's beta is +inf where the low band vanishes)."""
+def check_scores(scores, name="scores", columns: int | None = None) -> np.ndarray:
+    """Return per-point scores as an (N,) float NumPy array, or (N, ``columns``), N >= 1, without
+    NaN (inf is allowed: HKC's beta is +inf where the low band vanishes)."""
+    shape = "(N,)" if columns is None else f"(N, {columns})"
     if scores is None:
-        raise TypeError(f"{name} must be a float array of shape (N,); got None")
+        raise TypeError(f"{name} must be a float array of shape {shape}; got None")
     s = np.asarray(scores)
     if not np.issubdtype(s.dtype, np.floating):
         raise TypeError(f"{name} must be a float array; got dtype {s.dtype}")
-    if s.ndim != 1:
-        raise ValueError(f"{name} must have shape (N,); got {s.shape}")
+    if s.ndim != (1 if columns is None else 2) or (columns is not None and s.shape[1] != columns):
+        raise ValueError(f"{name} must have shape {shape}; got {s.shape}")
     if s.size == 0:
         raise ValueError(f"{name} must hold at least one score; got shape {s.shape}")
-    if np.isnan(s).any():
-        raise ValueError(f"{name} contains NaN at {int(np.isnan(s).sum())} of {s.size} points")
+    nan = np.isnan(s).reshape(s.shape[0], -1).any(axis=1)
+    if nan.any():
+        raise ValueError(f"{name} contains NaN at {int(nan.sum())} of {s.shape[0]} points")
     return s
 
 

@@ -186,7 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--quiet", "--no-progress", dest="progress", action="store_false",
                         help="no progress bar (shown only when stderr is a terminal)")
     common.add_argument("-v", "--verbose", action="store_true",
-                        help="print the seconds of each stage (read, neighbourhoods, score, keep, write)")
+                        help="print the seconds of each stage (read; plan, tiles: every tile's neighbourhoods and"
+                        " scores, keep; write; PCA-AC and GFR's reference: neighbourhoods, score, keep)")
 
     def with_inputs(p, several):
         if several:
@@ -251,7 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Write every point with the method's per-point `score` attribute.")
     with_inputs(p, several=True)
     with_method(p, scoring)
-    p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help="ratio for scores that need one (LHF)")
+    p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help="ratio of the ranking that the scores"
+                   " written are (LHF: its two lengths combined at the kept count, Eqs. (15)-(16))")
 
     p = sub.add_parser("compare", parents=[common], help="run several methods and tabulate them",
                        description="Run several methods on one input; print a markdown table (coverage"
@@ -495,44 +497,34 @@ def _progress(args) -> bool:
 
 def _stage(args, name: str, start: float) -> None:
     """With ``--verbose``, print the seconds since ``start`` spent in stage ``name``."""
+    _seconds(args, name, time.perf_counter() - start)
+
+
+def _seconds(args, name: str, seconds: float) -> None:
+    """With ``--verbose``, print the ``seconds`` spent in stage ``name``."""
     if args.verbose:
-        print(f"  {name}: {time.perf_counter() - start:.3f} s", file=sys.stderr)
-
-
-def _score(entry, points, ratio, params, progress: bool, args) -> np.ndarray:
-    """Per-point scores of a scoring method: neighbourhoods, then the JAX score."""
-    import hgjax
-
-    start = time.perf_counter()
-    nb = hgjax.neighbourhoods(points, entry.name, **params)
-    _stage(args, "neighbourhoods", start)
-    extra = {"progress": True} if progress and "progress" in entry.params["score"] else {}
-    start = time.perf_counter()
-    scores = np.asarray(hgjax.score(nb, entry.name, **entry.with_ratio("score", params, ratio), **extra))
-    _stage(args, "score", start)
-    return scores
+        print(f"  {name}: {seconds:.3f} s", file=sys.stderr)
 
 
 def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):
     """(kept indices in keep-priority order, scores of every point or None for samplers, seconds).
 
-    The points are moved to their local frame in float64 first, so that no method, the
-    samplers included, ever casts georeferenced coordinates to float32.
+    The composition of :func:`hgjax.resample` (:func:`hgjax.tiles._resample`, one tile),
+    reporting each stage's seconds with ``--verbose``. The points are moved to their local
+    frame in float64 first, so that no method, the samplers included, ever casts
+    georeferenced coordinates to float32.
     """
     import hgjax
+    from hgjax import tiles
 
     start = time.perf_counter()
     points = hgjax.local_frame(points)[0]
-    if isinstance(entry, hgjax.Sampler):
-        extra = {} if voxel_size is None else {"voxel_size": voxel_size}
-        idx, scores = np.asarray(entry.draw(points, ratio, key, **extra, **params)), None
-        _stage(args, "sample", start)
-    else:
-        scores = _score(entry, points, ratio, params, progress, args)
-        begin = time.perf_counter()
-        idx = np.asarray(hgjax.keep(scores, ratio, method=entry.name, key=key, **params))
-        _stage(args, "keep", begin)
-    return idx, scores, time.perf_counter() - start
+    extra = {} if voxel_size is None else {"voxel_size": voxel_size}
+    if progress and "progress" in entry.resample_params:
+        extra["progress"] = True
+    run = tiles._resample(points, ratio, entry.name, None, None, key, isinstance(entry, hgjax.Method),
+                          {**params, **extra}, on_stage=lambda name, seconds: _seconds(args, name, seconds))
+    return np.asarray(run.idx), run.scores, time.perf_counter() - start
 
 
 def count_ratio(count: int, n: int) -> float:
@@ -718,16 +710,15 @@ def cmd_score(args) -> None:
     entry = METHODS[args.method]
     params = _method_params(args, entry)
     jobs = _prepare(args)
-    progress = _progress(args)
+    key, progress = _key(args), _progress(args)
 
     def check(path, target, data):
         io.check_format(target, data.points, attributes=data.attributes, header=data.header,
                         scores=_score_placeholder(entry, args, len(data)))
 
     def process(path, target, data):
-        start = time.perf_counter()
-        scores = _finite_scores(_score(entry, data.points, args.ratio, params, progress, args))
-        seconds = time.perf_counter() - start
+        _, scores, seconds = _compute(entry, data.points, args.ratio, params, key, progress, args)
+        scores = _finite_scores(scores)
         start = time.perf_counter()
         io.write_points(target, data.points, attributes=data.attributes, scores=scores, header=data.header)
         _stage(args, "write", start)

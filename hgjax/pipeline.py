@@ -15,6 +15,7 @@ of the tiled engine; or a :class:`Sampler`, which picks points without scores);
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import jax
 import jax.numpy as jnp
@@ -63,7 +64,7 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
 
     Build once per cloud, then call :func:`score` or :func:`soft_score` as often as needed,
     inside your own ``jit``, ``vmap`` or ``grad``. Parameters another stage takes (e.g.
-    ``ratio`` of LHF's score) are accepted and ignored here, so the same ``**params`` can be
+    ``solver`` of LHF's score) are accepted and ignored here, so the same ``**params`` can be
     passed to every stage.
 
     Args:
@@ -123,8 +124,10 @@ def _matching(nb, entry: Method, stage: str, params: dict) -> dict:
 def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     """Per-point scores of a method on prebuilt neighbourhoods, pure JAX.
 
-    Runs inside a caller's ``jax.jit`` (``method`` and shape-setting parameters static;
-    float parameters such as ``ratio`` traced, so a sweep does not recompile) and under
+    Scores never depend on the ratio (LHF's two-length combination, Eqs. (15)-(16), is part
+    of its selection: :func:`keep`). Runs inside a caller's ``jax.jit`` (``method`` and
+    shape-setting parameters static; float parameters traced, so a sweep does not
+    recompile) and under
     ``jax.vmap`` over a batch of clouds (:func:`hgjax.stack_neighbourhoods`). Called eagerly,
     it streams fixed-size chunks through one compiled kernel, so a new cloud size does not
     recompile.
@@ -133,16 +136,19 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` with the same method
         and parameters.
       method: a scoring method of :data:`METHODS`.
-      **params: the method's score parameters (e.g. ``ratio`` for LHF, ``variant``).
+      **params: the method's score parameters (e.g. ``variant``, ``lengths``).
 
     Returns:
-      (N,) scores in the dtype of ``nb.points``; ``METHODS[method].largest`` says which end
-      is kept. A padded cloud of a stacked batch (``nb.count`` set) scores its first
-      ``count`` rows as the cloud alone (LHF's order statistics over them only) and its
-      padding rows 0.
+      (N,) scores in the dtype of ``nb.points``, or (N, C) with C =
+      ``METHODS[method].columns`` (LHF: gamma at each of its two lengths, Eq. (14));
+      ``METHODS[method].largest`` says which end is kept. A padded cloud of a stacked batch
+      (``nb.count`` set) scores its first ``count`` rows as the cloud alone and its padding
+      rows 0.
 
     Raises:
-      TypeError, ValueError: invalid method or parameters.
+      TypeError: a ``ratio`` (it belongs to :func:`keep` and :func:`resample`), or invalid
+        parameters.
+      ValueError: invalid method or parameters.
 
     Examples:
       >>> import jax, numpy as np, hgjax
@@ -151,32 +157,43 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       (500,)
     """
     entry = _scoring(method)
+    _ratio_free("score", params)
     return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params))))
 
 
+def _ratio_free(stage: str, params: dict) -> None:
+    """Raise TypeError when a score stage is given a ratio: scores never depend on it."""
+    if "ratio" in params:
+        raise TypeError(f"{stage} takes no ratio: scores are ratio-free (LHF's two lengths are combined when"
+                        " the points are kept); pass the ratio to hgjax.keep, hgjax.resample or hgjax.soft_weights")
+
+
 def _absent_zero(nb: spatial.Neighbourhoods, values):
-    """``values`` (N,) with the padding rows of a stacked cloud (row >= ``nb.count``) set to 0."""
-    return values if nb.count is None else jnp.where(nb.row_mask, values, 0)
+    """``values`` (N,) or (N, C) with the padding rows of a stacked cloud (row >= ``nb.count``) set to 0."""
+    if nb.count is None:
+        return values
+    return jnp.where(nb.row_mask.reshape(nb.row_mask.shape + (1,) * (values.ndim - nb.row_mask.ndim)), values, 0)
 
 
 def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     """Differentiable twin of :func:`score`: smooth per-point scores, pure JAX.
 
-    ``jax.grad`` with respect to ``nb.points`` and the float parameters (``tau``,
-    ``ratio``) is finite, also on duplicate, collinear, coplanar and all-equal clouds.
+    ``jax.grad`` with respect to ``nb.points`` and the float parameters (``tau``) is finite, also on duplicate, collinear, coplanar and all-equal clouds.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
       method: a scoring method of :data:`METHODS`.
-      **params: the method's soft-score parameters (``tau`` for HKC/HKF/LHF, ``ratio`` for
-        LHF, ``kernel_size``, ``lengths``).
+      **params: the method's soft-score parameters (``tau`` for HKC/HKF/LHF,
+        ``kernel_size``, ``lengths``).
 
     Returns:
-      (N,) smooth scores; ``METHODS[method].largest`` says which end is kept. Padding rows
-      of a stacked cloud (``nb.count`` set) score 0, with zero gradients.
+      (N,) smooth scores, or (N, C) as :func:`score`; ``METHODS[method].largest`` says which
+      end is kept. Padding rows of a stacked cloud (``nb.count`` set) score 0, with zero
+      gradients.
 
     Raises:
-      TypeError, ValueError: invalid method or parameters.
+      TypeError: a ``ratio`` (it belongs to :func:`soft_weights`), or invalid parameters.
+      ValueError: invalid method or parameters.
 
     Examples:
       >>> import dataclasses, jax, numpy as np, hgjax
@@ -186,39 +203,52 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       True
     """
     entry = _scoring(method)
+    _ratio_free("soft_score", params)
     return _absent_zero(nb, entry.soft_score(nb, **_matching(nb, entry, "soft_score",
                                                              _split(entry, "soft_score", params))))
 
 
-def keep(scores, ratio: float, *, method: str, key=None, **params) -> np.ndarray:
-    """Indices of the ceil(ratio N) points a method keeps, from its scores (host).
+def keep(scores, ratio: float | None = None, *, method: str, count: int | None = None, key=None,
+         **params) -> np.ndarray:
+    """Indices of the points a method keeps, from its scores (host): ``count`` of them, or ceil(ratio N).
+
+    The kept count m enters the selection directly: LHF ranks the combination of its two
+    columns (Eqs. (15)-(16), :func:`hgjax.scores.lhf.combine`) whose order statistics are
+    taken at m.
 
     Args:
-      scores: (N,) scores from :func:`score` for this method.
-      ratio: fraction alpha in (0, 1].
+      scores: (N,) scores from :func:`score` for this method, or (N, C) for a method with
+        C = ``METHODS[method].columns`` (LHF).
+      ratio: fraction alpha in (0, 1]; or give ``count``.
       method: a scoring method of :data:`METHODS`.
+      count: the number kept, in [1, N]; or give ``ratio``.
       key: ``jax.random`` key for methods that sample (GFR's default mode).
       **params: the method's selection parameters (``mode`` for GFR, ``n_clusters`` for
         PCA-AC).
 
     Returns:
-      (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first (ties by
-      index).
+      (M,) int64 unique indices, M = ``count`` or ceil(ratio N), highest keep priority first
+      (ties by index).
 
     Raises:
-      TypeError: ``scores`` is None or not a float array; invalid key or parameters.
-      ValueError: ``scores`` is not (N,) with N >= 1 or holds NaN; invalid ratio, method or
-        parameters. The same checks for every method.
+      TypeError: ``scores`` is None or not a float array; both or neither of ``ratio`` and
+        ``count``; invalid key or parameters.
+      ValueError: ``scores`` is not (N,) (or (N, C)) with N >= 1 or holds NaN; invalid ratio,
+        count, method or parameters. The same checks for every method.
 
     Examples:
       >>> import numpy as np, hgjax
       >>> hgjax.keep(np.array([0.3, 0.1, 0.2, 0.4]), 0.5, method="hkc").tolist()
       [1, 2]
+      >>> hgjax.keep(np.array([[0.2, 0.1], [0.4, 0.3], [0.1, 0.2]]), count=1, method="lhf").tolist()
+      [1]
     """
     entry = _scoring(method)
-    values = _validate.check_scores(scores)
-    m = _validate.n_keep(values.shape[0], _validate.check_ratio(ratio))
+    values = _validate.check_scores(scores, columns=entry.columns)
+    m = _validate.check_keep(values.shape[0], ratio, count)
     chosen = _split(entry, "select", params)
+    if entry.combine is not None:
+        values = entry.combine(values, m)
     if entry.select is None:
         return top_k(values, m, largest=entry.largest)
     return entry.select(values, m, key=key, **chosen)
@@ -259,17 +289,40 @@ def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -
     return tiles.resample(points, ratio, method=method, key=key, **params)
 
 
-def _whole(points, ratio, entry: Method, key, params: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(kept indices, scores) of a scoring method on the whole cloud at once (PCA-AC, GFR's reference)."""
+class _Clock:
+    """Reports each stage's seconds, from the end of the previous one, as ``on_stage(name, seconds)``."""
+
+    def __init__(self, on_stage):
+        self.on_stage, self.start = on_stage, time.perf_counter()
+
+    def __call__(self, name: str, value=None):
+        """``value`` unchanged, after reporting that stage ``name`` ended."""
+        if self.on_stage is not None:
+            now = time.perf_counter()
+            self.on_stage(name, now - self.start)
+            self.start = now
+        return value
+
+
+def _whole(points, ratio, entry: Method, key, params: dict, on_stage=None) -> tuple[np.ndarray, np.ndarray]:
+    """(kept indices, scores) of a scoring method on the whole cloud at once (PCA-AC, GFR's reference).
+
+    ``on_stage(name, seconds)``, when given, is called as each stage (``"neighbourhoods"``,
+    ``"score"``, ``"keep"``) ends.
+    """
+    clock = _Clock(on_stage)
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
-    nb = neighbourhoods(pts, entry.name, **params)
-    scores = score(nb, entry.name, **entry.with_ratio("score", params, ratio))
-    return keep(scores, ratio, method=entry.name, key=key, **params), np.asarray(scores)
+    nb = clock("neighbourhoods", neighbourhoods(pts, entry.name, **params))
+    scores = clock("score", np.asarray(score(nb, entry.name, **params)))
+    return clock("keep", keep(scores, ratio, method=entry.name, key=key, **params)), scores
 
 
 def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=0.05, **params) -> jax.Array:
     """Per-point keep weights, pure JAX: ``soft_select(soft_score(nb, method), ratio)``.
+
+    LHF's two soft-score columns are combined first (:func:`hgjax.scores.lhf.combine`,
+    Eqs. (15)-(16)) at the kept count ceil(ratio N), as :func:`keep` does.
 
     Jit with ``method`` and shape parameters static; ``nb.points``, ``ratio``,
     ``temperature`` and ``tau`` are traced (gradients flow to all of them). vmap over a
@@ -296,7 +349,10 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
       20.0
     """
     entry = _scoring(method)
-    s = soft_score(nb, method, **entry.with_ratio("soft_score", params, ratio))
+    s = soft_score(nb, method, **params)
+    if entry.combine is not None:
+        n = nb.points.shape[0] if nb.count is None else nb.count
+        s = entry.combine(s, _validate.n_keep_any(n, ratio), count=nb.count)
     return soft_select(s, ratio, temperature=temperature, largest=entry.largest,
                        valid=None if nb.count is None else nb.row_mask)
 

@@ -634,8 +634,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
 
     Returns:
       (M,) int64 unique indices, M = ceil(ratio N), highest keep priority first, ties by index;
-      with ``return_scores``, (indices, scores) with scores (N,) in the working dtype (LHF's
-      combined gamma), or None for the samplers.
+      with ``return_scores``, (indices, scores) with scores (N,) in the working dtype: the
+      values ranked (LHF: its two lengths combined at the kept count, Eqs. (15)-(16)), or None
+      for the samplers.
 
     Raises:
       TypeError, ValueError: invalid arguments, or a method that cannot be tiled given a tile.
@@ -672,8 +673,18 @@ class _Run:
     threshold: dict | None = None
 
 
-def _resample(points, ratio, method: str, tile, client, key, return_scores: bool, params: dict) -> _Run:
-    """:func:`resample`'s work, returning the :class:`_Run` that a survey's manifest records."""
+def _resample(points, ratio, method: str, tile, client, key, return_scores: bool, params: dict,
+              on_stage=None) -> _Run:
+    """:func:`resample`'s work, returning the :class:`_Run` that a survey's manifest records.
+
+    The one composition of every resampling entry point (:func:`hgjax.resample`,
+    :func:`resample`, the command line). ``on_stage(name, seconds)``, when given, is called as
+    each stage ends: ``"sample"`` for a sampler; ``"neighbourhoods"``, ``"score"``, ``"keep"``
+    on the whole cloud (:func:`hgjax.pipeline._whole`); ``"plan"`` (bounds, grid, resolved
+    parameters), ``"tiles"`` (every tile's neighbourhoods and scores) and ``"keep"`` (the
+    global selection) in tiles.
+    """
+    clock = pipeline._Clock(on_stage)
     entry = pipeline._entry(method)
     return_scores = _validate.check_bool(return_scores, "return_scores")
     distributed = tile is not None or client is not None
@@ -684,26 +695,27 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     pipeline._check_known(entry, params)
     if isinstance(entry, pipeline.Sampler):
         if distributed and method in _TILED_SAMPLERS:
-            return _Run(_TILED_SAMPLERS[method](points, ratio, tile, client, **params))
-        pts, ratio = _validate.check_points(points), _validate.check_ratio(ratio)
-        return _Run(entry.draw(pts, ratio, key, **params))
+            return _Run(clock("sample", _TILED_SAMPLERS[method](points, ratio, tile, client, **params)))
+        return _Run(clock("sample", entry.draw(_validate.check_points(points), ratio, key, **params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
     if refused is not None:
-        idx, scores = pipeline._whole(points, ratio, entry, key, params)
+        idx, scores = pipeline._whole(points, ratio, entry, key, params, on_stage)
         return _Run(idx, scores if return_scores else None)
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
     if entry.check_key is not None:
         key = entry.check_key(key, params)
     plan_, cloud = _base(points, ratio, method, tile, params, client)
     runner = _runner(cloud, client, _reach_k(plan_.build))
-    plan_ = _resolved(plan_, runner)
+    plan_ = clock("plan", _resolved(plan_, runner))
     parts = _gfr_scores(runner, plan_, stream) if entry.kind == "graph" else runner.tiles(tile_scores, plan_, stream)
+    clock("tiles")
     if entry.tiled_select is None:
         keyed, selection, largest = runner.each(select.part_keys, parts, entry.largest), {}, entry.largest
     else:
         parts, keyed, selection, largest = entry.tiled_select(runner, parts, plan_, key)
     idx, (last_key, last_gid) = select.top_pairs(keyed, plan_.m, run=runner.run(keyed), boundary=True)
+    clock("keep")
     threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
     scores = None
     if return_scores:

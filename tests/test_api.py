@@ -32,9 +32,9 @@ SCORE_CASES = [
     ("hkc", {"variant": "reference"}, {}),
     ("hkf", {}, {}),
     ("hkf", {"variant": "reference"}, {}),
-    ("lhf", {}, {"ratio": 0.2}),
-    ("lhf", {"solver": "eigh"}, {"ratio": 0.2}),
-    ("lhf", {"variant": "reference"}, {"ratio": 0.2}),
+    ("lhf", {}, {}),
+    ("lhf", {"solver": "eigh"}, {}),
+    ("lhf", {"variant": "reference"}, {}),
     ("gfr", {}, {}),
     ("gfr", {"variant": "reference"}, {}),
     ("ea", {}, {}),
@@ -83,11 +83,9 @@ def kernel_cases():
         skip = ("vmap", "ragged") if uses_eigh(method, static) else ()
         cases.append((f"score-{case_id}", method, static, functools.partial(hgjax.score, method=method, **eager), skip))
     for method in sorted(set(SCORING) - set(SAME_SOFT)):
-        floats = {"ratio": 0.2} if method == "lhf" else {}
-        cases.append((f"soft_score-{method}", method, {}, functools.partial(hgjax.soft_score, method=method, **floats),
-                      ()))
+        cases.append((f"soft_score-{method}", method, {}, functools.partial(hgjax.soft_score, method=method), ()))
     # soft_weights = soft_select(soft_score): a method that keeps the smallest scores and one that
-    # keeps the largest and passes the ratio on to its soft score.
+    # keeps the largest and combines its two soft-score columns at the ratio (Eqs. (15)-(16)).
     for method in SOFT_WEIGHTS:
         cases.append((f"soft_weights-{method}", method, {},
                       functools.partial(hgjax.soft_weights, ratio=0.2, method=method), ()))
@@ -116,20 +114,29 @@ def test_variants_agree(method, static, fn, skip, dtype):
     # Weights lie in [0, 1] and soft_select's threshold moves them all: an absolute tolerance.
     atol = rtol if fn.func is hgjax.soft_weights else None
     want = fixtures.assert_variants_agree(fn, nbs, rtol=rtol, atol=atol, skip=skip)
-    assert [w.shape for w in want] == [(N,), (N,), (N - 61,)] and not any(np.isnan(w).any() for w in want)
+    columns = None if fn.func is hgjax.soft_weights else hgjax.METHODS[method].columns
+    row = () if columns is None else (columns,)
+    assert [w.shape for w in want] == [(N, *row), (N, *row), (N - 61, *row)]
+    assert not any(np.isnan(w).any() for w in want)
 
 
-def test_lhf_ratio_is_traced_under_jit():
+def test_lhf_score_is_ratio_free_and_its_soft_weights_trace_the_ratio():
     nb = hgjax.neighbourhoods(cloud(), "lhf")
-    f = jax.jit(lambda nb, ratio: hgjax.score(nb, "lhf", ratio=ratio))
+    gamma = host_score(nb, "lhf")
+    assert gamma.shape == (N, 2)
+    np.testing.assert_array_equal(gamma, np.asarray(hgjax.scores.lhf.single(nb, lengths=(8, 16))))
+    for stage in (hgjax.score, hgjax.soft_score):
+        with pytest.raises(TypeError, match="takes no ratio.*hgjax.keep, hgjax.resample"):
+            stage(nb, "lhf", ratio=0.2)
+    f = jax.jit(lambda nb, ratio: hgjax.soft_weights(nb, ratio, method="lhf"))
     a, b = f(nb, 0.2), f(nb, 0.5)
     assert f._cache_size() == 1  # a new ratio did not recompile
-    assert not np.array_equal(a, b)  # ... and it does change the scores (Eq. (16)'s eps)
-    np.testing.assert_allclose(b, host_score(nb, "lhf", ratio=0.5), rtol=1e-12)
+    np.testing.assert_allclose([float(a.sum()), float(b.sum())], [0.2 * N, 0.5 * N], rtol=1e-6)
+    np.testing.assert_allclose(b, hgjax.soft_weights(nb, 0.5, method="lhf"), rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("method,static,floats", [
-    ("hkc", {}, {}), ("hkf", {"variant": "reference"}, {}), ("lhf", {}, {"ratio": 0.2}), ("ea", {}, {})])
+    ("hkc", {}, {}), ("hkf", {"variant": "reference"}, {}), ("lhf", {}, {}), ("ea", {}, {})])
 def test_host_path_is_chunk_size_invariant_bitwise(method, static, floats):
     nb = hgjax.neighbourhoods(cloud(4, n=2500), method, **static)
     base = host_score(nb, method, **static, **floats)  # one 8192-row chunk
@@ -147,10 +154,10 @@ def test_lhf_eigh_kernels_finish_on_default_chunks_and_under_vmap():
         jax.config.update("jax_enable_x64", True)
         for params in ({"variant": "reference"}, {"solver": "eigh"}):
             nbs = [hgjax.neighbourhoods(hgjax.eval.box_surface(300, s), "lhf", **params) for s in range(3)]
-            f = jax.jit(lambda nb: hgjax.score(nb, "lhf", ratio=0.2, **params))
+            f = jax.jit(lambda nb: hgjax.score(nb, "lhf", **params))
             one = [np.asarray(f(nb)) for nb in nbs]
             for nb, want in zip(nbs, one):
-                np.testing.assert_allclose(np.asarray(hgjax.score(nb, "lhf", ratio=0.2, **params)), want, rtol=1e-12)
+                np.testing.assert_allclose(np.asarray(hgjax.score(nb, "lhf", **params)), want, rtol=1e-12)
             stacked = jax.tree.map(lambda *x: np.stack(x), *nbs)
             np.testing.assert_allclose(np.asarray(jax.jit(jax.vmap(f))(stacked)), np.stack(one), rtol=1e-12)
         print("done")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _validate, cli, io
+from hgjax import _validate, cli, io, tiles
 from hgjax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -42,15 +42,15 @@ def run_here(capsys, *args):
 
 
 @pytest.fixture
-def score_calls(monkeypatch):
-    """Every call of hgjax.score made by the CLI: (method, params)."""
-    calls, score = [], hgjax.score
+def runs(monkeypatch):
+    """Every run of the resampling composition (hgjax.tiles._resample) made by the CLI: (method, ratio, params)."""
+    calls, composition = [], tiles._resample
 
-    def spy(nb, method, **params):
-        calls.append((method, params))
-        return score(nb, method, **params)
+    def spy(points, ratio, method, tile, client, key, return_scores, params, on_stage=None):
+        calls.append((method, ratio, dict(params)))
+        return composition(points, ratio, method, tile, client, key, return_scores, params, on_stage)
 
-    monkeypatch.setattr(hgjax, "score", spy)
+    monkeypatch.setattr(tiles, "_resample", spy)
     return calls
 
 
@@ -84,11 +84,11 @@ def test_resample_scan_carries_colour(tmp_path, capsys):
     assert len(kept) == 200 and len(np.unique(kept.points, axis=0)) == 200
 
 
-def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, score_calls):
+def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, runs):
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "gfr",
                             "-p", "mode=top", "--ratio", 0.1, "--dtype", "float64")  # the suite runs with x64
     assert code == 0, err
-    assert [m for m, _ in score_calls] == ["gfr"]
+    assert runs == [("gfr", 0.1, {"mode": "top"})]
     points = io.read_points(LAMPPOST).points
     scores = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "gfr"), "gfr"))
     idx = np.sort(hgjax.keep(scores, 0.1, method="gfr", mode="top"))  # written in input order
@@ -97,21 +97,31 @@ def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, s
     np.testing.assert_allclose(kept.attributes["score"], scores[idx], rtol=1e-6)
 
 
-def test_lhf_score_gets_the_ratio(capsys, tmp_path, score_calls):
-    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.xyz", "--method", "lhf",
-                            "--ratio", 0.3)
+@pytest.mark.parametrize("command", ["resample", "score"])
+def test_lhf_writes_its_two_lengths_combined_at_the_ratio(capsys, tmp_path, runs, command):
+    """LHF's score is ratio-free; the value it is ranked by (and written) combines its two
+    lengths at the kept count of --ratio (Eqs. (15)-(16))."""
+    code, _, err = run_here(capsys, command, LAMPPOST, "-o", tmp_path / "k.ply", "--method", "lhf",
+                            "--ratio", 0.3, "--dtype", "float64")
     assert code == 0, err
-    assert score_calls == [("lhf", {"ratio": 0.3})]
-    assert "score" in io.read_points(tmp_path / "k.xyz").attributes
+    assert runs == [("lhf", 0.3, {})]
+    points = io.read_points(LAMPPOST).points
+    gamma = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "lhf"), "lhf"))
+    combined = hgjax.scores.lhf.combine(gamma, _validate.n_keep(len(points), 0.3))
+    idx = np.sort(hgjax.keep(gamma, 0.3, method="lhf")) if command == "resample" else np.arange(len(points))
+    written = io.read_points(tmp_path / "k.ply")
+    np.testing.assert_array_equal(written.points, points[idx])
+    np.testing.assert_allclose(written.attributes["score"], combined[idx], rtol=1e-6)
+    assert np.abs(combined - hgjax.scores.lhf.combine(gamma, _validate.n_keep(len(points), 0.05))).max() > 1e-3
 
 
-def test_progress_only_when_stderr_is_a_terminal(capsys, tmp_path, monkeypatch, score_calls):
+def test_progress_only_when_stderr_is_a_terminal(capsys, tmp_path, monkeypatch, runs):
     args = ["resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "ea"]
     assert run_here(capsys, *args)[0] == 0
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
     assert run_here(capsys, *args)[0] == 0
     assert run_here(capsys, *args, "--quiet")[0] == 0
-    assert [params.get("progress") for _, params in score_calls] == [None, True, None]
+    assert [params.get("progress") for _, _, params in runs] == [None, True, None]
 
 
 def test_parameters_come_from_the_registry(capsys, tmp_path, monkeypatch):
@@ -260,7 +270,7 @@ def test_unwritable_output_is_refused_before_computing(capsys, tmp_path, monkeyp
     def fail(*args, **kwargs):
         raise AssertionError("computed before the output was checked")
 
-    monkeypatch.setattr(hgjax, "neighbourhoods", fail)
+    monkeypatch.setattr(tiles, "_resample", fail)
     monkeypatch.setattr(io, "read_points", fail)
     code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "no" / "dir" / "x.ply")
     assert code == 2 and "directory" in err and "does not exist" in err

@@ -68,14 +68,14 @@ if stage == "read":
 
     hgjax.io._read_npy = _read_npy
 elif stage == "score":
-    score = hgjax.score
+    map_rows = hgjax._stream.map_rows  # the per-row kernels' stream of every tile
 
-    def looping_score(nb, method, **params):
+    def looping_map_rows(*args, **kwargs):
         fire_soon()
         while True:
-            score(nb, method, **params).block_until_ready()
+            np.asarray(map_rows(*args, **kwargs))
 
-    hgjax.score = looping_score
+    hgjax._stream.map_rows = looping_map_rows
 elif stage == "write":
     atomic_write = hgjax.io._atomic_write
 
@@ -262,10 +262,13 @@ def test_a_bad_file_in_a_batch(tmp_path, scan):
 
 
 def test_verbose_prints_the_seconds_of_each_stage(tmp_path, scan):
-    proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", tmp_path / "k.ply", "--method", "hkc", "-v")
-    assert proc.returncode == 0, proc.stderr
-    stages = [line.split(":")[0].split()[0] for line in proc.stderr.splitlines() if line.startswith("  ")]
-    assert stages == ["read", "neighbourhoods", "score", "keep", "write"]
+    """The stages of the composition hgjax.resample runs: in tiles, or on the whole cloud (PCA-AC)."""
+    for method, stages in (("hkc", ["plan", "tiles", "keep"]), ("pca_ac", ["neighbourhoods", "score", "keep"])):
+        proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", tmp_path / "k.ply", "--method", method, "-v")
+        assert proc.returncode == 0, proc.stderr
+        lines = [line.split(":") for line in proc.stderr.splitlines() if line.startswith("  ")]
+        assert [name.split()[0] for name, _ in lines] == ["read", *stages, "write"]
+        assert all(seconds.strip().endswith(" s") and float(seconds.split()[0]) >= 0 for _, seconds in lines)
 
 
 def test_score_writes_finite_values(tmp_path):

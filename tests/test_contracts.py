@@ -42,18 +42,42 @@ def test_ea_and_pca_ac_are_scale_free(cloud, method, dtype):
 
 @pytest.mark.parametrize("method", SCORING)
 @pytest.mark.parametrize("scores, error, message", [
-    (None, TypeError, "scores must be a float array of shape \\(N,\\); got None"),
-    (np.zeros((4, 2)), ValueError, "scores must have shape \\(N,\\); got \\(4, 2\\)"),
+    (None, TypeError, "scores must be a float array of shape {shape}; got None"),
+    (np.zeros((4, 3)), ValueError, "scores must have shape {shape}; got \\(4, 3\\)"),
     (np.zeros(0), ValueError, "scores must hold at least one score"),
     (np.arange(4), TypeError, "scores must be a float array; got dtype int64"),
     (np.array([0.1, "a"], dtype=object), TypeError, "scores must be a float array; got dtype object"),
     (np.array([0.1, np.nan, 0.3, 0.2]), ValueError, "scores contains NaN at 1 of 4 points"),
 ])
 def test_keep_checks_scores_the_same_way_for_every_method(method, scores, error, message):
+    """(N,) scores, or (N, C) for a method whose score has C columns (LHF's two lengths)."""
     import jax
 
-    with pytest.raises(error, match=message):
+    columns = hgjax.METHODS[method].columns
+    if columns is not None and scores is not None and scores.ndim == 1:
+        scores = np.repeat(scores[:, None], columns, axis=1)
+    shape = "\\(N,\\)" if columns is None else f"\\(N, {columns}\\)"
+    with pytest.raises(error, match=message.format(shape=shape)):
         hgjax.keep(scores, 0.5, method=method, key=jax.random.key(0))
+
+
+@pytest.mark.parametrize("method", SCORING)
+def test_keep_takes_a_count_or_a_ratio(method):
+    import jax
+
+    columns = hgjax.METHODS[method].columns
+    scores = np.random.default_rng(0).random((50,) if columns is None else (50, columns))
+    by_count = hgjax.keep(scores, method=method, count=17, key=jax.random.key(0))
+    assert by_count.shape == (17,)
+    np.testing.assert_array_equal(by_count, hgjax.keep(scores, 0.34, method=method, key=jax.random.key(0)))
+    with pytest.raises(TypeError, match="give the ratio or the count kept, one of them"):
+        hgjax.keep(scores, 0.34, method=method, count=17, key=jax.random.key(0))
+    with pytest.raises(TypeError, match="give the ratio or the count kept, one of them"):
+        hgjax.keep(scores, method=method, key=jax.random.key(0))
+    with pytest.raises(ValueError, match="count must be at most the 50 scores; got 51"):
+        hgjax.keep(scores, method=method, count=51, key=jax.random.key(0))
+    with pytest.raises(TypeError, match="count must be an integer"):
+        hgjax.keep(scores, method=method, count=2.0, key=jax.random.key(0))
 
 
 @pytest.mark.parametrize("chunk_size, error", [(0, ValueError), (-5, ValueError), (2.5, TypeError)])

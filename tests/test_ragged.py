@@ -53,20 +53,15 @@ def ragged(method: str, dtype: np.dtype):
     return nbs, hgjax.stack_neighbourhoods([nbs[0], widen(nbs[1], WIDEN), nbs[2]])
 
 
-def score_params(method):
-    return {"ratio": RATIO} if method == "lhf" else {}
-
-
 def soft(method):
     """(soft scores, soft weights) of one cloud, in one program."""
-    return lambda nb: (hgjax.soft_score(nb, method, **score_params(method)),
-                       hgjax.soft_weights(nb, RATIO, method=method))
+    return lambda nb: (hgjax.soft_score(nb, method), hgjax.soft_weights(nb, RATIO, method=method))
 
 
 @functools.lru_cache(maxsize=None)
 def batched_score(method):
     """jit(vmap) of a method's score over a stacked batch."""
-    return jax.jit(jax.vmap(lambda nb: hgjax.score(nb, method, **score_params(method))))
+    return jax.jit(jax.vmap(lambda nb: hgjax.score(nb, method)))
 
 
 def assert_rows_agree(got, want, rtol):
@@ -117,9 +112,8 @@ def test_a_cloud_cut_from_a_batch_stacks_back_and_scores_eagerly_as_its_own():
     np.testing.assert_array_equal(again.idx[0, :320, :16], nbs[0].idx)
     assert (again.idx[0, :, 16:] == 640).all() and (again.idx[0, 320:] == 640).all()
     one = dataclasses.replace(one, idx=one.idx[:, :16])  # drop the batch's sentinel columns
-    eager = np.asarray(hgjax.score(one, "lhf", ratio=RATIO, chunk_size=1024))  # host stream, count's statistics
-    np.testing.assert_allclose(eager[:320], np.asarray(hgjax.score(nbs[0], "lhf", ratio=RATIO, chunk_size=1024)),
-                               rtol=1e-12)
+    eager = np.asarray(hgjax.score(one, "lhf", chunk_size=1024))  # host stream
+    np.testing.assert_allclose(eager[:320], np.asarray(hgjax.score(nbs[0], "lhf", chunk_size=1024)), rtol=1e-12)
     assert (eager[320:] == 0).all()
 
 
@@ -130,10 +124,11 @@ def test_a_cloud_cut_from_a_batch_stacks_back_and_scores_eagerly_as_its_own():
 def test_batched_scores_equal_each_clouds_own_scores(method, dtype):
     nbs, batch = ragged(method, dtype)
     got = batched_score(method)(batch)
-    assert got.shape == batch.points.shape[:2]
+    columns = hgjax.METHODS[method].columns
+    assert got.shape == batch.points.shape[:2] + (() if columns is None else (columns,))
     for b, nb in enumerate(nbs):
         n = nb.points.shape[0]
-        want = hgjax.score(nb, method, **score_params(method), chunk_size=1024)  # one block: less padding work
+        want = hgjax.score(nb, method, chunk_size=1024)  # one block: less padding work
         assert_rows_agree(got[b, :n], want, PATH_RTOL[dtype])
         assert (np.asarray(got[b, n:]) == 0).all()
 
@@ -161,17 +156,20 @@ def test_soft_scores_and_weights_of_the_batch_equal_each_clouds_own(method):
 
 
 def test_lhf_order_statistics_come_from_the_real_rows_only():
-    """Eqs. (15)-(16) over the first N_b rows; over all N_max rows (no count) eps moves: the test can fail."""
+    """Eqs. (15)-(16) over the first N_b rows whatever the padding rows hold (here 1, above every real
+    gamma); over all N_max rows (no count) eps moves: the test can fail."""
     nbs, batch = ragged("lhf", np.dtype(np.float64))
     n_max = batch.points.shape[1]
-    single = [np.asarray(hgjax.scores.lhf.single(nb)) for nb in nbs]
-    gammas = jnp.asarray(np.stack([np.pad(g, ((0, n_max - g.shape[0]), (0, 0))) for g in single]))
-    combine = jax.vmap(lambda g, c: hgjax.scores.lhf.combine(g[:, 0], g[:, 1], RATIO, count=c))
-    with_count = np.asarray(combine(gammas, jnp.asarray(batch.count)))
-    without = np.asarray(jax.vmap(lambda g: hgjax.scores.lhf.combine(g[:, 0], g[:, 1], RATIO))(gammas))
+    single = [np.asarray(hgjax.score(nb, "lhf")) for nb in nbs]
+    gammas = jnp.asarray(np.stack([np.pad(g, ((0, n_max - g.shape[0]), (0, 0)), constant_values=1.0) for g in single]))
+    kept = jax.vmap(lambda c: hgjax._validate.n_keep_any(c, RATIO))(batch.count)  # each cloud's own count
+    combine = jax.vmap(lambda g, m, c: hgjax.scores.lhf.combine(g, m, count=c))
+    with_count = np.asarray(combine(gammas, kept, jnp.asarray(batch.count)))
+    without = np.asarray(jax.vmap(lambda g, m: hgjax.scores.lhf.combine(g, m))(gammas, kept))
     for b, (g, nb) in enumerate(zip(single, nbs)):
         n = nb.points.shape[0]
-        np.testing.assert_allclose(with_count[b, :n], hgjax.scores.lhf.combine(g[:, 0], g[:, 1], RATIO), rtol=1e-12)
+        assert int(kept[b]) == hgjax._validate.n_keep(n, RATIO)
+        np.testing.assert_allclose(with_count[b, :n], hgjax.scores.lhf.combine(g, int(kept[b])), rtol=1e-12)
     assert np.abs(without[0, :320] - with_count[0, :320]).max() > 1e-6
 
 
@@ -217,7 +215,7 @@ def test_soft_select_valid_rows_carry_the_whole_mass_and_gradient():
 def test_jit_of_vmap_equals_vmap():
     method = "gfr"  # sums over the whole cloud
     _, batch = ragged(method, np.dtype(np.float64))
-    plain = jax.vmap(lambda nb: hgjax.score(nb, method, **score_params(method)))(batch)
+    plain = jax.vmap(lambda nb: hgjax.score(nb, method))(batch)
     np.testing.assert_allclose(batched_score(method)(batch), plain, rtol=1e-12, atol=1e-15)
 
 

@@ -23,8 +23,8 @@ SCORES = {
     "hkc_reference": lambda p, **kw: scores_of(p, "hkc", variant="reference", **kw),
     "hkf": lambda p, **kw: scores_of(p, "hkf", **kw),
     "hkf_reference": lambda p, **kw: scores_of(p, "hkf", variant="reference", **kw),
-    "lhf": lambda p, **kw: scores_of(p, "lhf", ratio=0.2, **kw),
-    "lhf_reference": lambda p, **kw: scores_of(p, "lhf", ratio=0.2, variant="reference", **kw),
+    "lhf": lambda p, **kw: scores_of(p, "lhf", **kw),
+    "lhf_reference": lambda p, **kw: scores_of(p, "lhf", variant="reference", **kw),
 }
 
 
@@ -41,8 +41,9 @@ def test_resample_count_unique_in_range(method, ratio):
 @pytest.mark.parametrize("method,largest", [("hkc", False), ("hkf", False), ("lhf", True)])
 def test_resample_orders_by_priority(method, largest):
     p = uniform_cloud(N)
-    params = {"ratio": 0.25} if method == "lhf" else {}
-    s = scores_of(p, method, **params)
+    s = scores_of(p, method)
+    if method == "lhf":  # ranked by the two lengths' combination at the kept count (Eqs. (15)-(16))
+        s = hgjax.scores.lhf.combine(s, _validate.n_keep(N, 0.25))
     idx = hgjax.resample(p, 0.25, method=method)
     kept = s[idx]
     assert np.all(np.diff(kept) <= 0) if largest else np.all(np.diff(kept) >= 0)
@@ -81,13 +82,13 @@ def test_methods_registry_and_unknown_method():
 @pytest.mark.parametrize("method", HGSP)
 def test_resample_is_keep_of_score_of_neighbourhoods(method):
     p = uniform_cloud(N, seed=3)
-    params = {"ratio": 0.2} if method == "lhf" else {}
-    nb = hgjax.neighbourhoods(p, method, **params)
+    nb = hgjax.neighbourhoods(p, method)
     assert nb.idx.dtype == np.int32 and nb.points.shape == (N, 3)
-    s = hgjax.score(nb, method, **params)
+    s = hgjax.score(nb, method)
     np.testing.assert_array_equal(hgjax.keep(s, 0.2, method=method), hgjax.resample(p, 0.2, method=method))
-    np.testing.assert_array_equal(hgjax.top_k(np.asarray(s), 80, largest=hgjax.METHODS[method].largest),
-                                  hgjax.keep(s, 0.2, method=method))
+    entry = hgjax.METHODS[method]
+    ranked = np.asarray(s) if entry.combine is None else entry.combine(np.asarray(s), 80)
+    np.testing.assert_array_equal(hgjax.top_k(ranked, 80, largest=entry.largest), hgjax.keep(s, 0.2, method=method))
 
 
 @pytest.mark.parametrize("name", sorted(SCORES))
@@ -151,7 +152,7 @@ def test_bad_ratio_type_and_parameters():
         hgjax.score(hgjax.knn(uniform_cloud(N), 8), "hkc")
     k = max(hgjax.scores.lhf.DEFAULT_LENGTHS)  # the default lengths need k > 8 columns
     with pytest.raises(ValueError, match=f"8 columns, too few for LHF with length {k}"):
-        hgjax.score(hgjax.knn(uniform_cloud(N), 8), "lhf", ratio=0.2)
+        hgjax.score(hgjax.knn(uniform_cloud(N), 8), "lhf")
 
 
 def test_too_few_points_for_the_neighbourhood():
@@ -175,7 +176,7 @@ def test_degenerate_clouds_give_no_nan(cloud_name, name, dtype):
     p = degenerate_clouds()[cloud_name].astype(dtype)
     before = p.copy()
     s = SCORES[name](p)
-    assert s.shape == (len(p),) and s.dtype == dtype
+    assert s.shape == ((len(p), 2) if name.startswith("lhf") else (len(p),)) and s.dtype == dtype
     assert not np.isnan(s).any()
     if not name.startswith("hkc"):
         assert np.isfinite(s).all()  # only HKC's beta may be +inf (documented)

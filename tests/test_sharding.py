@@ -22,7 +22,7 @@ out = {name: np.asarray(fn(p)) for name, fn in [
     ("hkc", lambda p: hgjax.score(hgjax.neighbourhoods(p, "hkc"), "hkc", chunk_size=1024)),
     ("hkf_reference", lambda p: hgjax.score(hgjax.neighbourhoods(p, "hkf", variant="reference"), "hkf",
                                             variant="reference")),
-    ("lhf", lambda p: hgjax.score(hgjax.neighbourhoods(p, "lhf"), "lhf", ratio=0.2, chunk_size=512)),
+    ("lhf", lambda p: hgjax.score(hgjax.neighbourhoods(p, "lhf"), "lhf", chunk_size=512)),
     ("ea", lambda p: hgjax.score(hgjax.neighbourhoods(p, "ea"), "ea")),
     ("resample_lhf", lambda p: hgjax.resample(p, 0.2, method="lhf").astype(np.float64)),
     ("resample_hkc", lambda p: hgjax.resample(p, 0.2, method="hkc").astype(np.float64)),
@@ -44,7 +44,7 @@ def test_four_fake_devices_match_single_device(tmp_path):
     got = np.load(tmp_path / "out.npz")
     np.testing.assert_array_equal(got["hkc"], scores_of(p, "hkc"))
     np.testing.assert_array_equal(got["hkf_reference"], scores_of(p, "hkf", variant="reference"))
-    np.testing.assert_array_equal(got["lhf"], scores_of(p, "lhf", ratio=0.2))
+    np.testing.assert_array_equal(got["lhf"], scores_of(p, "lhf"))
     np.testing.assert_array_equal(got["ea"], scores_of(p, "ea"))
     np.testing.assert_array_equal(got["resample_lhf"], hgjax.resample(p, 0.2, method="lhf"))
     np.testing.assert_array_equal(got["resample_hkc"], hgjax.resample(p, 0.2, method="hkc"))

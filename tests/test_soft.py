@@ -98,8 +98,7 @@ def test_check_grads_scores(method):
     pts = fixtures.box_surface(48, 0, noise=0.01, size=BOX)
     nb = hgjax.neighbourhoods(pts, method)
     if method in TAU_METHODS:
-        extra = {"ratio": RATIO} if method == "lhf" else {}
-        f = lambda p, tau: hgjax.soft_score(hgjax.Neighbourhoods(p, nb.idx, nb.scale), method, tau=tau, **extra)  # noqa: E731
+        f = lambda p, tau: hgjax.soft_score(hgjax.Neighbourhoods(p, nb.idx, nb.scale), method, tau=tau)  # noqa: E731
         args = (pts, 0.3)
     else:
         f, args = (lambda p: hgjax.soft_score(hgjax.Neighbourhoods(p, nb.idx, nb.scale), method)), (pts,)
@@ -285,10 +284,10 @@ def test_soft_hkc_converges_to_beta_over_one_plus_beta():
 def test_soft_lhf_converges_to_hard_lhf():
     pts = fixtures.box_surface(N, 2, noise=0.02, size=BOX)
     nb = hgjax.neighbourhoods(pts, "lhf")
-    hard = np.asarray(hgjax.score(nb, "lhf", ratio=RATIO))
-    far = np.asarray(hgjax.soft_score(nb, "lhf", tau=1e-9, ratio=RATIO))
+    hard = np.asarray(hgjax.score(nb, "lhf"))
+    far = np.asarray(hgjax.soft_score(nb, "lhf", tau=1e-9))
     np.testing.assert_allclose(far, hard, atol=1e-9)
-    blurred = np.asarray(hgjax.soft_score(nb, "lhf", tau=0.3, ratio=RATIO))
+    blurred = np.asarray(hgjax.soft_score(nb, "lhf", tau=0.3))
     assert np.abs(blurred - hard).max() > 1e-3
 
 
@@ -305,11 +304,10 @@ def test_soft_ea_equals_hard_ea(method):
 def test_low_temperature_support_matches_hard_selection(method):
     pts, nb = setup(method)
     m = round(RATIO * N)
-    params = {"ratio": RATIO} if method == "lhf" else {}
     if method == "gfr":  # GFR's hard selection samples; its deterministic mode keeps the top scores
         hard = hgjax.keep(hgjax.score(nb, method), RATIO, method=method, mode="top")
     else:
-        hard = hgjax.keep(hgjax.score(nb, method, **params), RATIO, method=method)
+        hard = hgjax.keep(hgjax.score(nb, method), RATIO, method=method)
     w = np.asarray(weights_of(nb.points, nb, method, floats_of(method, tau=1e-4, temperature=1e-6)))
     support = np.flatnonzero(w > 0.5)
     overlap = np.intersect1d(support, hard).size / m
@@ -373,7 +371,7 @@ def test_bad_tau_and_temperature_raise_value_error_naming_them(name, value):
             call()
     if name == "tau":
         with pytest.raises(ValueError, match="tau"):
-            hgjax.soft_score(hgjax.neighbourhoods(pts, "lhf"), "lhf", ratio=RATIO, tau=value)
+            hgjax.soft_score(hgjax.neighbourhoods(pts, "lhf"), "lhf", tau=value)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -394,8 +392,8 @@ def test_errors():
         hgjax.soft_weights(nb, RATIO, method="nope")
     with pytest.raises(ValueError, match="nb.scale"):
         hgjax.soft_score(hgjax.Neighbourhoods(nb.points, nb.idx), "hkc")
-    with pytest.raises(TypeError, match="ratio"):
-        hgjax.soft_score(setup("lhf")[1], "lhf")
+    with pytest.raises(TypeError, match="soft_score takes no ratio"):
+        hgjax.soft_score(setup("lhf")[1], "lhf", ratio=RATIO)
     with pytest.raises(ValueError, match="ratio must be in"):
         hgjax.soft_weights(nb, 1.5, method="hkc")
     with pytest.raises(TypeError, match="bogus"):

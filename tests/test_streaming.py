@@ -14,8 +14,7 @@ from hgjax.scores import ea, hkc, hkf, lhf
 SCORING = sorted(m for m, entry in hgjax.METHODS.items() if isinstance(entry, hgjax.Method))
 # (method, params) pairs covering every streamed kernel and variant
 VARIANTS = [("hkc", {}), ("hkc", {"variant": "reference"}), ("hkf", {}), ("hkf", {"variant": "reference"}),
-            ("lhf", {"ratio": 0.2}), ("lhf", {"ratio": 0.2, "variant": "reference"}),
-            ("lhf", {"ratio": 0.2, "solver": "eigh"}), ("ea", {}), ("pca_ac", {})]
+            ("lhf", {}), ("lhf", {"variant": "reference"}), ("lhf", {"solver": "eigh"}), ("ea", {}), ("pca_ac", {})]
 
 
 @contextlib.contextmanager
@@ -52,16 +51,7 @@ def test_scores_are_bitwise_chunk_invariant(method, params):
         np.testing.assert_array_equal(np.asarray(hgjax.score(nb, method, chunk_size=chunk, **params)), base)
     # the traced path (inside a caller's jit) computes every row with the same block
     traced = jax.jit(lambda nb: hgjax.score(nb, method, **params))(nb)
-    if method == "lhf":
-        # the per-row gammas are bitwise equal; the combination eps g_a + (1 - eps) g_b is
-        # NumPy on the host and fused by XLA under jit (1 ulp apart)
-        kw = {k: v for k, v in params.items() if k != "ratio"}
-        single = np.asarray(hgjax.scores.lhf.single(nb, **kw))
-        np.testing.assert_array_equal(np.asarray(jax.jit(lambda nb: hgjax.scores.lhf.single(nb, **kw))(nb)), single)
-        np.testing.assert_array_equal(np.asarray(hgjax.scores.lhf.single(nb, chunk_size=1, **kw)), single)
-        np.testing.assert_allclose(np.asarray(traced), base, rtol=1e-15, atol=0)
-    else:
-        np.testing.assert_array_equal(np.asarray(traced), base)
+    np.testing.assert_array_equal(np.asarray(traced), base)
 
 
 def test_chunk_rows_is_fixed_and_independent_of_n():
@@ -74,8 +64,8 @@ def test_large_float32_streaming_run_with_small_chunks():
     p = box_surface(100_000, seed=2).astype(np.float32)
     nb = hgjax.neighbourhoods(p, "lhf")
     assert nb.points.dtype == np.float32
-    small = np.asarray(hgjax.score(nb, "lhf", ratio=0.2, chunk_size=4096))  # 25 chunks, the last one padded
-    np.testing.assert_array_equal(small, np.asarray(hgjax.score(nb, "lhf", ratio=0.2)))
+    small = np.asarray(hgjax.score(nb, "lhf", chunk_size=4096))  # 25 chunks, the last one padded
+    np.testing.assert_array_equal(small, np.asarray(hgjax.score(nb, "lhf")))
     assert small.dtype == np.float32 and np.isfinite(small).all()
     idx = hgjax.keep(small, 0.2, method="lhf")
     assert len(np.unique(idx)) == 20_000
@@ -83,7 +73,7 @@ def test_large_float32_streaming_run_with_small_chunks():
 
 def test_one_compilation_for_all_chunks_and_cloud_sizes():
     kernels = [(hkc._kernel(3, "invariant"), 1, "hkc", {}), (hkf._kernel(3, "invariant"), 1, "hkf", {}),
-               (lhf._kernel(lhf.DEFAULT_LENGTHS, "invariant", "gram"), 0, "lhf", {"ratio": 0.2}),
+               (lhf._kernel(lhf.DEFAULT_LENGTHS, "invariant", "gram"), 0, "lhf", {}),
                (ea.variation, 0, "ea", {})]
     for fn, n_row_args, method, params in kernels:
         kernel = _stream._jitted(fn, n_row_args)
@@ -104,16 +94,14 @@ def test_one_compilation_for_all_chunks_and_cloud_sizes():
 
 def test_float_parameter_sweeps_do_not_recompile():
     nb = hgjax.neighbourhoods(box_surface(2000, seed=7), "lhf")
-    score = jax.jit(lambda nb, ratio: hgjax.score(nb, "lhf", ratio=ratio))
     weights = jax.jit(lambda nb, ratio, temperature, tau: hgjax.soft_weights(
         nb, ratio, method="lhf", temperature=temperature, tau=tau))
-    score(nb, 0.1), weights(nb, 0.1, 0.05, 0.1)
+    weights(nb, 0.1, 0.05, 0.1)
     with backend_compiles() as events:
         for ratio in (0.2, 0.3, 0.5):
-            score(nb, ratio)
             weights(nb, ratio, ratio / 4, ratio / 2)
     assert events == []
-    assert score._cache_size() == 1 and weights._cache_size() == 1
+    assert weights._cache_size() == 1
     # HKC's d_factor changes the neighbourhoods (host), never the kernel of a row width: a
     # sweep compiles only the narrow widths (_stream.narrow_groups) its counts newly select
     kernel = _stream._jitted(hkc._kernel(3, "invariant"), 1)

@@ -138,7 +138,7 @@ def test_mismatched_neighbourhoods_are_refused(smooth):
     assert hgjax.score(nb, "hkc").shape == (500,)  # the recorded kernel_size is used
     lhf = hgjax.neighbourhoods(smooth[:500], "lhf", lengths=(3, 20))
     with pytest.raises(ValueError, match=r"lengths=\(8, 16\) disagrees"):
-        hgjax.score(lhf, "lhf", ratio=0.2, lengths=(8, 16))
+        hgjax.score(lhf, "lhf", lengths=(8, 16))
     with pytest.raises(ValueError, match="built for method 'lhf'; method 'ea' needs its own"):
         hgjax.score(lhf, "ea")
     hgjax.score(nb, "hkf")  # HKC and HKF share their neighbourhoods

@@ -35,10 +35,11 @@ high band (the first t components) from the low band. The single-length sharpnes
   two agree wherever rank(s_c) = 3). On the defaults study it ranks edges far better than
   the previous (row-centred) invariant variant: bench/results/edge_defaults.md.
 
-Two lengths (N_a, N_b) are combined (Eqs. (15)-(16)): gamma_i = eps gamma_a + (1 - eps)
-gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), Gamma the value at the top-ratio fraction
-of each sorted gamma (the paper's definition, not the reference code's arbitrary element).
-Higher gamma means sharper; resampling keeps the largest.
+The score is ratio-free: :func:`score` gives gamma at both lengths (N_a, N_b), (N, 2).
+LHF's selection combines them (Eqs. (15)-(16), :func:`combine`): gamma_i = eps gamma_a +
+(1 - eps) gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), Gamma the m-th largest value of
+each column for the kept count m = ceil(ratio N) (the paper's definition, not the reference
+code's arbitrary element). Higher gamma means sharper; resampling keeps the largest.
 
 Degenerate neighbourhoods: duplicates and collinear or coplanar points give finite gamma in
 [0, 1]; a signal with no structure at all (all points equal) gives gamma = 0. Vanishing
@@ -305,46 +306,40 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     return jnp.stack(out)
 
 
-def combine(gamma_a, gamma_b, ratio, *, count=None):
-    """Combine two single-length gammas (paper Eqs. (15)-(16)).
+def combine(gamma, m, *, count=None):
+    """Combine the two single-length gammas of every point (paper Eqs. (15)-(16)).
 
-    Pure JAX when any input is traced (``ratio`` and ``count`` may then be traced too),
-    NumPy otherwise.
+    LHF's selection: the weight eps comes from the order statistics at the kept count m, so
+    it belongs to :func:`hgjax.keep` and :func:`hgjax.soft_weights` (which call it through
+    the registry), not to the score. Pure JAX when any input is traced (``m`` and ``count``
+    may then be traced too), NumPy otherwise.
 
     Args:
-      gamma_a, gamma_b: (N,) single-length sharpness values.
-      ratio: the resampling ratio alpha in (0, 1].
+      gamma: (N, 2) single-length sharpness values (:func:`score`), column j at ``lengths[j]``.
+      m: the number of kept points, 1 <= m <= n.
       count: the number of real rows of a padded cloud (its first ``count``; see
         :attr:`hgjax.Neighbourhoods.count`), or None for all N. The order statistics are
         taken over the real rows only, so they are the unpadded cloud's.
 
     Returns:
       (N,) eps gamma_a + (1 - eps) gamma_b with eps = Gamma_b / (Gamma_a + Gamma_b), where
-      Gamma is the ceil(alpha n)-th largest value of each over the n = ``count`` real rows
+      Gamma is the m-th largest value of each column over the n = ``count`` real rows
       (eps = 0.5 when both are 0).
 
     Examples:
       >>> import numpy as np, hgjax
-      >>> hgjax.scores.lhf.combine(np.array([0.2, 0.4]), np.array([0.1, 0.3]), 0.5).round(3).tolist()
+      >>> hgjax.scores.lhf.combine(np.array([[0.2, 0.1], [0.4, 0.3]]), 1).round(3).tolist()
       [0.143, 0.343]
-      >>> padded = hgjax.scores.lhf.combine(np.array([0.2, 0.4, 0.9]), np.array([0.1, 0.3, 0.9]), 0.5, count=2)
+      >>> padded = hgjax.scores.lhf.combine(np.array([[0.2, 0.1], [0.4, 0.3], [0.9, 0.9]]), 1, count=2)
       >>> padded[:2].round(3).tolist()  # the third row is padding: not an order statistic
       [0.143, 0.343]
     """
-    xp = jnp if _stream.is_traced(gamma_a, gamma_b, ratio, count) else np
-    g = xp.stack([xp.asarray(gamma_a), xp.asarray(gamma_b)], axis=1)  # (N, 2)
+    xp = jnp if _stream.is_traced(gamma, m, count) else np
+    g = xp.asarray(gamma)  # (N, 2)
     n = g.shape[0]
-    if count is not None:  # padding rows below every gamma in [0, 1]: sorted first, never an order statistic
-        count = count if xp is jnp else int(count)
-        g_real = xp.where((xp.arange(n) < count)[:, None], g, -1)
-    else:
-        g_real, count = g, n
-    if isinstance(ratio, float) and _stream.is_traced(count):  # the host's count, not float32's ratio x count
-        m = _validate.n_keep_traced(count, ratio)
-    else:
-        x = ratio * count
-        m = xp.clip(xp.where(xp.abs(x - xp.round(x)) <= 1e-9 * x, xp.round(x), xp.ceil(x)), 1, count).astype(xp.int32)
-    big = xp.sort(g_real, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
+    # padding rows below every gamma in [0, 1]: sorted first, never an order statistic
+    real = g if count is None else xp.where((xp.arange(n) < count)[:, None], g, -1)
+    big = xp.sort(real, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
     return mix(g[:, 0], g[:, 1], big[0], big[1])
 
 
@@ -412,15 +407,17 @@ def _kernel(lengths, variant, solver):
     return functools.partial(gamma, lengths=lengths, variant=variant, solver=solver)
 
 
-def score(nb, *, ratio, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram",
+def score(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: str = "gram",
           chunk_size: int | None = None, progress: bool = False):
-    """Combined LHF sharpness gamma (Eqs. (14)-(16)) of every neighbourhood; higher is sharper.
+    """The two single-length LHF sharpness values (Eq. (14)) of every neighbourhood; higher is sharper.
+
+    Ratio-free: their combination (Eqs. (15)-(16)) takes the order statistics at the kept
+    count, so it is part of LHF's selection (:func:`combine`, called by :func:`hgjax.keep`,
+    :func:`hgjax.soft_weights` and the tiled engine).
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods` (k-nearest rows, the
         point first, at least max(lengths) columns).
-      ratio: resampling ratio alpha in (0, 1]; sets the weight eps (Eq. (16)). Traced under
-        jit (a new value does not recompile).
       lengths: (N_a, N_b) (static). Default ``DEFAULT_LENGTHS`` = (8, 16): of (3, 6) ...
         (12, 24), the only pair within 0.05 of the best in every regime (grid, random,
         labelled real clouds; bench/results/edge_defaults.md).
@@ -430,16 +427,16 @@ def score(nb, *, ratio, lengths=DEFAULT_LENGTHS, variant: str = "invariant", sol
       progress: progress bar on stderr for long eager runs.
 
     Returns:
-      (N,) gamma in [0, 1], in the dtype of ``nb.points``.
+      (N, 2) gamma in [0, 1], in the dtype of ``nb.points``: column j at ``lengths[j]``.
 
     Examples:
       >>> import numpy as np, hgjax
       >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "lhf")
-      >>> hgjax.scores.lhf.score(nb, ratio=0.2).shape
-      (100,)
+      >>> hgjax.scores.lhf.score(nb).shape
+      (100, 2)
     """
-    g = single(nb, lengths=lengths, variant=variant, solver=solver, chunk_size=chunk_size, progress=progress)
-    out = combine(g[:, 0], g[:, 1], _validate.check_traced_ratio(ratio), count=nb.count)
+    out = single(nb, lengths=_validate.check_lengths(lengths), variant=variant, solver=solver,
+                 chunk_size=chunk_size, progress=progress)
     return out if _stream.is_traced(out) else jax.device_put(out)
 
 
@@ -468,30 +465,30 @@ def single(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: s
     return out if _stream.is_traced(nb) else np.asarray(out)
 
 
-def soft_score(nb, *, ratio, tau=0.1, lengths=DEFAULT_LENGTHS):
-    """Smooth combined LHF gamma (:func:`soft_gamma`, Eqs. (15)-(16)), pure JAX and differentiable.
+def soft_score(nb, *, tau=0.1, lengths=DEFAULT_LENGTHS):
+    """Smooth twin of :func:`score` (:func:`soft_gamma`), pure JAX and differentiable.
+
+    Ratio-free like :func:`score`; :func:`hgjax.soft_weights` combines the two columns
+    (:func:`combine`, Eqs. (15)-(16)) at its ratio.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
-      ratio: resampling ratio alpha in (0, 1] (traced).
       tau: softness of the band switches (traced, > 0).
       lengths: (N_a, N_b) (static).
 
     Returns:
-      (N,) gamma in [0, 1]; higher is sharper.
+      (N, 2) gamma in [0, 1], column j at ``lengths[j]``; higher is sharper.
 
     Examples:
       >>> import numpy as np, hgjax
       >>> nb = hgjax.neighbourhoods(np.random.default_rng(0).random((100, 3)), "lhf")
-      >>> hgjax.scores.lhf.soft_score(nb, ratio=0.2).shape
-      (100,)
+      >>> hgjax.scores.lhf.soft_score(nb).shape
+      (100, 2)
     """
     lengths = _validate.check_lengths(lengths)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
     tau = _validate.check_traced_positive(tau, "tau")
-    g = _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
-    ratio = jnp.asarray(_validate.check_traced_ratio(ratio), g.dtype)
-    return combine(g[:, 0], g[:, 1], ratio, count=nb.count)
+    return _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:
@@ -540,6 +537,6 @@ METHOD = _registry.Method(
     citation=f"{_registry.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
     soft_score=soft_score,
     params=_registry.stages(build=("capacity", "dedupe", "lengths", "variant"),
-                            score=("chunk_size", "lengths", "progress", "ratio", "solver", "variant"),
-                            soft_score=("lengths", "ratio", "tau")),
-    tile_params=tile_params, rows=ea.tile_rows, kernel=_tile_kernel, tiled_select=tiled_select)
+                            score=("chunk_size", "lengths", "progress", "solver", "variant"),
+                            soft_score=("lengths", "tau")),
+    columns=2, combine=combine, tile_params=tile_params, rows=ea.tile_rows, kernel=_tile_kernel, tiled_select=tiled_select)
