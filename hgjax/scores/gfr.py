@@ -93,16 +93,6 @@ def squared_radius(radius_factor: float, stats: spatial.SampleStats) -> float:
     return (radius_factor * stats.resolution(robust=True)) ** 2
 
 
-def location_pairs(index: spatial.SpatialIndex, r: float, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
-    """Undirected pairs (a, b), a < b, of the rows (distinct locations) of a deduplicated index.
-
-    Ties at the ``max_nn`` cap are ranked by the locations' global ids (``index.gid``).
-    """
-    if r <= 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return _location_pairs(index.tree, r, max_nn, index.gid[:-1])
-
-
 def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
     """The squared radius r = min(10 minNN, 2 maxNN) of REFERENCE.md's rule 1 (0 if no point counts)."""
     n = p32.shape[0]
@@ -162,49 +152,113 @@ def _split_keys(key: np.ndarray, n: int):
     return key // n, key % n
 
 
-def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
-    """Undirected pairs (a, b), a < b, of the distinct locations u (U, 3) float64 in ``tree``.
+def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.ndarray):
+    """The stored partners of the rows ``want`` of a deduplicated index, a chunk of rows at a time.
 
-    Each location keeps its ``max_nn`` nearest other locations at squared distance q < r,
-    ranked by (q, tie); a pair is stored when either end keeps the other. One bounded
-    k-nearest query per location, asked again with more columns only for the rows whose
-    query came back full while ties with the cap (or too few points) may lie beyond it.
+    Each location a keeps its ``max_nn`` nearest other locations b with 0 < q_ab < r
+    (squared distances in float64), ranked by (q_ab, gid_b) (``index.gid``); the pair {a, b}
+    is stored when either end keeps the other. One pass queries every row's ball and keeps
+    only each row's cut, the (q, gid) of its ``max_nn``-th partner (none below the cap),
+    and the balls of the wanted rows; a second pass then keeps, per chunk of wanted rows,
+    the partners b of a with (q_ab, gid_b) <= cut_a or (q_ab, gid_a) <= cut_b.
+
+    Args:
+      index: a deduplicated :class:`hgjax.spatial.SpatialIndex`.
+      r: squared radius.
+      max_nn: the most partners a location ranks.
+      want: (n,) bool, the rows whose partners are returned.
+
+    Yields:
+      (own, sym): own (C,) ascending wanted rows, sym (C, W) int32 their partners ordered
+      by global id, padded with n; the chunks' own together are ``flatnonzero(want)``.
     """
-    u = tree.data
-    m = u.shape[0]
+    m = index.n
+    cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
+    balls = [_balls(index, batch, r, max_nn, want[batch], cut_q, cut_g)
+             for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))] if r > 0 else []
+    by_gid = np.argsort(index.gid[:-1], kind="stable")
+    rank = np.empty(m + 1, dtype=np.int32)  # each row's place in global-id order; the padding n last
+    rank[by_gid], rank[m] = np.arange(m), m
+    by_gid = np.append(by_gid, m).astype(np.int32)
+    for at in range(len(balls)):
+        own, counts, cols = balls[at]
+        balls[at] = None
+        line = np.repeat(np.arange(own.size), counts)
+        a = own[line]
+        q = _sq_dist(index.points, a, cols)
+        kept = (_ranks_before(q, index.gid[cols], cut_q[a], cut_g[a])
+                | _ranks_before(q, index.gid[a], cut_q[cols], cut_g[cols]))
+        counts = np.bincount(line[kept], minlength=own.size)
+        yield own, by_gid[np.sort(_dense(counts, rank[cols[kept]], m), axis=1)]
+    if not balls:  # no pair (r = 0): every wanted row alone
+        yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
+
+
+def _ranks_before(q, g, cut_q, cut_g):
+    """Whether the pairs (q, g) rank at or before the cuts (cut_q, cut_g): by q, then by global id."""
+    return (q < cut_q) | ((q == cut_q) & (g <= cut_g))
+
+
+def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int | None = None) -> np.ndarray:
+    """(R, W) rows of ``flat`` (R rows of ``counts`` values, in order), padded with n; W the fullest row."""
+    width = max(1, int(counts.max(initial=0))) if width is None else width
+    out = np.full((counts.size, width), n, dtype=np.int32)
+    if flat.size:
+        row = np.repeat(np.arange(counts.size), counts)
+        out[row, np.arange(flat.size) - (np.cumsum(counts) - counts)[row]] = flat
+    return out
+
+
+def _balls(index: spatial.SpatialIndex, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
+           cut_q: np.ndarray, cut_g: np.ndarray):
+    """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the balls of the wanted ones.
+
+    A bounded k-nearest query per row, asked again with twice the columns for the rows
+    whose query came back full while more may lie within r: a wanted row until its whole
+    ball is seen, another row until its cut is certain (no tie with it beyond the query).
+
+    Returns:
+      (own (C,) the wanted rows, counts (C,), cols (P,) int32 each one's ball by distance).
+    """
+    u, m, gid = index.points, index.n, index.gid
     bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
-    rows, cols = [], []
-    todo, k = np.arange(m), min(max_nn + 9, m)
+    own, counts, cols = [], [], []
+    todo, k = np.arange(batch.size), min(max_nn + 9, m)
     while todo.size:
-        again = []
-        for batch in np.array_split(todo, max(1, todo.size * k // PAIR_BUDGET)):
-            _, j = tree.query(u[batch], k=k, distance_upper_bound=bound, workers=-1)
-            j = j.reshape(batch.size, k)
-            real = j < m
-            jj = np.where(real, j, 0)
-            d = u[batch][:, None, :] - u[jj]  # (R, k, 3)
-            q = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
-            valid = real & (q > 0) & (q < r)
-            n_valid = valid.sum(axis=1)
-            open_rows = real.all(axis=1) & (k < m)  # the query came back full: more may lie beyond
-            capped = np.flatnonzero(n_valid >= max_nn)  # only these rows rank their partners
-            jc = np.zeros((0, max_nn), dtype=j.dtype)
-            if capped.size:
-                qc = np.where(valid[capped], q[capped], np.inf)
-                order = np.lexsort((np.where(valid[capped], tie[jj[capped]], m), qc), axis=1)  # by (q, tie)
-                qc, jc = np.take_along_axis(qc, order, axis=1), np.take_along_axis(j[capped], order, axis=1)
-                # a full capped row stays open while a tie with its max_nn-th partner may lie beyond
-                open_rows[capped] &= qc[:, max_nn - 1] >= qc[np.arange(capped.size), n_valid[capped] - 1]
-            again.append(batch[open_rows])
-            free = valid & ~open_rows[:, None]
-            free[capped] = False
-            kept = ~open_rows[capped]
-            a = np.concatenate([np.broadcast_to(batch[:, None], j.shape)[free], np.repeat(batch[capped][kept], max_nn)])
-            b = np.concatenate([j[free], jc[kept, :max_nn].ravel()])
-            rows.append(np.minimum(a, b))
-            cols.append(np.maximum(a, b))
-        todo, k = np.concatenate(again), min(2 * k, m)
-    return _split_keys(np.concatenate(rows) * m + np.concatenate(cols), m)
+        rows = batch[todo]
+        _, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
+        j = j.reshape(todo.size, k)
+        real = j < m
+        jj = np.where(real, j, 0)
+        d = u[rows][:, None, :] - u[jj]  # (R, k, 3)
+        q = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
+        valid = real & (q > 0) & (q < r)
+        n_valid = valid.sum(axis=1)
+        seen = ~(real.all(axis=1) & (k < m))  # the whole ball is in the query
+        capped = np.flatnonzero(n_valid >= max_nn)
+        if capped.size:
+            qc = np.where(valid[capped], q[capped], np.inf)
+            gc = np.where(valid[capped], gid[jj[capped]], np.iinfo(np.int64).max)
+            order = np.lexsort((gc, qc), axis=1)  # by (q, gid)
+            line = np.arange(capped.size)
+            cq, cg = qc[line, order[:, max_nn - 1]], gc[line, order[:, max_nn - 1]]
+            # the cut is certain unless a tie with it may lie beyond a full query
+            sure = seen[capped] | (cq < qc[line, order[line, n_valid[capped] - 1]])
+            cut_q[rows[capped[sure]]], cut_g[rows[capped[sure]]] = cq[sure], cg[sure]
+            seen[capped[sure & ~want[todo[capped]]]] = True
+        keep = np.flatnonzero(seen & want[todo])
+        own.append(rows[keep])
+        counts.append(n_valid[keep])
+        cols.append(j[keep][valid[keep]].astype(np.int32))
+        todo, k = todo[~seen], min(2 * k, m)
+    own, counts, cols = np.concatenate(own), np.concatenate(counts), np.concatenate(cols)
+    order = np.argsort(own, kind="stable")
+    if (order[1:] < order[:-1]).any():  # rows asked again finished later: back in row order
+        starts = np.cumsum(counts) - counts
+        cols = cols[np.repeat(starts[order], counts[order]) + np.arange(cols.size)
+                    - np.repeat(np.cumsum(counts[order]) - counts[order], counts[order])]
+        own, counts = own[order], counts[order]
+    return own, counts, cols
 
 
 def graph_params(variant: str, radius_factor: float | None, max_nn: int) -> tuple[str, float | None, int]:
@@ -276,8 +330,13 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     else:
         index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
         r = squared_radius(radius_factor, spatial.sample_stats(index))
-        a, b = location_pairs(index, r, max_nn)
-        i, j = index.order[a], index.order[b]  # the first point of each location
+        a, b = [], []
+        for own, sym in location_rows(index, r, max_nn, np.ones(index.n, bool)):
+            valid = sym < index.n
+            a.append(np.repeat(own, valid.sum(axis=1)))
+            b.append(sym[valid])
+        a, b = np.concatenate(a), np.concatenate(b)
+        i, j = index.order[a[a < b]], index.order[b[a < b]]  # the first point of each location
         rows, cols = _split_keys(np.minimum(i, j) * n + np.maximum(i, j), n)
         if index.n < n:
             first = index.order[index.row].astype(np.int32)
@@ -451,10 +510,13 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     own = np.arange(n)
     counts = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
     stream = {"chunk_size": chunk_size, "progress": progress}
+    tie_ext, counts_ext = np.append(own, n), np.append(counts, 0.0)
     # q from the points cast to wdtype first, as the authors' float32 code computes it.
-    q = pair_lengths(points.astype(wdtype), own, sym, wdtype, **stream)
-    mean_q, two_var = moments(pair_sums(q, own, sym, np.append(own, n), np.append(counts, 0.0)))
-    lp = laplacian_norms(points, own, sym, q, np.append(counts, 0.0), mean_q, two_var, points.dtype, wdtype, **stream)
+    q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
+    mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
+                                      for q_b, b in zip(q, _blocks(n))]))
+    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, mean_q, two_var, points.dtype,
+                                         wdtype, **stream) for q_b, b in zip(q, _blocks(n))] or [np.zeros(0)])
     return jax.device_put((lp if first is None else lp[first]).astype(points.dtype))
 
 
@@ -476,28 +538,33 @@ def symmetric(a: np.ndarray, b: np.ndarray, n: int, tie: np.ndarray) -> np.ndarr
     return out
 
 
-def _blocks(own: np.ndarray):
+def _blocks(n: int):
     """Slices of at most SCORE_ROWS rows (bounds the host memory of (R, K, 3) flows)."""
-    return [slice(s, min(s + SCORE_ROWS, own.size)) for s in range(0, own.size, SCORE_ROWS)]
+    return [slice(s, min(s + SCORE_ROWS, n)) for s in range(0, n, SCORE_ROWS)]
 
 
-def pair_lengths(points, own, sym, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
-    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``sym[own]``."""
-    nbr = sym[own]
-    return np.concatenate([_stream.map_rows(_sq_length, points, own[b], nbr[b], dtype=wdtype, chunk_size=chunk_size,
-                                            progress=progress) for b in _blocks(own)] or [np.zeros(nbr.shape, wdtype)])
+def pair_lengths(points, own, nbr, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
+    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``nbr`` (R, K)."""
+    return _stream.map_rows(_sq_length, points, own, nbr, dtype=wdtype, chunk_size=chunk_size, progress=progress)
 
 
-def pair_sums(q, own, sym, tie_ext, counts_ext) -> tuple:
+def pair_sums(q, own, nbr, tie_ext, counts_ext) -> tuple:
     """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the pairs (i, j) of rows ``own`` with tie_j > tie_i.
 
-    Each undirected pair is counted once, from its end with the smaller global id.
+    ``nbr`` (R, K) holds the partners of the rows ``own`` (R,), padded with n = len(tie_ext) - 1,
+    and ``q`` (R, K) their squared lengths. Each undirected pair is counted once, from its end
+    with the smaller global id; sums of chunks of rows add up exactly.
     """
-    nbr = sym[own]
-    counted = (nbr < sym.shape[0]) & (tie_ext[nbr] > tie_ext[own][:, None])
+    counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
     w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
     qq = q[counted].astype(np.float64)
-    return select.ExactSum.of(w), select.ExactSum.of(w * qq), select.ExactSum.of(w * qq * qq)
+    wq = w * qq
+    return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
+
+
+def summed(parts) -> tuple:
+    """The exact sums of :func:`pair_sums` over several chunks or tiles (three empty sums for none)."""
+    return tuple(sum(column, select.ExactSum()) for column in zip(*parts)) or (select.ExactSum(),) * 3
 
 
 def moments(sums) -> tuple[float, float]:
@@ -509,24 +576,63 @@ def moments(sums) -> tuple[float, float]:
     return mean_q, 2 * max(z_sq - mean_z * mean_z, 0.0)
 
 
-def laplacian_norms(points, own, sym, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
+def laplacian_norms(points, own, nbr, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
                     progress=False) -> np.ndarray:
-    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``sym[own]``, in row order.
+    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K), in column order.
 
     The flows come from one compiled kernel; each row is then summed column by column in
     float64, so padding columns (zeros) never change a sum's bits.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    nbr = sym[own]
     c = counts_ext[nbr]
     lp = np.zeros((own.size, 3))
-    for b in _blocks(own):
-        flows = _stream.map_rows(_flow_kernel(np.dtype(wdtype)), points, own[b], nbr[b], row_args=(q[b],), args=args,
-                                 dtype=dtype, chunk_size=chunk_size, progress=progress)
-        for k in range(nbr.shape[1]):
-            lp[b] += c[b, k, None] * flows[:, k]
+    flows = _stream.map_rows(_flow_kernel(np.dtype(wdtype)), points, own, nbr, row_args=(q,), args=args, dtype=dtype,
+                             chunk_size=chunk_size, progress=progress)
+    for k in range(nbr.shape[1]):
+        lp += c[:, k, None] * flows[:, k]
     return np.sqrt(np.sum(lp * lp, axis=1))
+
+
+def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
+    """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
+
+    One chunk of rows at a time (:func:`location_rows`): the partners, their squared lengths
+    q in ``dtype`` and the sums of :func:`pair_sums`; only the partners are kept, as
+    (own, counts, flat) per chunk, for :func:`graph_norms`.
+    """
+    want = np.zeros(index.n, bool)
+    want[rows] = True
+    counts_ext = _counts_ext(index)
+    chunks, sums = [], []
+    for own, sym in location_rows(index, r, max_nn, want):
+        sym = _padded(sym, index.n)
+        sums.append(pair_sums(pair_lengths(index.points, own, sym, dtype), own, sym, index.gid, counts_ext))
+        valid = sym < index.n
+        chunks.append((own, valid.sum(axis=1), sym[valid]))
+    return chunks, summed(sums)
+
+
+def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_var: float, dtype, *,
+                chunk_size=None, progress=False) -> np.ndarray:
+    """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, in their order."""
+    counts_ext, out = _counts_ext(index), []
+    for own, counts, flat in chunks:
+        sym = _padded(_dense(counts, flat, index.n), index.n)
+        q = pair_lengths(index.points, own, sym, dtype)
+        out.append(laplacian_norms(index.points, own, sym, q, counts_ext, mean_q, two_var, dtype, dtype,
+                                   chunk_size=chunk_size, progress=progress))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _counts_ext(index: spatial.SpatialIndex) -> np.ndarray:
+    """(n + 1,) float64 points at each location of a deduplicated index, and 0 for the padding n."""
+    return np.append(np.bincount(index.row, minlength=index.n).astype(np.float64), 0.0)
+
+
+def _padded(sym: np.ndarray, n: int) -> np.ndarray:
+    """``sym`` (C, W) padded with n to :func:`hgjax.spatial.bucket` (W) columns: few compiled widths."""
+    return np.pad(sym, ((0, 0), (0, spatial.bucket(sym.shape[1]) - sym.shape[1])), constant_values=n)
 
 
 def soft_score(nb, *, variant: str = "invariant"):
