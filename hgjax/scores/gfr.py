@@ -93,13 +93,16 @@ def squared_radius(radius_factor: float, stats: spatial.SampleStats) -> float:
     return (radius_factor * stats.resolution(robust=True)) ** 2
 
 
-def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
-    """The squared radius r = min(10 minNN, 2 maxNN) of REFERENCE.md's rule 1 (0 if no point counts)."""
+def _reference_radius(p32: np.ndarray, index: spatial.SpatialIndex) -> float:
+    """The squared radius r = min(10 minNN, 2 maxNN) of REFERENCE.md's rule 1 (0 if no point counts).
+
+    ``p32`` (N, 3) float32 in the caller's order, ``index`` built on it.
+    """
     n = p32.shape[0]
     k = min(3, n)
-    hits = tree.query(tree.data, k=k, workers=-1)[1].reshape(n, k)
+    hits = index.nearest(slice(None), k)[1]
     rows = np.repeat(np.arange(n), k)
-    q = _sq_dist(p32, rows, hits.ravel()).reshape(n, k)
+    q = _sq_dist(p32[index.order], rows, hits.ravel()).reshape(n, k)
     nearest = np.where(hits != np.arange(n)[:, None], q, np.inf).min(axis=1)
     nearest = nearest[np.isfinite(nearest) & (nearest > SKIP_SQ_DIST)].astype(np.float64)
     if nearest.size == 0:
@@ -110,29 +113,28 @@ def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
     return float(min(10 * min_nn, 2 * max_nn))
 
 
-def _chunks(tree: cKDTree, bound: float):
-    """Rows in the tree's (spatial) leaf order, cut into runs of about PAIR_BUDGET candidates."""
-    counts = tree.query_ball_point(tree.data, bound, return_length=True, workers=-1)
-    rows = tree.indices
-    total = np.cumsum(counts[rows])
+def _chunks(index: spatial.SpatialIndex, bound: float):
+    """The index's rows (spatial order), cut into runs of about PAIR_BUDGET candidates."""
+    counts = index.tree.query_ball_point(index.points, bound, return_length=True, workers=-1)
+    total = np.cumsum(counts)
     cuts = np.searchsorted(total, np.arange(PAIR_BUDGET, total[-1], PAIR_BUDGET))
-    for part in np.split(rows, np.unique(cuts)):
+    for part in np.split(np.arange(index.n), np.unique(cuts)):
         if part.size:
             yield part
 
 
-def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int):
+def _pairs(p: np.ndarray, index: spatial.SpatialIndex, r: float, max_nn: int):
     """Stored pairs (row, col), row < col, sorted, of the reference radius graph (squared radius r).
 
     Each row i ranks its candidates j > i (0 < q_ij < r, q in the dtype of ``p``) by
-    (q_ij, j) and keeps the first ``max_nn``.
+    (q_ij, j) and keeps the first ``max_nn``. ``index`` is built on ``p`` (global ids i, j).
     """
     n = p.shape[0]
     bound = np.sqrt(r) * (1 + 1e-5)  # q is rounded (float32 for the reference); exact test below
     rows, cols = [], []
-    for part in _chunks(tree, bound):
-        hits = cKDTree(tree.data[part]).sparse_distance_matrix(tree, bound, output_type="ndarray")
-        i, j = part[hits["i"]], hits["j"].astype(np.int64)
+    for part in _chunks(index, bound):
+        hits = cKDTree(index.points[part]).sparse_distance_matrix(index.tree, bound, output_type="ndarray")
+        i, j = index.gid[part[hits["i"]]], index.gid[hits["j"]]
         i, j = i[i < j], j[i < j]
         q = _sq_dist(p, i, j)
         keep = (q > 0) & (q < r)
@@ -174,22 +176,27 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
     """
     m = index.n
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
-    balls = [_balls(index, batch, r, max_nn, want[batch], cut_q, cut_g)
+    coords = tuple(np.append(index.points[:, axis], np.nan) for axis in range(3))  # row n: no point
+    balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
              for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))] if r > 0 else []
     by_gid = np.argsort(index.gid[:-1], kind="stable")
     rank = np.empty(m + 1, dtype=np.int32)  # each row's place in global-id order; the padding n last
     rank[by_gid], rank[m] = np.arange(m), m
     by_gid = np.append(by_gid, m).astype(np.int32)
+    capped = np.isfinite(cut_q)
     for at in range(len(balls)):
         own, counts, cols = balls[at]
         balls[at] = None
         line = np.repeat(np.arange(own.size), counts)
-        a = own[line]
-        q = _sq_dist(index.points, a, cols)
-        kept = (_ranks_before(q, index.gid[cols], cut_q[a], cut_g[a])
-                | _ranks_before(q, index.gid[a], cut_q[cols], cut_g[cols]))
+        test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
+        a, b = own[line[test]], cols[test]
+        q = _sq_dist(index.points, a, b)
+        kept = np.ones(cols.size, bool)
+        kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
+                      | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
         counts = np.bincount(line[kept], minlength=own.size)
-        yield own, by_gid[np.sort(_dense(counts, rank[cols[kept]], m), axis=1)]
+        width = spatial.bucket(counts.max(initial=0))  # few compiled widths
+        yield own, by_gid[np.sort(_dense(counts, rank[cols[kept]], m, width), axis=1)]
     if not balls:  # no pair (r = 0): every wanted row alone
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
 
@@ -209,13 +216,16 @@ def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int | None = Non
     return out
 
 
-def _balls(index: spatial.SpatialIndex, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
+def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
            cut_q: np.ndarray, cut_g: np.ndarray):
     """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the balls of the wanted ones.
 
     A bounded k-nearest query per row, asked again with twice the columns for the rows
     whose query came back full while more may lie within r: a wanted row until its whole
     ball is seen, another row until its cut is certain (no tie with it beyond the query).
+
+    Args:
+      coords: the index's x, y and z (n + 1,) each, NaN at n.
 
     Returns:
       (own (C,) the wanted rows, counts (C,), cols (P,) int32 each one's ball by distance).
@@ -228,17 +238,17 @@ def _balls(index: spatial.SpatialIndex, batch: np.ndarray, r: float, max_nn: int
         rows = batch[todo]
         _, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
         j = j.reshape(todo.size, k)
-        real = j < m
-        jj = np.where(real, j, 0)
-        d = u[rows][:, None, :] - u[jj]  # (R, k, 3)
-        q = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
-        valid = real & (q > 0) & (q < r)
+        q = 0
+        for x in coords:  # ||u_a - u_b||^2 summed x, y, z in order (NaN where the query found no point)
+            d = x[rows][:, None] - x[j]
+            q = q + d * d
+        valid = (q > 0) & (q < r)
         n_valid = valid.sum(axis=1)
-        seen = ~(real.all(axis=1) & (k < m))  # the whole ball is in the query
+        seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
             qc = np.where(valid[capped], q[capped], np.inf)
-            gc = np.where(valid[capped], gid[jj[capped]], np.iinfo(np.int64).max)
+            gc = np.where(valid[capped], gid[j[capped]], np.iinfo(np.int64).max)
             order = np.lexsort((gc, qc), axis=1)  # by (q, gid)
             line = np.arange(capped.size)
             cq, cg = qc[line, order[:, max_nn - 1]], gc[line, order[:, max_nn - 1]]
@@ -324,9 +334,9 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     first = None
     if variant == "reference":
         p = pts.astype(np.float32)
-        tree = cKDTree(p.astype(np.float64))
-        r = _reference_radius(p, tree)
-        rows, cols = _pairs(p, tree, r, max_nn) if r > 0 else empty
+        index = spatial.SpatialIndex(p.astype(np.float64))
+        r = _reference_radius(p, index)
+        rows, cols = _pairs(p, index, r, max_nn) if r > 0 else empty
     else:
         index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
         r = squared_radius(radius_factor, spatial.sample_stats(index))
@@ -508,9 +518,9 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     valid = idx < n
     sym = symmetric(np.repeat(np.arange(n), valid.sum(axis=1)), idx[valid], n, np.arange(n))
     own = np.arange(n)
-    counts = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
+    counts_ext = None if first is None else np.append(np.bincount(first, minlength=n).astype(np.float64), 0.0)
     stream = {"chunk_size": chunk_size, "progress": progress}
-    tie_ext, counts_ext = np.append(own, n), np.append(counts, 0.0)
+    tie_ext = np.append(own, n)
     # q from the points cast to wdtype first, as the authors' float32 code computes it.
     q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
     mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
@@ -552,12 +562,15 @@ def pair_sums(q, own, nbr, tie_ext, counts_ext) -> tuple:
     """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the pairs (i, j) of rows ``own`` with tie_j > tie_i.
 
     ``nbr`` (R, K) holds the partners of the rows ``own`` (R,), padded with n = len(tie_ext) - 1,
-    and ``q`` (R, K) their squared lengths. Each undirected pair is counted once, from its end
-    with the smaller global id; sums of chunks of rows add up exactly.
+    and ``q`` (R, K) their squared lengths; ``counts_ext`` (n + 1,) the c of each row and 0 for
+    the padding, or None for one point per row. Each undirected pair is counted once, from its
+    end with the smaller global id; sums of chunks of rows add up exactly.
     """
     counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
-    w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
     qq = q[counted].astype(np.float64)
+    if counts_ext is None:  # c_i c_j = 1: the same sums
+        return select.ExactSum.of([qq.size]), select.ExactSum.of(qq), select.ExactSum.of(qq * qq)
+    w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
     wq = w * qq
     return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
 
@@ -581,17 +594,19 @@ def laplacian_norms(points, own, nbr, q, counts_ext, mean_q, two_var, dtype, wdt
     """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K), in column order.
 
     The flows come from one compiled kernel; each row is then summed column by column in
-    float64, so padding columns (zeros) never change a sum's bits.
+    float64, so padding columns (zeros) never change a sum's bits. ``counts_ext`` as
+    :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    c = counts_ext[nbr]
-    lp = np.zeros((own.size, 3))
     flows = _stream.map_rows(_flow_kernel(np.dtype(wdtype)), points, own, nbr, row_args=(q,), args=args, dtype=dtype,
                              chunk_size=chunk_size, progress=progress)
-    for k in range(nbr.shape[1]):
-        lp += c[:, k, None] * flows[:, k]
-    return np.sqrt(np.sum(lp * lp, axis=1))
+    lp = np.zeros((3, own.size))
+    for axis in range(3):
+        x = flows[..., axis] if counts_ext is None else counts_ext[nbr] * flows[..., axis]
+        for k in range(nbr.shape[1]):
+            lp[axis] += x[:, k]
+    return np.sqrt(lp[0] * lp[0] + lp[1] * lp[1] + lp[2] * lp[2])
 
 
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
@@ -606,7 +621,6 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
     counts_ext = _counts_ext(index)
     chunks, sums = [], []
     for own, sym in location_rows(index, r, max_nn, want):
-        sym = _padded(sym, index.n)
         sums.append(pair_sums(pair_lengths(index.points, own, sym, dtype), own, sym, index.gid, counts_ext))
         valid = sym < index.n
         chunks.append((own, valid.sum(axis=1), sym[valid]))
@@ -618,21 +632,19 @@ def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_va
     """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, in their order."""
     counts_ext, out = _counts_ext(index), []
     for own, counts, flat in chunks:
-        sym = _padded(_dense(counts, flat, index.n), index.n)
+        sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
         q = pair_lengths(index.points, own, sym, dtype)
         out.append(laplacian_norms(index.points, own, sym, q, counts_ext, mean_q, two_var, dtype, dtype,
                                    chunk_size=chunk_size, progress=progress))
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def _counts_ext(index: spatial.SpatialIndex) -> np.ndarray:
-    """(n + 1,) float64 points at each location of a deduplicated index, and 0 for the padding n."""
+def _counts_ext(index: spatial.SpatialIndex) -> np.ndarray | None:
+    """(n + 1,) float64 points at each location of a deduplicated index and 0 for the padding n; None
+    without duplicates."""
+    if index.n == index.n_caller:
+        return None
     return np.append(np.bincount(index.row, minlength=index.n).astype(np.float64), 0.0)
-
-
-def _padded(sym: np.ndarray, n: int) -> np.ndarray:
-    """``sym`` (C, W) padded with n to :func:`hgjax.spatial.bucket` (W) columns: few compiled widths."""
-    return np.pad(sym, ((0, 0), (0, spatial.bucket(sym.shape[1]) - sym.shape[1])), constant_values=n)
 
 
 def soft_score(nb, *, variant: str = "invariant"):
