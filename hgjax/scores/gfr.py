@@ -210,9 +210,7 @@ def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int | None = Non
     """(R, W) rows of ``flat`` (R rows of ``counts`` values, in order), padded with n; W the fullest row."""
     width = max(1, int(counts.max(initial=0))) if width is None else width
     out = np.full((counts.size, width), n, dtype=np.int32)
-    if flat.size:
-        row = np.repeat(np.arange(counts.size), counts)
-        out[row, np.arange(flat.size) - (np.cumsum(counts) - counts)[row]] = flat
+    out[np.arange(width) < counts[:, None]] = flat  # row-major: each row's first counts values, in order
     return out
 
 
@@ -259,7 +257,7 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         keep = np.flatnonzero(seen & want[todo])
         own.append(rows[keep])
         counts.append(n_valid[keep])
-        cols.append(j[keep][valid[keep]].astype(np.int32))
+        cols.append((j[valid] if keep.size == todo.size else j[keep][valid[keep]]).astype(np.int32))
         todo, k = todo[~seen], min(2 * k, m)
     own, counts, cols = np.concatenate(own), np.concatenate(counts), np.concatenate(cols)
     order = np.argsort(own, kind="stable")
@@ -441,6 +439,11 @@ def _flow_kernel(wdtype):
     return functools.partial(_flow, wdtype=wdtype)
 
 
+def _own_flow(offsets, valid, mean_q, two_var):
+    """:func:`_flow` with q = :func:`_sq_length` of the same offsets (q and w in the points' dtype)."""
+    return _flow(offsets, valid, _sq_length(offsets, valid), mean_q, two_var, offsets.dtype)
+
+
 def _weights_dtype(variant: str):
     return np.dtype(np.float32) if variant == "reference" else None
 
@@ -593,19 +596,20 @@ def laplacian_norms(points, own, nbr, q, counts_ext, mean_q, two_var, dtype, wdt
                     progress=False) -> np.ndarray:
     """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K), in column order.
 
+    ``q`` (R, K) the squared pair lengths of :func:`pair_lengths`, or None when ``wdtype`` is
+    ``dtype``: the kernel then takes them from its own offsets (the same values).
+
     The flows come from one compiled kernel; each row is then summed column by column in
     float64, so padding columns (zeros) never change a sum's bits. ``counts_ext`` as
     :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    flows = _stream.map_rows(_flow_kernel(np.dtype(wdtype)), points, own, nbr, row_args=(q,), args=args, dtype=dtype,
+    kernel, row_args = (_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_flow, ())
+    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype,
                              chunk_size=chunk_size, progress=progress)
-    lp = np.zeros((3, own.size))
-    for axis in range(3):
-        x = flows[..., axis] if counts_ext is None else counts_ext[nbr] * flows[..., axis]
-        for k in range(nbr.shape[1]):
-            lp[axis] += x[:, k]
+    lp = [np.add.accumulate(flows[..., axis] if counts_ext is None else counts_ext[nbr] * flows[..., axis], axis=1,
+                            dtype=np.float64)[:, -1] for axis in range(3)]  # each row summed in column order
     return np.sqrt(lp[0] * lp[0] + lp[1] * lp[1] + lp[2] * lp[2])
 
 
@@ -633,8 +637,7 @@ def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_va
     counts_ext, out = _counts_ext(index), []
     for own, counts, flat in chunks:
         sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
-        q = pair_lengths(index.points, own, sym, dtype)
-        out.append(laplacian_norms(index.points, own, sym, q, counts_ext, mean_q, two_var, dtype, dtype,
+        out.append(laplacian_norms(index.points, own, sym, None, counts_ext, mean_q, two_var, dtype, dtype,
                                    chunk_size=chunk_size, progress=progress))
     return np.concatenate(out) if out else np.zeros(0)
 
