@@ -206,9 +206,8 @@ def _ranks_before(q, g, cut_q, cut_g):
     return (q < cut_q) | ((q == cut_q) & (g <= cut_g))
 
 
-def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int | None = None) -> np.ndarray:
-    """(R, W) rows of ``flat`` (R rows of ``counts`` values, in order), padded with n; W the fullest row."""
-    width = max(1, int(counts.max(initial=0))) if width is None else width
+def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int) -> np.ndarray:
+    """(R, width) rows of ``flat`` (R rows of ``counts`` <= width values, in order), padded with n."""
     out = np.full((counts.size, width), n, dtype=np.int32)
     out[np.arange(width) < counts[:, None]] = flat  # row-major: each row's first counts values, in order
     return out
