@@ -62,6 +62,7 @@ MAX_NN = 100
 RADIUS_FACTOR = 10.0
 SKIP_SQ_DIST = 1e-10  # reference: points with a neighbour this close (squared) do not set minNN
 PAIR_BUDGET = 1 << 22  # candidate pairs examined per chunk of rows (bounds the host memory)
+SURE_GAP = 1e-9  # beyond this relative gap to 0 and r the tree's distance^2 (within ulps of q) decides 0 < q < r
 SCORE_ROWS = 1 << 16  # rows per host block of the streamed score (bounds its (R, K, 3) flows)
 
 
@@ -233,18 +234,23 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
     todo, k = np.arange(batch.size), min(max_nn + 9, m)
     while todo.size:
         rows = batch[todo]
-        _, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
-        j = j.reshape(todo.size, k)
-        q = 0
-        for x in coords:  # ||u_a - u_b||^2 summed x, y, z in order (NaN where the query found no point)
-            d = x[rows][:, None] - x[j]
-            q = q + d * d
-        valid = (q > 0) & (q < r)
+        dist, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
+        dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
+        near = dist * dist  # within a few ulps of q (inf where the query found no point)
+        valid = (near > 0) & (near < r)
+        # the exact q decides where the tree's distance cannot: q near 0 (the row itself) or near r
+        unsure = np.flatnonzero((near <= SURE_GAP * r) | (np.abs(near - r) <= SURE_GAP * r))
+        q = _sq_dist(u, rows[unsure // k], j.ravel()[unsure])
+        valid.ravel()[unsure] = (q > 0) & (q < r)
         n_valid = valid.sum(axis=1)
         seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
-            qc = np.where(valid[capped], q[capped], np.inf)
+            q = 0
+            for x in coords:  # ||u_a - u_b||^2 summed x, y, z in order (NaN where the query found no point)
+                d = x[rows[capped]][:, None] - x[j[capped]]
+                q = q + d * d
+            qc = np.where(valid[capped], q, np.inf)
             gc = np.where(valid[capped], gid[j[capped]], np.iinfo(np.int64).max)
             order = np.lexsort((gc, qc), axis=1)  # by (q, gid)
             line = np.arange(capped.size)
