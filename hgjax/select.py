@@ -115,20 +115,17 @@ class ExactSum:
     @classmethod
     def of(cls, values) -> "ExactSum":
         v = np.asarray(values, dtype=np.float64).ravel()
-        v = v[v != 0]
         total = cls()
         for start in range(0, v.size, EXACT_PART):
-            mant, exp = np.frexp(v[start:start + EXACT_PART])
-            whole = (mant * 2.0**53).astype(np.int64)  # exact: |whole| < 2^53
-            high = whole >> 26  # whole = high 2^26 + low, 0 <= low < 2^26
-            low = whole - (high << 26)
+            mant, exp = np.frexp(v[start:start + EXACT_PART])  # v = mant 2^exp, mant 2^53 an integer
+            high = np.floor(mant * 2.0**27)  # mant 2^53 = high 2^26 + low, 0 <= low < 2^26, all exact
+            low = mant * 2.0**53 - high * 2.0**26
             at = exp - exp.min()  # exponents span at most about 2100 values: a bincount, not a sort
-            present = np.flatnonzero(np.bincount(at))
-            # float64 bincount sums of |high| < 2^27 and low < 2^26 over < 2^26 terms stay exact
-            sums_high = np.bincount(at, weights=high.astype(np.float64))[present]
-            sums_low = np.bincount(at, weights=low.astype(np.float64))[present]
-            total = total + cls(tuple((int(e), (int(a) << 26) + int(b))
-                                      for e, a, b in zip(present + exp.min(), sums_high, sums_low)))
+            # float64 bincount sums of |high| <= 2^27 and low < 2^26 over <= 2^25 terms stay exact
+            sums_high, sums_low = np.bincount(at, weights=high), np.bincount(at, weights=low)
+            present = np.flatnonzero((sums_high != 0) | (sums_low != 0))
+            total = total + cls(tuple((int(e), (int(a) << 26) + int(b)) for e, a, b in
+                                      zip(present + exp.min(), sums_high[present], sums_low[present])))
         return total
 
     def __add__(self, other: "ExactSum") -> "ExactSum":

@@ -742,12 +742,8 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
             break
         halo *= 2
     cloud.release(cell)
-    a, c = gfr.location_pairs(index, b["r"], b["max_nn"])
-    sym = gfr.symmetric(a, c, index.n, index.gid[:-1])
-    counts = np.append(np.bincount(index.row, minlength=index.n).astype(np.float64), 0.0)
-    q = gfr.pair_lengths(index.points, rows, sym, plan_.dtype)
-    return {"gids": gids, "core": core, "index": index, "rows": rows, "sym": sym, "counts": counts, "q": q,
-            "sums": gfr.pair_sums(q, rows, sym, index.gid, counts)}
+    chunks, sums = gfr.graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype)
+    return {"gids": gids, "core": core, "index": index, "rows": rows, "chunks": chunks, "sums": sums}
 
 
 def _gfr_sums(graph: dict) -> tuple:
@@ -757,8 +753,7 @@ def _gfr_sums(graph: dict) -> tuple:
 def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: dict):
     """(gids, scores) of a tile's core points from its graph and the global weight statistics."""
     index, rows, core = graph["index"], graph["rows"], graph["core"]
-    lp = gfr.laplacian_norms(index.points, rows, graph["sym"], graph["q"], graph["counts"], mean_q, two_var,
-                             plan_.dtype, plan_.dtype, **stream)
+    lp = gfr.graph_norms(index, graph["chunks"], mean_q, two_var, plan_.dtype, **stream)
     return graph["gids"][core], _per_point(index, rows, core, lp.astype(plan_.dtype))
 
 
@@ -774,7 +769,7 @@ def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
     """
     graphs = runner.tiles(_gfr_graph, plan_)
     sums = runner.gather(runner.each(_gfr_sums, graphs))
-    mean_q, two_var = gfr.moments([sum((t[i] for t in sums), select.ExactSum()) for i in range(3)])
+    mean_q, two_var = gfr.moments(gfr.summed(sums))
     if isinstance(runner, _Dask) or plan_.n <= KEEP_POINTS:
         return runner.each(_gfr_norms, graphs, plan_, mean_q, two_var, stream)
     del graphs

@@ -280,3 +280,20 @@ def test_argument_errors():
     for call, error, name in cases:
         with pytest.raises(error, match=name):
             call()
+
+
+def test_exact_sum_is_the_exact_sum_in_any_grouping():
+    """GFR's weight statistics and score sum: ExactSum rounds the exact (Fraction) sum once, whatever
+    the grouping of the terms, across zeros, subnormals, cancellation and the whole exponent range."""
+    from fractions import Fraction
+
+    rng = np.random.default_rng(0)
+    values = np.concatenate([rng.standard_normal(3000) * 10.0 ** rng.integers(-300, 300, 3000),
+                             [1e308, -1e308, 5e-324, -5e-324, 2.0**-1060, 0.0, -0.0, 1.0, 2.0**-53],
+                             rng.random(3000).astype(np.float32)])
+    exact = float(sum(Fraction(v) for v in values.tolist()))
+    whole = hgjax.select.ExactSum.of(values)
+    parts = sum((hgjax.select.ExactSum.of(part) for part in np.array_split(values[rng.permutation(values.size)], 7)),
+                hgjax.select.ExactSum())
+    assert whole.value() == parts.value() == exact
+    assert hgjax.select.ExactSum.of(np.zeros(4)).value() == hgjax.select.ExactSum.of([]).value() == 0.0

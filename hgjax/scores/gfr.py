@@ -62,6 +62,7 @@ MAX_NN = 100
 RADIUS_FACTOR = 10.0
 SKIP_SQ_DIST = 1e-10  # reference: points with a neighbour this close (squared) do not set minNN
 PAIR_BUDGET = 1 << 22  # candidate pairs examined per chunk of rows (bounds the host memory)
+SURE_GAP = 1e-9  # beyond this relative gap to 0 and r the tree's distance^2 (within ulps of q) decides 0 < q < r
 SCORE_ROWS = 1 << 16  # rows per host block of the streamed score (bounds its (R, K, 3) flows)
 
 
@@ -93,23 +94,16 @@ def squared_radius(radius_factor: float, stats: spatial.SampleStats) -> float:
     return (radius_factor * stats.resolution(robust=True)) ** 2
 
 
-def location_pairs(index: spatial.SpatialIndex, r: float, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
-    """Undirected pairs (a, b), a < b, of the rows (distinct locations) of a deduplicated index.
+def _reference_radius(p32: np.ndarray, index: spatial.SpatialIndex) -> float:
+    """The squared radius r = min(10 minNN, 2 maxNN) of REFERENCE.md's rule 1 (0 if no point counts).
 
-    Ties at the ``max_nn`` cap are ranked by the locations' global ids (``index.gid``).
+    ``p32`` (N, 3) float32 in the caller's order, ``index`` built on it.
     """
-    if r <= 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return _location_pairs(index.tree, r, max_nn, index.gid[:-1])
-
-
-def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
-    """The squared radius r = min(10 minNN, 2 maxNN) of REFERENCE.md's rule 1 (0 if no point counts)."""
     n = p32.shape[0]
     k = min(3, n)
-    hits = tree.query(tree.data, k=k, workers=-1)[1].reshape(n, k)
+    hits = index.nearest(slice(None), k)[1]
     rows = np.repeat(np.arange(n), k)
-    q = _sq_dist(p32, rows, hits.ravel()).reshape(n, k)
+    q = _sq_dist(p32[index.order], rows, hits.ravel()).reshape(n, k)
     nearest = np.where(hits != np.arange(n)[:, None], q, np.inf).min(axis=1)
     nearest = nearest[np.isfinite(nearest) & (nearest > SKIP_SQ_DIST)].astype(np.float64)
     if nearest.size == 0:
@@ -120,29 +114,28 @@ def _reference_radius(p32: np.ndarray, tree: cKDTree) -> float:
     return float(min(10 * min_nn, 2 * max_nn))
 
 
-def _chunks(tree: cKDTree, bound: float):
-    """Rows in the tree's (spatial) leaf order, cut into runs of about PAIR_BUDGET candidates."""
-    counts = tree.query_ball_point(tree.data, bound, return_length=True, workers=-1)
-    rows = tree.indices
-    total = np.cumsum(counts[rows])
+def _chunks(index: spatial.SpatialIndex, bound: float):
+    """The index's rows (spatial order), cut into runs of about PAIR_BUDGET candidates."""
+    counts = index.tree.query_ball_point(index.points, bound, return_length=True, workers=-1)
+    total = np.cumsum(counts)
     cuts = np.searchsorted(total, np.arange(PAIR_BUDGET, total[-1], PAIR_BUDGET))
-    for part in np.split(rows, np.unique(cuts)):
+    for part in np.split(np.arange(index.n), np.unique(cuts)):
         if part.size:
             yield part
 
 
-def _pairs(p: np.ndarray, tree: cKDTree, r: float, max_nn: int):
+def _pairs(p: np.ndarray, index: spatial.SpatialIndex, r: float, max_nn: int):
     """Stored pairs (row, col), row < col, sorted, of the reference radius graph (squared radius r).
 
     Each row i ranks its candidates j > i (0 < q_ij < r, q in the dtype of ``p``) by
-    (q_ij, j) and keeps the first ``max_nn``.
+    (q_ij, j) and keeps the first ``max_nn``. ``index`` is built on ``p`` (global ids i, j).
     """
     n = p.shape[0]
     bound = np.sqrt(r) * (1 + 1e-5)  # q is rounded (float32 for the reference); exact test below
     rows, cols = [], []
-    for part in _chunks(tree, bound):
-        hits = cKDTree(tree.data[part]).sparse_distance_matrix(tree, bound, output_type="ndarray")
-        i, j = part[hits["i"]], hits["j"].astype(np.int64)
+    for part in _chunks(index, bound):
+        hits = cKDTree(index.points[part]).sparse_distance_matrix(index.tree, bound, output_type="ndarray")
+        i, j = index.gid[part[hits["i"]]], index.gid[hits["j"]]
         i, j = i[i < j], j[i < j]
         q = _sq_dist(p, i, j)
         keep = (q > 0) & (q < r)
@@ -162,49 +155,123 @@ def _split_keys(key: np.ndarray, n: int):
     return key // n, key % n
 
 
-def _location_pairs(tree: cKDTree, r: float, max_nn: int, tie: np.ndarray):
-    """Undirected pairs (a, b), a < b, of the distinct locations u (U, 3) float64 in ``tree``.
+def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.ndarray):
+    """The stored partners of the rows ``want`` of a deduplicated index, a chunk of rows at a time.
 
-    Each location keeps its ``max_nn`` nearest other locations at squared distance q < r,
-    ranked by (q, tie); a pair is stored when either end keeps the other. One bounded
-    k-nearest query per location, asked again with more columns only for the rows whose
-    query came back full while ties with the cap (or too few points) may lie beyond it.
+    Each location a keeps its ``max_nn`` nearest other locations b with 0 < q_ab < r
+    (squared distances in float64), ranked by (q_ab, gid_b) (``index.gid``); the pair {a, b}
+    is stored when either end keeps the other. One pass queries every row's ball and keeps
+    only each row's cut, the (q, gid) of its ``max_nn``-th partner (none below the cap),
+    and the balls of the wanted rows; a second pass then keeps, per chunk of wanted rows,
+    the partners b of a with (q_ab, gid_b) <= cut_a or (q_ab, gid_a) <= cut_b.
+
+    Args:
+      index: a deduplicated :class:`hgjax.spatial.SpatialIndex`.
+      r: squared radius.
+      max_nn: the most partners a location ranks.
+      want: (n,) bool, the rows whose partners are returned.
+
+    Yields:
+      (own, sym): own (C,) ascending wanted rows, sym (C, W) int32 their partners ordered
+      by global id, padded with n; the chunks' own together are ``flatnonzero(want)``.
     """
-    u = tree.data
-    m = u.shape[0]
+    m = index.n
+    cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
+    coords = tuple(np.append(index.points[:, axis], np.nan) for axis in range(3))  # row n: no point
+    balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
+             for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))] if r > 0 else []
+    by_gid = np.argsort(index.gid[:-1], kind="stable")
+    rank = np.empty(m + 1, dtype=np.int32)  # each row's place in global-id order; the padding n last
+    rank[by_gid], rank[m] = np.arange(m), m
+    by_gid = np.append(by_gid, m).astype(np.int32)
+    capped = np.isfinite(cut_q)
+    for at in range(len(balls)):
+        own, counts, cols = balls[at]
+        balls[at] = None
+        line = np.repeat(np.arange(own.size), counts)
+        test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
+        a, b = own[line[test]], cols[test]
+        q = _sq_dist(index.points, a, b)
+        kept = np.ones(cols.size, bool)
+        kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
+                      | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
+        counts = np.bincount(line[kept], minlength=own.size)
+        width = spatial.bucket(counts.max(initial=0))  # few compiled widths
+        yield own, by_gid[np.sort(_dense(counts, rank[cols[kept]], m, width), axis=1)]
+    if not balls:  # no pair (r = 0): every wanted row alone
+        yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
+
+
+def _ranks_before(q, g, cut_q, cut_g):
+    """Whether the pairs (q, g) rank at or before the cuts (cut_q, cut_g): by q, then by global id."""
+    return (q < cut_q) | ((q == cut_q) & (g <= cut_g))
+
+
+def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int) -> np.ndarray:
+    """(R, width) rows of ``flat`` (R rows of ``counts`` <= width values, in order), padded with n."""
+    out = np.full((counts.size, width), n, dtype=np.int32)
+    out[np.arange(width) < counts[:, None]] = flat  # row-major: each row's first counts values, in order
+    return out
+
+
+def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
+           cut_q: np.ndarray, cut_g: np.ndarray):
+    """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the balls of the wanted ones.
+
+    A bounded k-nearest query per row, asked again with twice the columns for the rows
+    whose query came back full while more may lie within r: a wanted row until its whole
+    ball is seen, another row until its cut is certain (no tie with it beyond the query).
+
+    Args:
+      coords: the index's x, y and z (n + 1,) each, NaN at n.
+
+    Returns:
+      (own (C,) the wanted rows, counts (C,), cols (P,) int32 each one's ball by distance).
+    """
+    u, m, gid = index.points, index.n, index.gid
     bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
-    rows, cols = [], []
-    todo, k = np.arange(m), min(max_nn + 9, m)
+    own, counts, cols = [], [], []
+    todo, k = np.arange(batch.size), min(max_nn + 9, m)
     while todo.size:
-        again = []
-        for batch in np.array_split(todo, max(1, todo.size * k // PAIR_BUDGET)):
-            _, j = tree.query(u[batch], k=k, distance_upper_bound=bound, workers=-1)
-            j = j.reshape(batch.size, k)
-            real = j < m
-            jj = np.where(real, j, 0)
-            d = u[batch][:, None, :] - u[jj]  # (R, k, 3)
-            q = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]
-            valid = real & (q > 0) & (q < r)
-            n_valid = valid.sum(axis=1)
-            open_rows = real.all(axis=1) & (k < m)  # the query came back full: more may lie beyond
-            capped = np.flatnonzero(n_valid >= max_nn)  # only these rows rank their partners
-            jc = np.zeros((0, max_nn), dtype=j.dtype)
-            if capped.size:
-                qc = np.where(valid[capped], q[capped], np.inf)
-                order = np.lexsort((np.where(valid[capped], tie[jj[capped]], m), qc), axis=1)  # by (q, tie)
-                qc, jc = np.take_along_axis(qc, order, axis=1), np.take_along_axis(j[capped], order, axis=1)
-                # a full capped row stays open while a tie with its max_nn-th partner may lie beyond
-                open_rows[capped] &= qc[:, max_nn - 1] >= qc[np.arange(capped.size), n_valid[capped] - 1]
-            again.append(batch[open_rows])
-            free = valid & ~open_rows[:, None]
-            free[capped] = False
-            kept = ~open_rows[capped]
-            a = np.concatenate([np.broadcast_to(batch[:, None], j.shape)[free], np.repeat(batch[capped][kept], max_nn)])
-            b = np.concatenate([j[free], jc[kept, :max_nn].ravel()])
-            rows.append(np.minimum(a, b))
-            cols.append(np.maximum(a, b))
-        todo, k = np.concatenate(again), min(2 * k, m)
-    return _split_keys(np.concatenate(rows) * m + np.concatenate(cols), m)
+        rows = batch[todo]
+        dist, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
+        dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
+        near = dist * dist  # within a few ulps of q (inf where the query found no point)
+        valid = (near > 0) & (near < r)
+        # the exact q decides where the tree's distance cannot: q near 0 (the row itself) or near r
+        unsure = np.flatnonzero((near <= SURE_GAP * r) | (np.abs(near - r) <= SURE_GAP * r))
+        q = _sq_dist(u, rows[unsure // k], j.ravel()[unsure])
+        valid.ravel()[unsure] = (q > 0) & (q < r)
+        n_valid = valid.sum(axis=1)
+        seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
+        capped = np.flatnonzero(n_valid >= max_nn)
+        if capped.size:
+            q = 0
+            for x in coords:  # ||u_a - u_b||^2 summed x, y, z in order (NaN where the query found no point)
+                d = x[rows[capped]][:, None] - x[j[capped]]
+                q = q + d * d
+            qc = np.where(valid[capped], q, np.inf)
+            gc = np.where(valid[capped], gid[j[capped]], np.iinfo(np.int64).max)
+            order = np.lexsort((gc, qc), axis=1)  # by (q, gid)
+            line = np.arange(capped.size)
+            cq, cg = qc[line, order[:, max_nn - 1]], gc[line, order[:, max_nn - 1]]
+            # the cut is certain unless a tie with it may lie beyond a full query
+            sure = seen[capped] | (cq < qc[line, order[line, n_valid[capped] - 1]])
+            cut_q[rows[capped[sure]]], cut_g[rows[capped[sure]]] = cq[sure], cg[sure]
+            seen[capped[sure & ~want[todo[capped]]]] = True
+        keep = np.flatnonzero(seen & want[todo])
+        own.append(rows[keep])
+        counts.append(n_valid[keep])
+        cols.append((j[valid] if keep.size == todo.size else j[keep][valid[keep]]).astype(np.int32))
+        todo, k = todo[~seen], min(2 * k, m)
+    own, counts, cols = np.concatenate(own), np.concatenate(counts), np.concatenate(cols)
+    order = np.argsort(own, kind="stable")
+    if (order[1:] < order[:-1]).any():  # rows asked again finished later: back in row order
+        starts = np.cumsum(counts) - counts
+        cols = cols[np.repeat(starts[order], counts[order]) + np.arange(cols.size)
+                    - np.repeat(np.cumsum(counts[order]) - counts[order], counts[order])]
+        own, counts = own[order], counts[order]
+    return own, counts, cols
 
 
 def graph_params(variant: str, radius_factor: float | None, max_nn: int) -> tuple[str, float | None, int]:
@@ -270,14 +337,19 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     first = None
     if variant == "reference":
         p = pts.astype(np.float32)
-        tree = cKDTree(p.astype(np.float64))
-        r = _reference_radius(p, tree)
-        rows, cols = _pairs(p, tree, r, max_nn) if r > 0 else empty
+        index = spatial.SpatialIndex(p.astype(np.float64))
+        r = _reference_radius(p, index)
+        rows, cols = _pairs(p, index, r, max_nn) if r > 0 else empty
     else:
         index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
         r = squared_radius(radius_factor, spatial.sample_stats(index))
-        a, b = location_pairs(index, r, max_nn)
-        i, j = index.order[a], index.order[b]  # the first point of each location
+        a, b = [], []
+        for own, sym in location_rows(index, r, max_nn, np.ones(index.n, bool)):
+            valid = sym < index.n
+            a.append(np.repeat(own, valid.sum(axis=1)))
+            b.append(sym[valid])
+        a, b = np.concatenate(a), np.concatenate(b)
+        i, j = index.order[a[a < b]], index.order[b[a < b]]  # the first point of each location
         rows, cols = _split_keys(np.minimum(i, j) * n + np.maximum(i, j), n)
         if index.n < n:
             first = index.order[index.row].astype(np.int32)
@@ -372,6 +444,11 @@ def _flow_kernel(wdtype):
     return functools.partial(_flow, wdtype=wdtype)
 
 
+def _own_flow(offsets, valid, mean_q, two_var):
+    """:func:`_flow` with q = :func:`_sq_length` of the same offsets (q and w in the points' dtype)."""
+    return _flow(offsets, valid, _sq_length(offsets, valid), mean_q, two_var, offsets.dtype)
+
+
 def _weights_dtype(variant: str):
     return np.dtype(np.float32) if variant == "reference" else None
 
@@ -449,12 +526,15 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
     valid = idx < n
     sym = symmetric(np.repeat(np.arange(n), valid.sum(axis=1)), idx[valid], n, np.arange(n))
     own = np.arange(n)
-    counts = np.ones(n) if first is None else np.bincount(first, minlength=n).astype(np.float64)
+    counts_ext = None if first is None else np.append(np.bincount(first, minlength=n).astype(np.float64), 0.0)
     stream = {"chunk_size": chunk_size, "progress": progress}
+    tie_ext = np.append(own, n)
     # q from the points cast to wdtype first, as the authors' float32 code computes it.
-    q = pair_lengths(points.astype(wdtype), own, sym, wdtype, **stream)
-    mean_q, two_var = moments(pair_sums(q, own, sym, np.append(own, n), np.append(counts, 0.0)))
-    lp = laplacian_norms(points, own, sym, q, np.append(counts, 0.0), mean_q, two_var, points.dtype, wdtype, **stream)
+    q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
+    mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
+                                      for q_b, b in zip(q, _blocks(n))]))
+    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, mean_q, two_var, points.dtype,
+                                         wdtype, **stream) for q_b, b in zip(q, _blocks(n))] or [np.zeros(0)])
     return jax.device_put((lp if first is None else lp[first]).astype(points.dtype))
 
 
@@ -476,28 +556,36 @@ def symmetric(a: np.ndarray, b: np.ndarray, n: int, tie: np.ndarray) -> np.ndarr
     return out
 
 
-def _blocks(own: np.ndarray):
+def _blocks(n: int):
     """Slices of at most SCORE_ROWS rows (bounds the host memory of (R, K, 3) flows)."""
-    return [slice(s, min(s + SCORE_ROWS, own.size)) for s in range(0, own.size, SCORE_ROWS)]
+    return [slice(s, min(s + SCORE_ROWS, n)) for s in range(0, n, SCORE_ROWS)]
 
 
-def pair_lengths(points, own, sym, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
-    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``sym[own]``."""
-    nbr = sym[own]
-    return np.concatenate([_stream.map_rows(_sq_length, points, own[b], nbr[b], dtype=wdtype, chunk_size=chunk_size,
-                                            progress=progress) for b in _blocks(own)] or [np.zeros(nbr.shape, wdtype)])
+def pair_lengths(points, own, nbr, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
+    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``nbr`` (R, K)."""
+    return _stream.map_rows(_sq_length, points, own, nbr, dtype=wdtype, chunk_size=chunk_size, progress=progress)
 
 
-def pair_sums(q, own, sym, tie_ext, counts_ext) -> tuple:
+def pair_sums(q, own, nbr, tie_ext, counts_ext) -> tuple:
     """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the pairs (i, j) of rows ``own`` with tie_j > tie_i.
 
-    Each undirected pair is counted once, from its end with the smaller global id.
+    ``nbr`` (R, K) holds the partners of the rows ``own`` (R,), padded with n = len(tie_ext) - 1,
+    and ``q`` (R, K) their squared lengths; ``counts_ext`` (n + 1,) the c of each row and 0 for
+    the padding, or None for one point per row. Each undirected pair is counted once, from its
+    end with the smaller global id; sums of chunks of rows add up exactly.
     """
-    nbr = sym[own]
-    counted = (nbr < sym.shape[0]) & (tie_ext[nbr] > tie_ext[own][:, None])
-    w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
+    counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
     qq = q[counted].astype(np.float64)
-    return select.ExactSum.of(w), select.ExactSum.of(w * qq), select.ExactSum.of(w * qq * qq)
+    if counts_ext is None:  # c_i c_j = 1: the same sums
+        return select.ExactSum.of([qq.size]), select.ExactSum.of(qq), select.ExactSum.of(qq * qq)
+    w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
+    wq = w * qq
+    return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
+
+
+def summed(parts) -> tuple:
+    """The exact sums of :func:`pair_sums` over several chunks or tiles (three empty sums for none)."""
+    return tuple(sum(column, select.ExactSum()) for column in zip(*parts)) or (select.ExactSum(),) * 3
 
 
 def moments(sums) -> tuple[float, float]:
@@ -509,24 +597,62 @@ def moments(sums) -> tuple[float, float]:
     return mean_q, 2 * max(z_sq - mean_z * mean_z, 0.0)
 
 
-def laplacian_norms(points, own, sym, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
+def laplacian_norms(points, own, nbr, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
                     progress=False) -> np.ndarray:
-    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``sym[own]``, in row order.
+    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K), in column order.
+
+    ``q`` (R, K) the squared pair lengths of :func:`pair_lengths`, or None when ``wdtype`` is
+    ``dtype``: the kernel then takes them from its own offsets (the same values).
 
     The flows come from one compiled kernel; each row is then summed column by column in
-    float64, so padding columns (zeros) never change a sum's bits.
+    float64, so padding columns (zeros) never change a sum's bits. ``counts_ext`` as
+    :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    nbr = sym[own]
-    c = counts_ext[nbr]
-    lp = np.zeros((own.size, 3))
-    for b in _blocks(own):
-        flows = _stream.map_rows(_flow_kernel(np.dtype(wdtype)), points, own[b], nbr[b], row_args=(q[b],), args=args,
-                                 dtype=dtype, chunk_size=chunk_size, progress=progress)
-        for k in range(nbr.shape[1]):
-            lp[b] += c[b, k, None] * flows[:, k]
-    return np.sqrt(np.sum(lp * lp, axis=1))
+    kernel, row_args = (_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_flow, ())
+    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype,
+                             chunk_size=chunk_size, progress=progress)
+    lp = [np.add.accumulate(flows[..., axis] if counts_ext is None else counts_ext[nbr] * flows[..., axis], axis=1,
+                            dtype=np.float64)[:, -1] for axis in range(3)]  # each row summed in column order
+    return np.sqrt(lp[0] * lp[0] + lp[1] * lp[1] + lp[2] * lp[2])
+
+
+def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
+    """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
+
+    One chunk of rows at a time (:func:`location_rows`): the partners, their squared lengths
+    q in ``dtype`` and the sums of :func:`pair_sums`; only the partners are kept, as
+    (own, counts, flat) per chunk, for :func:`graph_norms`.
+    """
+    want = np.zeros(index.n, bool)
+    want[rows] = True
+    counts_ext = _counts_ext(index)
+    chunks, sums = [], []
+    for own, sym in location_rows(index, r, max_nn, want):
+        sums.append(pair_sums(pair_lengths(index.points, own, sym, dtype), own, sym, index.gid, counts_ext))
+        valid = sym < index.n
+        chunks.append((own, valid.sum(axis=1), sym[valid]))
+    return chunks, summed(sums)
+
+
+def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_var: float, dtype, *,
+                chunk_size=None, progress=False) -> np.ndarray:
+    """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, in their order."""
+    counts_ext, out = _counts_ext(index), []
+    for own, counts, flat in chunks:
+        sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
+        out.append(laplacian_norms(index.points, own, sym, None, counts_ext, mean_q, two_var, dtype, dtype,
+                                   chunk_size=chunk_size, progress=progress))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _counts_ext(index: spatial.SpatialIndex) -> np.ndarray | None:
+    """(n + 1,) float64 points at each location of a deduplicated index and 0 for the padding n; None
+    without duplicates."""
+    if index.n == index.n_caller:
+        return None
+    return np.append(np.bincount(index.row, minlength=index.n).astype(np.float64), 0.0)
 
 
 def soft_score(nb, *, variant: str = "invariant"):
