@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+
 import sys
 from pathlib import Path
 
@@ -27,7 +28,17 @@ CHUNK = 1 << 20  # rows per pass over a cloud that may be an np.memmap
 
 
 def peak_mb() -> float:
-    """Peak resident set of this process so far (MB; ru_maxrss is in KiB on Linux)."""
+    """Peak resident set of this process so far (MB).
+
+    Linux's VmHWM, which starts afresh at exec; ``ru_maxrss`` (elsewhere) keeps the parent's
+    resident set at the fork, so a worker started by a parent that holds a large cloud would
+    report the parent's size.
+    """
+    status = Path("/proc/self/status")
+    if status.exists():
+        for line in status.read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
