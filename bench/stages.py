@@ -55,8 +55,9 @@ STAGES = [
 ]
 
 
-def _install(totals: dict) -> None:
-    """Wrap every stage function with a timer adding into ``totals[label]`` (outermost call only)."""
+def _install(totals: dict, cpu: dict) -> None:
+    """Wrap every stage function with timers adding wall and process CPU seconds into ``totals[label]``
+    and ``cpu[label]`` (outermost call only)."""
     import importlib
 
     active = collections.Counter()
@@ -75,7 +76,7 @@ def _install(totals: dict) -> None:
 
         def wrapped(*args, _fn=fn, _key=(path, attr), _labels=tuple(labels), **kwargs):
             active[_key] += 1
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             try:
                 return _fn(*args, **kwargs)
             finally:
@@ -83,6 +84,7 @@ def _install(totals: dict) -> None:
                 if not active[_key]:
                     for lab in _labels:
                         totals[lab] += time.perf_counter() - t
+                        cpu[lab] += time.process_time() - c
 
         setattr(owner, attr, wrapped)
 
@@ -154,40 +156,50 @@ def main() -> None:
     p = _report.box_cloud(args.n, np.float32)
     q = p[hgjax.spatial_order(p)]
     per = {m: collections.defaultdict(list) for m in methods}
-    yard = collections.defaultdict(list)
-    totals = collections.defaultdict(float)
-    _install(totals)
+    per_cpu = {m: collections.defaultdict(list) for m in methods}
+    yard, yard_cpu = collections.defaultdict(list), collections.defaultdict(list)
+    totals, cpu = collections.defaultdict(float), collections.defaultdict(float)
+    _install(totals, cpu)
     for r in range(args.repeats + 1):
-        t = time.perf_counter()
-        tree = cKDTree(q)
-        tree.query(q, k=16, workers=-1)
-        yard["floor"].append(time.perf_counter() - t)
-        t = time.perf_counter()
-        tree.query(q, k=64, workers=-1)
-        yard["kNN64 query (tree reused)"].append(time.perf_counter() - t)
-        t = time.perf_counter()
-        cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1)
-        yard["kNN64 with its tree (as SpatialIndex builds it)"].append(time.perf_counter() - t)
-        del tree
+        tree = None
+
+        def floor():
+            nonlocal tree
+            tree = cKDTree(q)
+            tree.query(q, k=16, workers=-1)
+
+        for name, fn in (("floor", floor), ("kNN64 query (tree reused)", lambda: tree.query(q, k=64, workers=-1)),
+                         ("kNN64 with its tree (as SpatialIndex builds it)",
+                          lambda: cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1))):
+            t, c = time.perf_counter(), time.process_time()
+            fn()
+            yard[name].append(time.perf_counter() - t)
+            yard_cpu[name].append(time.process_time() - c)
+        tree = None
         for m in methods:
             totals.clear()
+            cpu.clear()
             hgjax.resample(p, 0.2, method=m, key=jax.random.key(0))
             if r:
                 for label, _, _, _ in STAGES:
                     per[m][label].append(totals.get(label, 0.0))
+                    per_cpu[m][label].append(cpu.get(label, 0.0))
         print(f"round {r}: floor {yard['floor'][-1]:.3f} s", file=sys.stderr, flush=True)
-    floor = statistics.median(yard["floor"][1:])
-    lines = ["| stage | " + " | ".join(f"{m} s | {m} / floor" for m in methods) + " |",
-             "|---|" + "---|---|" * len(methods)]
+    med = lambda v: statistics.median(v[1:] if len(v) > 1 else v)  # noqa: E731
+    floor, floor_cpu = med(yard["floor"]), med(yard_cpu["floor"])
+    lines = ["| stage | " + " | ".join(f"{m} s | {m} / floor | {m} CPU / floor CPU" for m in methods) + " |",
+             "|---|" + "---|---|---|" * len(methods)]
     for label, _, _, depth in STAGES:
-        vals = [statistics.median(per[m][label]) for m in methods]
-        if not any(v > 0.0005 for v in vals):
+        vals = [(statistics.median(per[m][label]), statistics.median(per_cpu[m][label])) for m in methods]
+        if not any(v > 0.0005 for v, _ in vals):
             continue
         name = "&nbsp;&nbsp;" * 2 * depth + label
-        lines.append(f"| {name} | " + " | ".join(f"{v:.3f} | {v / floor:.2f}" for v in vals) + " |")
-    yard_lines = ["| yardstick | s | / floor |", "|---|---|---|"]
+        lines.append(f"| {name} | " + " | ".join(f"{v:.3f} | {v / floor:.2f} | {c / floor_cpu:.2f}" for v, c in vals)
+                     + " |")
+    yard_lines = ["| yardstick | s | / floor | CPU s | CPU / floor CPU |", "|---|---|---|---|---|"]
     for name, v in yard.items():
-        yard_lines.append(f"| {name} | {statistics.median(v[1:]):.3f} | {statistics.median(v[1:]) / floor:.2f} |")
+        c = med(yard_cpu[name])
+        yard_lines.append(f"| {name} | {med(v):.3f} | {med(v) / floor:.2f} | {c:.3f} | {c / floor_cpu:.2f} |")
     kern_lines = []
     for m in methods:
         if m in ("hkc", "hkf"):
@@ -199,7 +211,8 @@ def main() -> None:
         f"Machine: {_report.machine()}.",
         f"N = {args.n:,}, float32 box surface; medians of {args.repeats} rounds after a warm-up round, all in one "
         "process. Stage times are inclusive (indented stages are inside the one above); / floor = stage time / "
-        "the floor of the same run.",
+        "the floor of the same run (wall), and CPU / floor CPU the same with the process CPU time of each (all "
+        "threads; less sensitive to other jobs on a shared machine than wall time).",
     ]
     table = yard_lines + [""] + lines
     if kern_lines:
