@@ -143,12 +143,11 @@ def test_every_product_runs_at_full_precision(cloud, method):
     import jax
 
     nb = hgjax.neighbourhoods(cloud[:300].astype(np.float32), method)
-    kw = {"ratio": 0.2} if method == "lhf" else {}
 
     def soft_total(points):
-        return hgjax.soft_score(dataclasses.replace(nb, points=points), method, **kw).sum()
+        return hgjax.soft_score(dataclasses.replace(nb, points=points), method).sum()
 
-    programs = [jax.make_jaxpr(lambda n: hgjax.score(n, method, **kw))(nb),
+    programs = [jax.make_jaxpr(lambda n: hgjax.score(n, method))(nb),
                 jax.make_jaxpr(jax.grad(soft_total))(nb.points)]
     found = [p for program in programs for p in _dot_precisions(program.jaxpr)]
     highest = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)

@@ -28,6 +28,8 @@ POSITIONAL_DEFAULTS: set[tuple[str, str]] = {
     # The registry passes every sampler's ratio positionally; voxel_sample alone may go
     # without one, when a voxel_size is given.
     ("hgjax.voxel_sample", "ratio"),
+    # keep(scores, ratio) reads as the pipeline's other calls; count= is the keyword alternative.
+    ("hgjax.keep", "ratio"),
 }
 
 
