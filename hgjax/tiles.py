@@ -50,8 +50,13 @@ from hgjax.scores import ea, gfr, voxel
 
 __all__ = ["Plan", "SurveyResult", "plan", "resample", "resample_files", "tile_scores"]
 
+def _refused(entry, params: dict) -> tuple[str, str] | None:
+    """Why ``entry`` with ``params`` needs the whole cloud at once (its ``untiled`` hook), or None."""
+    return None if entry.untiled is None else entry.untiled(params)
+
+
 TILED = tuple(sorted(name for name, entry in pipeline.METHODS.items()  # with their default parameters
-                    if entry.untiled is None or entry.untiled({}) is None))
+                    if _refused(entry, {}) is None))
 HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K) per k-nearest radius reached
 KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's index (or GFR graph) between passes
 SUB = 16  # a tile's members are grouped in SUB^3 sub-cells, so that a halo reads slabs of its neighbours
@@ -688,7 +693,7 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     entry = pipeline._entry(method)
     return_scores = _validate.check_bool(return_scores, "return_scores")
     distributed = tile is not None or client is not None
-    refused = None if entry.untiled is None else entry.untiled(params)
+    refused = _refused(entry, params)
     if distributed and refused is not None:
         raise ValueError(f"method {method!r}{refused[0]} cannot run in tiles (tile={tile!r}): {refused[1]};"
                          " pass tile=None")
@@ -1034,10 +1039,10 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     survey, n = _Sources(tuple(sources), progress), sum(counts.values())
     starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
-    whole = method in ("uniform", "voxel") or (method, params.get("variant")) == ("gfr", "reference")
-    if method in TILED and not whole:
+    entry = pipeline._entry(method)
+    if _planned(entry) and _refused(entry, params) is None:
         run = _resample(survey, ratio, method, tile, client, key, False, dict(params))
-    else:  # methods that need the whole cloud at once read it from a float64 memmap beside the outputs
+    else:  # the samplers and the methods that need the whole cloud at once read it from a float64 memmap
         with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
             disk = np.memmap(os.path.join(work, "xyz.f8"), dtype=np.float64, mode="w+", shape=(n, 3))
             for f in sources:
