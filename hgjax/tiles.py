@@ -584,19 +584,36 @@ def tile_scores(cloud: _Cloud, cell, plan_: Plan, stream: dict | None = None) ->
       (gids (R,) ascending, scores (R,) or (R, 2) for LHF's two lengths) of the core points.
     """
     entry = pipeline.METHODS[plan_.method]
-    halo = plan_.halo
-    while True:
-        gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
-        rows = _core_rows(index, core)
+
+    def rows_of(index, rows):
         idx, row_args, reach = entry.rows(index, rows, plan_.build, plan_.dtype)
-        if cloud.covers(cell, halo, index.points[rows], reach):
-            break
-        halo *= 2
-    cloud.release(cell)
+        return (idx, row_args), reach
+
+    gids, core, index, rows, (idx, row_args) = _covered(cloud, cell, plan_.halo, plan_.build["dedupe"], rows_of)
     kernel, narrow = entry.kernel(plan_.score)
     values = _stream.map_rows(kernel, index.points, rows, idx, row_args=row_args, dtype=plan_.dtype, narrow=narrow,
                               **(stream or {}))
     return gids[core], _per_point(index, rows, core, values)
+
+
+def _covered(cloud: _Cloud, cell, halo: float, dedupe: bool, build):
+    """A tile indexed with the first halo (``halo``, doubled until it fits) that holds every core neighbourhood.
+
+    ``build(index, rows) -> (built, reach)`` makes the neighbourhoods of the core ``rows`` and
+    says how far each reaches; a tile whose neighbourhoods reach the halo's edge is redone
+    with twice the halo.
+
+    Returns:
+      (gids, core, index, rows, built) of the tile at the halo that holds them.
+    """
+    while True:
+        gids, _, core, index = cloud.indexed(cell, halo, dedupe)
+        rows = _core_rows(index, core)
+        built, reach = build(index, rows)
+        if cloud.covers(cell, halo, index.points[rows], reach):
+            cloud.release(cell)
+            return gids, core, index, rows, built
+        halo *= 2
 
 
 def _per_point(index: spatial.SpatialIndex, rows: np.ndarray, core: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -739,14 +756,8 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
     """
     b = plan_.build
     reach = 2 * np.sqrt(b["r"]) * (1 + 1e-5)  # the pair query's bound, twice
-    halo = plan_.halo
-    while True:
-        gids, x, core, index = cloud.indexed(cell, halo, True)
-        rows = _core_rows(index, core)
-        if cloud.covers(cell, halo, index.points[rows], np.full(rows.size, reach)):
-            break
-        halo *= 2
-    cloud.release(cell)
+    gids, core, index, rows, _ = _covered(cloud, cell, plan_.halo, True,
+                                          lambda index, rows: (None, np.full(rows.size, reach)))
     chunks, sums = gfr.graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype)
     return {"gids": gids, "core": core, "index": index, "rows": rows, "chunks": chunks, "sums": sums}
 
