@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _registry, _validate, spatial
-from hgjax.select import keyed_top
+from hgjax.select import ascending_bits, keyed_top
 
 __all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"]
 
@@ -428,8 +428,7 @@ def _distinct_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     The same rows in the same (lexicographic) order, -0.0 equal to 0.0: one stable sort of
     (x, y) packed into order-preserving uint64 keys, then z inside the (rare) equal runs.
     """
-    bits = (q + np.float32(0)).view(np.uint32).astype(np.uint64)
-    bits = np.where(bits >> np.uint64(31) == 1, ~bits & np.uint64(0xFFFFFFFF), bits | np.uint64(1 << 31))
+    bits = ascending_bits(q).astype(np.uint64)
     xy = bits[:, 0] << np.uint64(32) | bits[:, 1]
     order = np.argsort(xy, kind="stable")
     tied = np.zeros(order.size, dtype=bool)

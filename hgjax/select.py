@@ -85,10 +85,20 @@ def order_keys(scores, *, largest: bool) -> np.ndarray:
       >>> np.argsort(order_keys(np.array([0.5, -1.0, 2.0]), largest=True)).tolist()
       [2, 0, 1]
     """
-    bits = (np.asarray(scores, dtype=np.float64) + 0.0).view(np.uint64)
-    sign = bits >> np.uint64(63)
-    ascending = np.where(sign == 1, ~bits, bits | np.uint64(1 << 63))
+    ascending = ascending_bits(np.asarray(scores, dtype=np.float64))
     return ~ascending if largest else ascending
+
+
+def ascending_bits(values: np.ndarray) -> np.ndarray:
+    """Unsigned integers of float32 (uint32) or float64 (uint64) ``values``, in the values' order.
+
+    The sign bit set for the non-negative values, every bit flipped for the negative ones;
+    -0.0 is 0.0 first, so equal values get equal integers.
+    """
+    width = values.dtype.itemsize * 8
+    uint = np.dtype(f"uint{width}").type
+    bits = (values + values.dtype.type(0)).view(uint)
+    return np.where(bits >> uint(width - 1) == 1, ~bits, bits | uint(1 << (width - 1)))
 
 
 def part_keys(part, largest: bool, column: int | None = None) -> tuple[np.ndarray, np.ndarray]:
