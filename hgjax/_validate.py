@@ -74,15 +74,21 @@ def check_ratio(ratio: Any, name: str = "ratio") -> float:
     return value
 
 
+KEEP_ROUNDING = 1e-9  # ratio x N within this relative distance of an integer counts as that integer
+
+
+def _ceil_rounded(x, xp):
+    """ceil(x) with x first rounded to the nearest integer within KEEP_ROUNDING relative (``xp``: np or jnp)."""
+    return xp.where(xp.abs(x - xp.round(x)) <= KEEP_ROUNDING * x, xp.round(x), xp.ceil(x))
+
+
 def n_keep(n_points: int, ratio: float) -> int:
     """Number of kept points, ceil(ratio * N), with ratio * N rounded to 1e-9 relative first.
 
     So a ratio whose product with N is an integer up to float rounding (0.2 x 1000 =
     200.00000000000003) keeps that integer, not one more.
     """
-    x = ratio * n_points
-    m = round(x) if abs(x - round(x)) <= 1e-9 * x else math.ceil(x)
-    return int(min(max(m, 1), n_points))
+    return int(min(max(_ceil_rounded(ratio * n_points, np), 1), n_points))
 
 
 def check_keep(n_points: int, ratio: Any, count: Any) -> int:
@@ -111,9 +117,7 @@ def n_keep_any(n_points, ratio):
     if is_concrete(ratio):
         ratio = check_traced_ratio(ratio)
         return n_keep(int(n_points), ratio) if is_concrete(n_points) else n_keep_traced(n_points, ratio)
-    x = ratio * n_points
-    m = jnp.where(jnp.abs(x - jnp.round(x)) <= 1e-9 * x, jnp.round(x), jnp.ceil(x))
-    return jnp.clip(m, 1, n_points).astype(jnp.int32)
+    return jnp.clip(_ceil_rounded(ratio * n_points, jnp), 1, n_points).astype(jnp.int32)
 
 
 KEEP_LIMB = 12  # bits per limb of n_keep_traced's exact product
@@ -135,7 +139,7 @@ def n_keep_traced(n_points, ratio: float):
     Returns:
       int32 scalar m = min(max(ceil(ratio N), 1), N), as :func:`n_keep`.
     """
-    frac, digits = ratio * (1 - 1e-9), [0]  # digits[j]: bits 12 (j - 1) + 1 .. 12 j of R
+    frac, digits = ratio * (1 - KEEP_ROUNDING), [0]  # digits[j]: bits 12 (j - 1) + 1 .. 12 j of R
     for _ in range(KEEP_LIMBS):
         frac *= 1 << KEEP_LIMB  # exact: a power of two
         digits.append(int(frac))
