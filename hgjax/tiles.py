@@ -417,15 +417,22 @@ class _Here:
 class _Dask(_Here):
     """Runs each tile task as one pure Dask task; results stay on the workers until gathered.
 
-    The tiled cloud is scattered to every worker once (a ``np.memmap`` travels as its file
-    name); a task is a function of the cloud, its cell and the resolved plan only, so a task
-    retried after a worker died computes the same bits.
+    The tiled cloud is the result of one task whose recipe holds it (a ``np.memmap`` travels
+    as its file name): the scheduler keeps that recipe, so a worker that dies with the only
+    copy of the cloud loses nothing (scattered data has no recipe, and Dask's active memory
+    manager drops the extra copies a broadcast made). A task is a function of the cloud, its
+    cell and the resolved plan only, so a task retried after a worker died computes the same
+    bits.
     """
 
     def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
+        import dask
+
         self.cloud, self.client, self.k = cloud, client, k
-        # a fresh key per run: a key shared with an earlier run of the same cloud can be released under this one
-        self.shared = client.scatter(cloud, broadcast=True, hash=False)
+        # Dask warns of a large graph because data repeated in it is sent again and again; the cloud is
+        # sent once. A fresh key per run: a key shared with an earlier run can be released under this one.
+        with dask.config.set({"distributed.admin.large-graph-warning-threshold": "1 PiB"}):
+            self.shared = client.submit(_held, cloud, pure=False)
         self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
         self.cells = {}  # task key -> the tile it computes or derives from
 
@@ -453,15 +460,23 @@ class _Dask(_Here):
             raise RuntimeError(self.killed(err.task)) from err
 
     def killed(self, task) -> str:
-        """The message of a task whose workers died: its tile and the memory that tile needs at least."""
+        """The message of a task whose workers died: its tile, an estimate of the memory it needs, the workers' limit."""
+        limits = sorted({w.get("memory_limit") or 0 for w in self.client.scheduler_info()["workers"].values()})
+        limit = f"; the workers' memory limit: {limits[-1] / 2**20:.0f} MiB" if limits and limits[0] else ""
         cell = self.cells.get(task)
         if cell is None:
-            return f"Dask workers died running task {task!r} (out of memory?)"
+            return f"Dask workers died running task {task!r} (out of memory?){limit}"
         r = self.cloud.core_size(cell)
         need = r * self.k * TASK_BYTES
-        return (f"Dask workers died running tile {cell} (task {task!r}): its {r} core points' neighbourhoods need"
-                f" at least {need / 2**20:.1f} MiB ({r} x K={self.k} x {TASK_BYTES} bytes) plus the halo's; give"
-                f" each worker more memory or pass a smaller tile")
+        return (f"Dask workers died running tile {cell} (task {task!r}): it needs about {need / 2**20:.1f} MiB"
+                f" beyond a worker's own footprint (an estimate: {r} core points x K={self.k} neighbours x"
+                f" {TASK_BYTES} bytes; its halo's points add to it){limit}; give each worker more memory or pass a"
+                f" smaller tile")
+
+
+def _held(value):
+    """``value`` itself: the task whose result is the tiled cloud on the workers."""
+    return value
 
 
 def _task(x64: bool, fn, *args):

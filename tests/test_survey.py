@@ -171,24 +171,3 @@ def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
     assert code == 1 and "bad.las" in capsys.readouterr().err
     assert sorted(os.listdir(tmp_path / "kept")) == ["hgjax-manifest.json", "tile0.las", "tile1.las"]
 
-
-def test_a_killed_tile_names_its_cell_and_memory():
-    distributed = pytest.importorskip("distributed")
-    cloud = hgjax.eval.box_union_cloud(seed=1, n_points=500).points
-    plan_, tiled = tiles._base(cloud, 0.2, "ea", 1.0, {})
-
-    class Client:
-        def scatter(self, value, broadcast, hash):
-            return value
-
-        def submit(self, fn, *args, pure):
-            return type("Future", (), {"key": f"task-{id(args)}"})()
-
-        def gather(self, futures):
-            raise distributed.KilledWorker(futures[0].key, None, 0)
-
-    runner = tiles._runner(tiled, Client(), 8)
-    cell = next(iter(tiled.members))
-    parts = runner.each(tiles._count, runner.tiles(tiles.tile_scores, plan_, cells=[cell]))
-    with pytest.raises(RuntimeError, match=rf"tile \({cell[0]}, {cell[1]}, {cell[2]}\).* x K=8 x 32 bytes"):
-        runner.gather(parts)
