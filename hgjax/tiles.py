@@ -731,8 +731,9 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
                          " pass tile=None")
     pipeline._check_known(entry, params)
     if isinstance(entry, pipeline.Sampler):
-        if distributed and method in _TILED_SAMPLERS:
-            return _Run(clock("sample", _TILED_SAMPLERS[method](points, ratio, tile, client, **params)))
+        if (distributed or isinstance(points, _Sources)) and method in _TILED_SAMPLERS:
+            keyed = {"key": key} if entry.needs_key else {}
+            return _Run(clock("sample", _TILED_SAMPLERS[method](points, ratio, tile, client, **keyed, **params)))
         return _Run(clock("sample", entry.draw(_validate.check_points(points), ratio, key, **params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
@@ -849,7 +850,18 @@ def _count(part) -> int:
     return int(part[1].size)
 
 
-_TILED_SAMPLERS = {"voxel": _voxel}  # samplers with an engine of their own here; uniform's draw is per global id
+def _uniform(points, ratio, tile, client, *, key=None) -> np.ndarray:
+    """``uniform`` on a cloud or a survey: each point's draw comes from the key and its global id
+    (:func:`hgjax.select.point_bits`), so the draw reads the point count N and no coordinate."""
+    n = points.n if isinstance(points, _Sources) else _validate.check_points(points).shape[0]
+    if tile is not None:
+        _validate.check_positive(tile, "tile")
+    m = _validate.n_keep(n, _validate.check_ratio(ratio))
+    return select.keyed_top(_validate.check_key(key, "uniform"), n, m)
+
+
+_TILED_SAMPLERS = {"uniform": _uniform, "voxel": _voxel}  # samplers with an engine of their own here
+_SURVEY_SAMPLERS = ("uniform",)  # those of them that read a survey lazily (no coordinate at all)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -986,9 +998,13 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     files whose bounds meet its box. The client holds per file its path, count and bounds,
     per tile its count, and, while writing, one input file with its attributes; never the
     survey's coordinates. Tasks read the inputs by absolute path, so Dask workers must see
-    them. Methods that need the whole cloud at once (``uniform``, ``voxel``, GFR's
-    ``variant="reference"`` and those :func:`resample` runs untiled) read it from a float64
-    memmap in a hidden temporary directory of ``out_dir`` instead.
+    them. ``uniform`` reads no coordinate after that check (a point's draw comes from the key
+    and its global id). The methods that need the whole cloud at once read it from a float64
+    memmap (24 bytes a point, on disk) in a hidden temporary directory of ``out_dir`` instead,
+    and hold what they need per point in memory: ``voxel`` (its count-targeted edge search
+    assigns every point of the cloud to a voxel, pass after pass, until the kept count is
+    reached), GFR's ``variant="reference"`` (its squared radius comes from the min and max nearest
+    distance of the whole cloud) and those :func:`resample` runs untiled (``fps``, ``pca_ac``).
 
     Args:
       paths: files or glob patterns (each pattern's matches sorted), any format
@@ -1066,9 +1082,9 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
     entry = pipeline._entry(method)
-    if _planned(entry) and _refused(entry, params) is None:
+    if (_planned(entry) and _refused(entry, params) is None) or entry.name in _SURVEY_SAMPLERS:
         run = _resample(survey, ratio, method, tile, client, key, False, dict(params))
-    else:  # the samplers and the methods that need the whole cloud at once read it from a float64 memmap
+    else:  # the methods that need the whole cloud at once read it from a float64 memmap
         with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
             disk = np.memmap(os.path.join(work, "xyz.f8"), dtype=np.float64, mode="w+", shape=(n, 3))
             for f in sources:

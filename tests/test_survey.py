@@ -171,3 +171,25 @@ def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
     assert code == 1 and "bad.las" in capsys.readouterr().err
     assert sorted(os.listdir(tmp_path / "kept")) == ["hgjax-manifest.json", "tile0.las", "tile1.las"]
 
+
+
+@pytest.mark.parametrize("method,params", [("uniform", {"key": jax.random.key(5)}), ("voxel", {}),
+                                           ("gfr", {"variant": "reference", "mode": "top"})])
+def test_whole_cloud_methods_equal_the_concatenated_cloud(tmp_path, method, params):
+    paths, cloud = _survey(tmp_path, n_files=2, n=1000)
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, **params)
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
+                                  np.sort(hgjax.resample(cloud, 0.2, method=method, **params)))
+    assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
+
+
+def test_uniform_reads_no_coordinate_after_the_check(tmp_path, monkeypatch):
+    paths, cloud = _survey(tmp_path, n_files=2, n=1000)
+    read = []
+    chunks = tiles._chunks
+    monkeypatch.setattr(tiles, "_chunks", lambda path: read.append(path) or chunks(path))
+    key = jax.random.key(6)
+    tiles.resample_files(paths, tmp_path / "kept", 0.3, method="uniform", key=key, tile=30.0)
+    assert sorted(read) == sorted(os.path.abspath(p) for p in paths)  # the check's one read of each file
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
+                                  np.sort(hgjax.resample(cloud, 0.3, method="uniform", key=key)))
