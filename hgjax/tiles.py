@@ -417,15 +417,22 @@ class _Here:
 class _Dask(_Here):
     """Runs each tile task as one pure Dask task; results stay on the workers until gathered.
 
-    The tiled cloud is scattered to every worker once (a ``np.memmap`` travels as its file
-    name); a task is a function of the cloud, its cell and the resolved plan only, so a task
-    retried after a worker died computes the same bits.
+    The tiled cloud is the result of one task whose recipe holds it (a ``np.memmap`` travels
+    as its file name): the scheduler keeps that recipe, so a worker that dies with the only
+    copy of the cloud loses nothing (scattered data has no recipe, and Dask's active memory
+    manager drops the extra copies a broadcast made). A task is a function of the cloud, its
+    cell and the resolved plan only, so a task retried after a worker died computes the same
+    bits.
     """
 
     def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
+        import dask
+
         self.cloud, self.client, self.k = cloud, client, k
-        # a fresh key per run: a key shared with an earlier run of the same cloud can be released under this one
-        self.shared = client.scatter(cloud, broadcast=True, hash=False)
+        # Dask warns of a large graph because data repeated in it is sent again and again; the cloud is
+        # sent once. A fresh key per run: a key shared with an earlier run can be released under this one.
+        with dask.config.set({"distributed.admin.large-graph-warning-threshold": "1 PiB"}):
+            self.shared = client.submit(_held, cloud, pure=False)
         self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
         self.cells = {}  # task key -> the tile it computes or derives from
 
@@ -453,15 +460,23 @@ class _Dask(_Here):
             raise RuntimeError(self.killed(err.task)) from err
 
     def killed(self, task) -> str:
-        """The message of a task whose workers died: its tile and the memory that tile needs at least."""
+        """The message of a task whose workers died: its tile, an estimate of the memory it needs, the workers' limit."""
+        limits = sorted({w.get("memory_limit") or 0 for w in self.client.scheduler_info()["workers"].values()})
+        limit = f"; the workers' memory limit: {limits[-1] / 2**20:.0f} MiB" if limits and limits[0] else ""
         cell = self.cells.get(task)
         if cell is None:
-            return f"Dask workers died running task {task!r} (out of memory?)"
+            return f"Dask workers died running task {task!r} (out of memory?){limit}"
         r = self.cloud.core_size(cell)
         need = r * self.k * TASK_BYTES
-        return (f"Dask workers died running tile {cell} (task {task!r}): its {r} core points' neighbourhoods need"
-                f" at least {need / 2**20:.1f} MiB ({r} x K={self.k} x {TASK_BYTES} bytes) plus the halo's; give"
-                f" each worker more memory or pass a smaller tile")
+        return (f"Dask workers died running tile {cell} (task {task!r}): it needs about {need / 2**20:.1f} MiB"
+                f" beyond a worker's own footprint (an estimate: {r} core points x K={self.k} neighbours x"
+                f" {TASK_BYTES} bytes; its halo's points add to it){limit}; give each worker more memory or pass a"
+                f" smaller tile")
+
+
+def _held(value):
+    """``value`` itself: the task whose result is the tiled cloud on the workers."""
+    return value
 
 
 def _task(x64: bool, fn, *args):
@@ -716,8 +731,9 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
                          " pass tile=None")
     pipeline._check_known(entry, params)
     if isinstance(entry, pipeline.Sampler):
-        if distributed and method in _TILED_SAMPLERS:
-            return _Run(clock("sample", _TILED_SAMPLERS[method](points, ratio, tile, client, **params)))
+        if (distributed or isinstance(points, _Sources)) and method in _TILED_SAMPLERS:
+            keyed = {"key": key} if entry.needs_key else {}
+            return _Run(clock("sample", _TILED_SAMPLERS[method](points, ratio, tile, client, **keyed, **params)))
         return _Run(clock("sample", entry.draw(_validate.check_points(points), ratio, key, **params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
@@ -834,7 +850,18 @@ def _count(part) -> int:
     return int(part[1].size)
 
 
-_TILED_SAMPLERS = {"voxel": _voxel}  # samplers with an engine of their own here; uniform's draw is per global id
+def _uniform(points, ratio, tile, client, *, key=None) -> np.ndarray:
+    """``uniform`` on a cloud or a survey: each point's draw comes from the key and its global id
+    (:func:`hgjax.select.point_bits`), so the draw reads the point count N and no coordinate."""
+    n = points.n if isinstance(points, _Sources) else _validate.check_points(points).shape[0]
+    if tile is not None:
+        _validate.check_positive(tile, "tile")
+    m = _validate.n_keep(n, _validate.check_ratio(ratio))
+    return select.keyed_top(_validate.check_key(key, "uniform"), n, m)
+
+
+_TILED_SAMPLERS = {"uniform": _uniform, "voxel": _voxel}  # samplers with an engine of their own here
+_SURVEY_SAMPLERS = ("uniform",)  # those of them that read a survey lazily (no coordinate at all)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -971,9 +998,13 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     files whose bounds meet its box. The client holds per file its path, count and bounds,
     per tile its count, and, while writing, one input file with its attributes; never the
     survey's coordinates. Tasks read the inputs by absolute path, so Dask workers must see
-    them. Methods that need the whole cloud at once (``uniform``, ``voxel``, GFR's
-    ``variant="reference"`` and those :func:`resample` runs untiled) read it from a float64
-    memmap in a hidden temporary directory of ``out_dir`` instead.
+    them. ``uniform`` reads no coordinate after that check (a point's draw comes from the key
+    and its global id). The methods that need the whole cloud at once read it from a float64
+    memmap (24 bytes a point, on disk) in a hidden temporary directory of ``out_dir`` instead,
+    and hold what they need per point in memory: ``voxel`` (its count-targeted edge search
+    assigns every point of the cloud to a voxel, pass after pass, until the kept count is
+    reached), GFR's ``variant="reference"`` (its squared radius comes from the min and max nearest
+    distance of the whole cloud) and those :func:`resample` runs untiled (``fps``, ``pca_ac``).
 
     Args:
       paths: files or glob patterns (each pattern's matches sorted), any format
@@ -1051,9 +1082,9 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
     entry = pipeline._entry(method)
-    if _planned(entry) and _refused(entry, params) is None:
+    if (_planned(entry) and _refused(entry, params) is None) or entry.name in _SURVEY_SAMPLERS:
         run = _resample(survey, ratio, method, tile, client, key, False, dict(params))
-    else:  # the samplers and the methods that need the whole cloud at once read it from a float64 memmap
+    else:  # the methods that need the whole cloud at once read it from a float64 memmap
         with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
             disk = np.memmap(os.path.join(work, "xyz.f8"), dtype=np.float64, mode="w+", shape=(n, 3))
             for f in sources:

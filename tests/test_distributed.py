@@ -55,3 +55,26 @@ def test_a_worker_killed_mid_run_changes_nothing(client):
     run.join(timeout=300)
     np.testing.assert_array_equal(out["idx"], want)
     client.wait_for_workers(2, timeout=60)  # the nanny restarted it
+
+
+def test_a_tile_beyond_the_workers_memory_names_itself_and_its_memory():
+    """A real out-of-memory death: workers limited to 500 MiB (a worker holds about 350 MiB with JAX and
+    the cloud) and a tile of 1,000,000 core points (about 490 MiB more, by the message's estimate). The
+    nanny kills each worker that runs it, Dask retries it once (``allowed-failures``), then gives up; the
+    error names the tile, the estimate and the limit. Pausing and spilling are off, so a worker near its
+    limit cannot leave the cluster waiting."""
+    dask = pytest.importorskip("dask")
+    rng = np.random.default_rng(0)
+    xy = np.concatenate([rng.uniform(0, 1, (1_000_000, 2)), rng.uniform(0, 2, (4000, 2))])
+    p = np.concatenate([xy, rng.normal(0, 0.01, (xy.shape[0], 1))], axis=1)
+    memory = {f"distributed.worker.memory.{k}": False for k in ("target", "spill", "pause")}
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1, **memory}), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, memory_limit="500MiB",
+                                     dashboard_address=":0", host="127.0.0.1") as cluster, \
+            distributed.Client(cluster) as client:
+        _, cloud = tiles.plan(p, 0.2, method="ea", tile=1.0)
+        assert len(cloud.occupied()) == 4 and cloud.core_size((0, 0, 0)) > 1_000_000
+        with pytest.raises(RuntimeError, match=r"tile \(0, 0, 0\).* needs about \d+\.\d MiB .*an estimate: 100\d{4}"
+                                                r" core points x K=16 .*memory limit: 500 MiB") as err:
+            tiles.resample(p, 0.2, method="ea", tile=1.0, client=client)
+    assert isinstance(err.value.__cause__, distributed.KilledWorker)

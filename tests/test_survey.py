@@ -172,23 +172,24 @@ def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
     assert sorted(os.listdir(tmp_path / "kept")) == ["hgjax-manifest.json", "tile0.las", "tile1.las"]
 
 
-def test_a_killed_tile_names_its_cell_and_memory():
-    distributed = pytest.importorskip("distributed")
-    cloud = hgjax.eval.box_union_cloud(seed=1, n_points=500).points
-    plan_, tiled = tiles._base(cloud, 0.2, "ea", 1.0, {})
 
-    class Client:
-        def scatter(self, value, broadcast, hash):
-            return value
+@pytest.mark.parametrize("method,params", [("uniform", {"key": jax.random.key(5)}), ("voxel", {}),
+                                           ("gfr", {"variant": "reference", "mode": "top"})])
+def test_whole_cloud_methods_equal_the_concatenated_cloud(tmp_path, method, params):
+    paths, cloud = _survey(tmp_path, n_files=2, n=1000)
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, **params)
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
+                                  np.sort(hgjax.resample(cloud, 0.2, method=method, **params)))
+    assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
 
-        def submit(self, fn, *args, pure):
-            return type("Future", (), {"key": f"task-{id(args)}"})()
 
-        def gather(self, futures):
-            raise distributed.KilledWorker(futures[0].key, None, 0)
-
-    runner = tiles._runner(tiled, Client(), 8)
-    cell = next(iter(tiled.members))
-    parts = runner.each(tiles._count, runner.tiles(tiles.tile_scores, plan_, cells=[cell]))
-    with pytest.raises(RuntimeError, match=rf"tile \({cell[0]}, {cell[1]}, {cell[2]}\).* x K=8 x 32 bytes"):
-        runner.gather(parts)
+def test_uniform_reads_no_coordinate_after_the_check(tmp_path, monkeypatch):
+    paths, cloud = _survey(tmp_path, n_files=2, n=1000)
+    read = []
+    chunks = tiles._chunks
+    monkeypatch.setattr(tiles, "_chunks", lambda path: read.append(path) or chunks(path))
+    key = jax.random.key(6)
+    tiles.resample_files(paths, tmp_path / "kept", 0.3, method="uniform", key=key, tile=30.0)
+    assert sorted(read) == sorted(os.path.abspath(p) for p in paths)  # the check's one read of each file
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
+                                  np.sort(hgjax.resample(cloud, 0.3, method="uniform", key=key)))
