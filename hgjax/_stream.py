@@ -1,19 +1,19 @@
 """Mapping a per-neighbourhood kernel over every row of a :class:`Neighbourhoods`.
 
 A kernel is written for ONE neighbourhood, ``fn(offsets (K, 3), valid (K,), *row_args,
-*args)``, with ``offsets`` the neighbours minus the point (padding rows zero). The map
-vmaps it over blocks of exactly ``BLOCK`` rows (``lax.map`` over the blocks), so every row
-is computed by the same compiled block whatever the batch layout: results do not depend on
-the chunk size.
+*args)``, with ``offsets`` the neighbours minus the point (padding rows zero). One JAX
+program per chunk of rows (:func:`_gathered`) gathers the offsets on the device from the
+points and the neighbour indices and vmaps ``fn`` over blocks of exactly ``BLOCK`` rows
+(``lax.map`` over the blocks), so every row is computed by the same compiled block whatever
+the batch layout: results do not depend on the chunk size. It runs two ways:
 
-Two execution paths give the same values:
-
-* traced (inside the caller's ``jit``, ``vmap`` or ``grad``): one pure JAX program over
-  the whole (N, K) neighbourhood array;
-* concrete (eager calls, :func:`hgjax.resample`): the host gathers fixed-size chunks
-  (C, K, 3) and streams them through ONE jitted kernel per (method, K), so a new cloud size
-  never recompiles and peak memory grows with C, not with N. With several devices in
-  ``jax.devices()`` each chunk's rows are split over them with ``shard_map``.
+* pure (:func:`pure_map`: inside the caller's ``jit``, ``vmap`` or ``grad``, and every soft
+  score): the whole (N, K) neighbourhood array is one chunk;
+* streamed (:func:`map_rows`: eager calls, :func:`hgjax.resample`, the tiles): the points go
+  to the device once and fixed-size chunks of rows stream through ONE jitted program per
+  (method, K), so a new cloud size never recompiles and peak memory grows with the chunk,
+  not with N. With several devices in ``jax.devices()`` each chunk's rows are split over
+  them with ``shard_map``.
 """
 
 from __future__ import annotations
@@ -69,12 +69,30 @@ def _blocks(fn: Callable, offsets, valid, row_args, args):
     return jax.tree.map(lambda x: x.reshape((c,) + x.shape[2:]), out)
 
 
-def offsets_of(points, idx):
-    """(N, K, 3) neighbours minus their point (zero for padding) and the (N, K) mask, in JAX."""
+def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
+    """``fn`` on every row of (points (N, 3), idx (N, K)) as one pure JAX program (jit, vmap, grad).
+
+    The rows are padded to a multiple of BLOCK with copies of the last row (a real
+    neighbourhood, so the padding's zero cotangents meet finite derivatives and gradients
+    stay finite) and run as one chunk of :func:`_gathered`, the program that
+    :func:`map_rows` streams chunk by chunk.
+
+    Args:
+      fn, row_args, args: as :func:`map_neighbourhoods`; ``row_args`` are (N, ...) arrays.
+      points: (N, 3) coordinates.
+      idx: (N, K) neighbour rows, padded with N.
+
+    Returns:
+      ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
+    """
+    points, idx = jnp.asarray(points), jnp.asarray(idx)
     n = points.shape[0]
-    ext = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])
-    valid = idx < n
-    return jnp.where(valid[..., None], ext[idx] - points[:, None, :], 0), valid
+    pad = -n % BLOCK
+    padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode="edge")  # noqa: E731
+    hi = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])  # row N: the sentinel's
+    out = _gathered(fn, hi, None, n, padded(jnp.arange(n, dtype=idx.dtype)), padded(idx),
+                    tuple(padded(jnp.asarray(a)) for a in row_args), args)
+    return jax.tree.map(lambda x: x[:n], out)
 
 
 def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: int | None = None,
@@ -99,18 +117,12 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
     """
     points, idx = nb.points, nb.idx
-    n = points.shape[0]
     if is_traced(points, idx, row_args, args):
-        points, idx = jnp.asarray(points), jnp.asarray(idx)
-        offsets, valid = offsets_of(points, idx)
-        pad = -n % BLOCK
-        padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
-        out = _blocks(fn, padded(offsets), padded(valid), tuple(padded(jnp.asarray(a)) for a in row_args), args)
-        return jax.tree.map(lambda x: x[:n], out)
+        return pure_map(fn, points, idx, row_args=row_args, args=args)
     points = np.asarray(points)
-    return jax.tree.map(jax.device_put, map_rows(fn, points, np.arange(n), np.asarray(idx), row_args=row_args,
-                                                 args=args, dtype=points.dtype, chunk_size=chunk_size,
-                                                 progress=progress, narrow=narrow))
+    out = map_rows(fn, points, np.arange(points.shape[0]), np.asarray(idx), row_args=row_args, args=args,
+                   dtype=points.dtype, chunk_size=chunk_size, progress=progress, narrow=narrow)
+    return jax.tree.map(jax.device_put, out)
 
 
 def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray, *, row_args=(), args=(), dtype,
