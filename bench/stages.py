@@ -48,9 +48,10 @@ STAGES = [
     ("pad_queries (batches + padding)", "hgjax.spatial", "pad_queries", 2),
     ("chunked_knn (LHF/EA build)", "hgjax.spatial", "chunked_knn", 1),
     ("covers (halo check)", "hgjax.tiles._Cloud", "covers", 1),
-    ("map_rows (JAX stream)", "hgjax._stream", "map_rows", 1),
+    ("map_rows (JAX stream of HKC/HKF, after their build)", "hgjax._stream", "map_rows", 1),
     ("narrow_groups", "hgjax._stream", "narrow_groups", 2),
-    ("_stream (chunks through the kernel)", "hgjax._stream", "_stream", 2),
+    ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 1),
+    ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 1),
     ("selection (exact top-k)", "hgjax.select", "top_pairs", 1),
 ]
 

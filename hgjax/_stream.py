@@ -1,19 +1,20 @@
 """Mapping a per-neighbourhood kernel over every row of a :class:`Neighbourhoods`.
 
 A kernel is written for ONE neighbourhood, ``fn(offsets (K, 3), valid (K,), *row_args,
-*args)``, with ``offsets`` the neighbours minus the point (padding rows zero). The map
-vmaps it over blocks of exactly ``BLOCK`` rows (``lax.map`` over the blocks), so every row
-is computed by the same compiled block whatever the batch layout: results do not depend on
-the chunk size.
+*args)``, with ``offsets`` the neighbours minus the point (padding rows zero). One JAX
+program per chunk of rows (:func:`_gathered`) gathers the offsets on the device from the
+points and the neighbour indices and vmaps ``fn`` over blocks of exactly ``BLOCK`` rows
+(``lax.map`` over the blocks), so every row is computed by the same compiled block whatever
+the batch layout: results do not depend on the chunk size. It runs two ways:
 
-Two execution paths give the same values:
-
-* traced (inside the caller's ``jit``, ``vmap`` or ``grad``): one pure JAX program over
-  the whole (N, K) neighbourhood array;
-* concrete (eager calls, :func:`hgjax.resample`): the host gathers fixed-size chunks
-  (C, K, 3) and streams them through ONE jitted kernel per (method, K), so a new cloud size
-  never recompiles and peak memory grows with C, not with N. With several devices in
-  ``jax.devices()`` each chunk's rows are split over them with ``shard_map``.
+* pure (:func:`pure_map`: inside the caller's ``jit``, ``vmap`` or ``grad``, and every soft
+  score): the whole (N, K) neighbourhood array is one chunk;
+* streamed (:class:`Stream`: eager calls, :func:`hgjax.resample`, the tiles): the points go
+  to the device once and fixed-size chunks of rows stream through ONE jitted program per
+  (method, K) as the host produces them, so a new cloud size never recompiles, the device
+  computes while the host builds the next rows, and peak memory grows with the chunk,
+  not with N. With several devices in ``jax.devices()`` each chunk's rows are split over
+  them with ``shard_map``.
 """
 
 from __future__ import annotations
@@ -69,12 +70,30 @@ def _blocks(fn: Callable, offsets, valid, row_args, args):
     return jax.tree.map(lambda x: x.reshape((c,) + x.shape[2:]), out)
 
 
-def offsets_of(points, idx):
-    """(N, K, 3) neighbours minus their point (zero for padding) and the (N, K) mask, in JAX."""
+def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
+    """``fn`` on every row of (points (N, 3), idx (N, K)) as one pure JAX program (jit, vmap, grad).
+
+    The rows are padded to a multiple of BLOCK with copies of the last row (a real
+    neighbourhood, so the padding's zero cotangents meet finite derivatives and gradients
+    stay finite) and run as one chunk of :func:`_gathered`, the program that
+    :func:`map_rows` streams chunk by chunk.
+
+    Args:
+      fn, row_args, args: as :func:`map_neighbourhoods`; ``row_args`` are (N, ...) arrays.
+      points: (N, 3) coordinates.
+      idx: (N, K) neighbour rows, padded with N.
+
+    Returns:
+      ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
+    """
+    points, idx = jnp.asarray(points), jnp.asarray(idx)
     n = points.shape[0]
-    ext = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])
-    valid = idx < n
-    return jnp.where(valid[..., None], ext[idx] - points[:, None, :], 0), valid
+    pad = -n % BLOCK
+    padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode="edge")  # noqa: E731
+    hi = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])  # row N: the sentinel's
+    out = _gathered(fn, hi, None, n, padded(jnp.arange(n, dtype=idx.dtype)), padded(idx),
+                    tuple(padded(jnp.asarray(a)) for a in row_args), args)
+    return jax.tree.map(lambda x: x[:n], out)
 
 
 def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: int | None = None,
@@ -99,31 +118,20 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
     """
     points, idx = nb.points, nb.idx
-    n = points.shape[0]
     if is_traced(points, idx, row_args, args):
-        points, idx = jnp.asarray(points), jnp.asarray(idx)
-        offsets, valid = offsets_of(points, idx)
-        pad = -n % BLOCK
-        padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1))  # noqa: E731
-        out = _blocks(fn, padded(offsets), padded(valid), tuple(padded(jnp.asarray(a)) for a in row_args), args)
-        return jax.tree.map(lambda x: x[:n], out)
+        return pure_map(fn, points, idx, row_args=row_args, args=args)
     points = np.asarray(points)
-    return jax.tree.map(jax.device_put, map_rows(fn, points, np.arange(n), np.asarray(idx), row_args=row_args,
-                                                 args=args, dtype=points.dtype, chunk_size=chunk_size,
-                                                 progress=progress, narrow=narrow))
+    out = map_rows(fn, points, np.arange(points.shape[0]), np.asarray(idx), row_args=row_args, args=args,
+                   dtype=points.dtype, chunk_size=chunk_size, progress=progress, narrow=narrow)
+    return jax.tree.map(jax.device_put, out)
 
 
 def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray, *, row_args=(), args=(), dtype,
              chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
     """Host engine of :func:`map_neighbourhoods`: ``fn`` on the rows ``own`` of ``points``.
 
-    The points go to the device once, as ``dtype`` values hi and, for float64 points run in
-    float32, the remainders lo = points - hi; each chunk sends only its rows and neighbour
-    indices, and the offsets (C, K, 3) are gathered on the device as (hi_j - hi_i) + (lo_j -
-    lo_i): each neighbourhood's offsets to the precision of ``dtype`` whatever the frame's
-    origin, with the same bits in every tile that holds the neighbourhood. The points are
-    padded to :func:`point_rows`, so a new cloud size compiles only when it crosses a power
-    of four above 65,536 points.
+    The points go to the device once (:func:`device_points`) and the rows stream through
+    one :class:`Stream` per kernel width.
 
     Args:
       fn, row_args, args, chunk_size, progress, narrow: as :func:`map_neighbourhoods`;
@@ -136,6 +144,34 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
     Returns:
       ``fn``'s outputs stacked over the rows, as NumPy arrays (R, ...).
     """
+    ext = device_points(points, dtype)
+    args = tuple(jax.device_put(np.asarray(a)) for a in args)
+    row_args = tuple(np.asarray(a) for a in row_args)
+
+    def run(own, idx, row_args):
+        stream = Stream(fn, ext, args=args, chunk_size=chunk_size, progress=progress, total=idx.shape[0])
+        stream.push(own, idx, row_args)
+        return stream.collect()
+
+    groups = narrow_groups(np.asarray(idx), points.shape[0]) if narrow else []
+    if len(groups) > 1:
+        own, idx = np.asarray(own), np.asarray(idx)
+        parts = [run(own[rows], idx[rows, :k], tuple(a[rows] for a in row_args)) for rows, k in groups]
+        back = np.argsort(np.concatenate([rows for rows, _ in groups]))  # rows back in order
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
+    return run(own, idx, row_args)
+
+
+def device_points(points: np.ndarray, dtype) -> tuple:
+    """(hi, lo or None, n): the n points (n, 3) on the device once, for every chunk of a :class:`Stream`.
+
+    hi holds the points as ``dtype`` values and, for float64 points run in float32, lo the
+    remainders points - hi; a chunk's offsets (C, K, 3) are then gathered on the device as
+    (hi_j - hi_i) + (lo_j - lo_i): each neighbourhood's offsets to the precision of
+    ``dtype`` whatever the frame's origin, with the same bits in every tile that holds the
+    neighbourhood. Both are padded to :func:`point_rows` rows, so a new cloud size compiles
+    only when it crosses a power of four above 65,536 points.
+    """
     n, dtype = points.shape[0], np.dtype(dtype)
     size = point_rows(n)
     hi = np.zeros((size, 3), dtype)
@@ -144,17 +180,64 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
     if points.dtype != dtype:
         lo = np.zeros((size, 3), dtype)
         lo[:n] = points - hi[:n].astype(points.dtype)
-    ext = (jax.device_put(hi), None if lo is None else jax.device_put(lo), jax.device_put(np.int32(n)))
-    row_args = tuple(np.asarray(a) for a in row_args)
-    args, chunk = tuple(jax.device_put(np.asarray(a)) for a in args), chunk_rows(chunk_size)
-    own, idx = np.asarray(own, dtype=np.int32), np.asarray(idx, dtype=np.int32)
-    groups = narrow_groups(idx, n) if narrow else [(np.arange(idx.shape[0]), idx.shape[1])]
-    if len(groups) > 1:
-        parts = [_stream(fn, ext, own[rows], idx[rows, :k], tuple(a[rows] for a in row_args), args, chunk, progress)
-                 for rows, k in groups]
-        back = np.argsort(np.concatenate([rows for rows, _ in groups]))  # rows back in order
-        return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
-    return _stream(fn, ext, own, idx, row_args, args, chunk, progress)
+    return jax.device_put(hi), None if lo is None else jax.device_put(lo), jax.device_put(np.int32(n))
+
+
+class Stream:
+    """Rows of one kernel sent to the device in fixed chunks of C rows as the host produces them.
+
+    :meth:`push` cuts the rows it is given into chunks of C rows (their own rows (C,) and
+    neighbours (C, K)) and dispatches each full chunk to ONE compiled program at once; JAX
+    dispatch is asynchronous, so the device computes while the host builds the next rows.
+    :meth:`collect` sends the last chunk, padded, and waits for the outputs. Every row's
+    result is the same however the rows were pushed.
+
+    Args:
+      fn: per-neighbourhood kernel, as :func:`map_neighbourhoods`.
+      ext: :func:`device_points` of the points the rows index.
+      args: device arrays broadcast to every row.
+      chunk_size, progress: as :func:`map_neighbourhoods`.
+      total: the number of rows to come (for the progress bar).
+    """
+
+    def __init__(self, fn: Callable, ext: tuple, *, args=(), chunk_size: int | None = None, progress: bool = False,
+                 total: int = 0):
+        self.fn, self.ext, self.args, self.n = fn, ext, args, int(ext[2])
+        self.chunk = chunk_rows(chunk_size)
+        self.pending, self.outputs, self.rows = None, [], 0
+        self.bar = _progress(total, progress and total > 4 * self.chunk)
+
+    def push(self, own, idx, row_args=()) -> None:
+        """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K) and ``row_args`` (R, ...) each;
+        send every full chunk."""
+        part = (np.asarray(own, dtype=np.int32), np.asarray(idx, dtype=np.int32), tuple(np.asarray(a) for a in row_args))
+        if self.pending is not None:
+            part = jax.tree.map(lambda a, b: np.concatenate([a, b]), self.pending, part)
+        r = part[0].shape[0]
+        full = r - r % self.chunk
+        for start in range(0, full, self.chunk):
+            self._send(jax.tree.map(lambda x: x[start:start + self.chunk], part))
+        self.pending = jax.tree.map(lambda x: x[full:], part)
+
+    def collect(self):
+        """``fn``'s outputs of every pushed row, in push order, as NumPy arrays (R, ...)."""
+        if self.pending[0].shape[0] or not self.outputs:
+            self._send(self.pending)
+        if self.bar is not None:
+            self.bar.close()
+        return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:self.rows], *self.outputs)
+
+    def _send(self, part) -> None:
+        own, idx, row_args = part
+        r = own.shape[0]
+        pad = self.chunk - r
+        fill = lambda x, v=0: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), constant_values=v)  # noqa: E731
+        kernel = (_sharded(self.fn, len(row_args), len(self.args)) if len(jax.devices()) > 1
+                  else _jitted(self.fn, len(row_args)))
+        self.outputs.append(kernel(*self.ext, fill(own), fill(idx, self.n), tuple(fill(a) for a in row_args), self.args))
+        self.rows += r
+        if self.bar is not None:
+            self.bar.update(r)
 
 
 def point_rows(n: int) -> int:
@@ -185,28 +268,6 @@ def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
     bounds = np.asarray(min((sorted({a, b, k}) for a in widths for b in widths), key=lambda c: (cost(c), len(c))))
     group = np.searchsorted(bounds, count)
     return [(np.flatnonzero(group == g), int(w)) for g, w in enumerate(bounds) if np.any(group == g)]
-
-
-def _stream(fn, ext, own, idx, row_args, args, chunk, progress):
-    """Fixed chunks of C rows (their own rows (C,) and neighbours (C, K)) through one kernel.
-
-    ``ext`` = (hi, lo or None, n) on the device (:func:`map_rows`); returns NumPy outputs (R, ...).
-    """
-    r = idx.shape[0]
-    n = int(ext[2])
-    kernel = _sharded(fn, len(row_args), len(args)) if len(jax.devices()) > 1 else _jitted(fn, len(row_args))
-    outputs = []
-    bar = _progress(r, progress and r > 4 * chunk)
-    for start in range(0, r, chunk):
-        rows = slice(start, min(start + chunk, r))
-        pad = chunk - (rows.stop - rows.start)
-        fill = lambda x, v=0: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), constant_values=v)  # noqa: E731
-        outputs.append(kernel(*ext, fill(own[rows]), fill(idx[rows], n), tuple(fill(a[rows]) for a in row_args), args))
-        if bar is not None:
-            bar.update(rows.stop - rows.start)
-    if bar is not None:
-        bar.close()
-    return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:r], *outputs)
 
 
 def _gathered(fn: Callable, hi, lo, n, own, nbr, row_args, args):

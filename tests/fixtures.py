@@ -138,8 +138,8 @@ def assert_close(got, want, rtol, atol=None, err_msg=""):
     np.testing.assert_allclose(got[f], want[f], rtol=rtol, atol=rtol * 1e-3 if atol is None else atol, err_msg=err_msg)
 
 
-def assert_variants_agree(fn, nbs, *, rtol=None, atol=None, skip=()):
-    """Run ``fn(nb)`` in every variant of :data:`VARIANTS` but ``skip``; each equals eager.
+def assert_variants_agree(fn, nbs, *, rtol=None, atol=None):
+    """Run ``fn(nb)`` in every variant of :data:`VARIANTS`; each equals eager.
 
     Args:
       fn: a function of one :class:`hgjax.Neighbourhoods` returning an array.
@@ -147,7 +147,6 @@ def assert_variants_agree(fn, nbs, *, rtol=None, atol=None, skip=()):
         vmap batch), any others of other sizes (the ragged batch holds them all).
       rtol: relative tolerance; default :data:`VARIANT_RTOL` of the points' dtype.
       atol: absolute tolerance; default ``rtol * 1e-3``.
-      skip: names of variants not to run.
 
     Returns:
       The eager results, one per cloud, as NumPy arrays.
@@ -157,7 +156,7 @@ def assert_variants_agree(fn, nbs, *, rtol=None, atol=None, skip=()):
     want = [np.asarray(x) for x in _eager(fn, nbs)]
     assert all(w.dtype == dtype for w in want), [w.dtype for w in want]
     for name, variant in VARIANTS.items():
-        if name == "eager" or name in skip:
+        if name == "eager":
             continue
         for i, got in enumerate(variant(fn, nbs)):
             assert_close(got, want[i], rtol, atol, err_msg=f"variant {name}, cloud {i}")

@@ -22,9 +22,6 @@ import hgjax
 
 N = 300
 CAPACITY = 128  # fixed K of a batch: enough for every method on these clouds
-# Kernels that call LAPACK eigh per row. Their eager calls here use one-block chunks
-# (chunk_size=1024): see test_lhf_eigh_kernels_finish_on_the_default_streamed_chunk.
-ONE_BLOCK = {"chunk_size": 1024}
 
 # Every scoring method and variant (PCA-AC scores with EA's score): (method, static params, traced float params).
 SCORE_CASES = [
@@ -55,10 +52,6 @@ def path_rtol(method, static, dtype):
     return fixtures.VARIANT_RTOL[np.dtype(np.float32) if reference_gfr else np.dtype(dtype)]
 
 
-def uses_eigh(method, static):
-    return method == "lhf" and (static.get("variant") == "reference" or static.get("solver") == "eigh")
-
-
 def host_score(nb, method, **params):
     """hgjax.score on concrete neighbourhoods (the host-streamed path) as a NumPy array."""
     return np.asarray(hgjax.score(nb, method, **params))
@@ -74,21 +67,18 @@ SOFT_WEIGHTS = ("hkc", "lhf")
 
 
 def kernel_cases():
-    """(id, method, build params, fn(nb), variants to skip) of every score, soft score and soft weights."""
+    """(id, method, build params, fn(nb)) of every score, soft score and soft weights."""
     cases = []
     for (method, static, floats), case_id in zip(SCORE_CASES, CASE_IDS):
-        eager = {**static, **floats, **(ONE_BLOCK if uses_eigh(method, static) else {})}
-        # The eigh-based LHF kernels deadlock nondeterministically when several LAPACK eigh calls
-        # run in one XLA CPU loop (vmap over a batch): test_lhf_eigh_kernels_finish_... covers them.
-        skip = ("vmap", "ragged") if uses_eigh(method, static) else ()
-        cases.append((f"score-{case_id}", method, static, functools.partial(hgjax.score, method=method, **eager), skip))
+        cases.append((f"score-{case_id}", method, static,
+                      functools.partial(hgjax.score, method=method, **static, **floats)))
     for method in sorted(set(SCORING) - set(SAME_SOFT)):
-        cases.append((f"soft_score-{method}", method, {}, functools.partial(hgjax.soft_score, method=method), ()))
+        cases.append((f"soft_score-{method}", method, {}, functools.partial(hgjax.soft_score, method=method)))
     # soft_weights = soft_select(soft_score): a method that keeps the smallest scores and one that
     # keeps the largest and combines its two soft-score columns at the ratio (Eqs. (15)-(16)).
     for method in SOFT_WEIGHTS:
         cases.append((f"soft_weights-{method}", method, {},
-                      functools.partial(hgjax.soft_weights, ratio=0.2, method=method), ()))
+                      functools.partial(hgjax.soft_weights, ratio=0.2, method=method)))
     return cases
 
 
@@ -103,8 +93,8 @@ def test_shared_soft_scores_are_the_same_functions():
     assert hgjax.METHODS["pca_ac"].build is hgjax.METHODS["ea"].build
 
 
-@pytest.mark.parametrize("method,static,fn,skip", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
-def test_variants_agree(method, static, fn, skip, dtype):
+@pytest.mark.parametrize("method,static,fn", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
+def test_variants_agree(method, static, fn, dtype):
     """eager == jit(argument) == jit(closed-over) == vmap over a batch == vmap over a ragged batch
     (a third, smaller cloud), in float32 and float64."""
     capacity = None if hgjax.METHODS[method].kind == "knn" else CAPACITY  # a batch shares one K
@@ -113,7 +103,7 @@ def test_variants_agree(method, static, fn, skip, dtype):
     rtol = path_rtol(method, static, dtype)
     # Weights lie in [0, 1] and soft_select's threshold moves them all: an absolute tolerance.
     atol = rtol if fn.func is hgjax.soft_weights else None
-    want = fixtures.assert_variants_agree(fn, nbs, rtol=rtol, atol=atol, skip=skip)
+    want = fixtures.assert_variants_agree(fn, nbs, rtol=rtol, atol=atol)
     columns = None if fn.func is hgjax.soft_weights else hgjax.METHODS[method].columns
     row = () if columns is None else (columns,)
     assert [w.shape for w in want] == [(N, *row), (N, *row), (N - 61, *row)]

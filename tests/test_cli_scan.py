@@ -68,7 +68,7 @@ if stage == "read":
 
     hgjax.io._read_npy = _read_npy
 elif stage == "score":
-    map_rows = hgjax._stream.map_rows  # the per-row kernels' stream of every tile
+    map_rows = hgjax._stream.map_rows  # the stream of HKC's per-row kernel in every tile
 
     def looping_map_rows(*args, **kwargs):
         fire_soon()

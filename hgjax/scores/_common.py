@@ -1,32 +1,19 @@
-"""Pieces shared by the per-method score modules: variant check, safe arithmetic, exact scaling, soft map."""
+"""Pieces shared by the per-method score modules: variant check, safe arithmetic, exact scaling."""
 
 from __future__ import annotations
 
 import functools
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
 
-from hgjax import _stream, _validate
+from hgjax import _validate
 
 VARIANTS = ("invariant", "reference")
 
 
 def check_variant(variant: str) -> str:
     return _validate.check_choice(variant, "variant", VARIANTS)
-
-
-def soft_map(fn: Callable, nb, row_args=(), args=()):
-    """vmap a smooth per-neighbourhood ``fn(offsets, valid, *row_args, *args)`` over all rows.
-
-    Always one pure JAX program (no host streaming), so it can be differentiated with respect
-    to ``nb.points`` and the traced ``args``.
-    """
-    points = jnp.asarray(nb.points)
-    offsets, valid = _stream.offsets_of(points, jnp.asarray(nb.idx))
-    in_axes = (0, 0) + (0,) * len(row_args) + (None,) * len(args)
-    return jax.vmap(fn, in_axes=in_axes)(offsets, valid, *(jnp.asarray(a) for a in row_args), *args)
 
 
 def matmul(*factors: jax.Array) -> jax.Array:

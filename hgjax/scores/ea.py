@@ -181,7 +181,7 @@ def soft_score(nb):
       >>> hgjax.scores.ea.soft_score(nb).shape
       (100,)
     """
-    return _common.soft_map(variation, nb)
+    return _stream.pure_map(variation, nb.points, nb.idx)
 
 
 def knn_params(n: int, k: int, params: dict) -> dict:

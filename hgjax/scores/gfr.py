@@ -359,15 +359,27 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     return idx, first
 
 
-def high_pass(points, idx, *, first=None, weights_dtype=None) -> jax.Array:
-    """GFR score ||(L P)_i||_2 on a fixed graph (pure JAX: jit, vmap and grad work).
+def high_pass(points, idx, *, first=None, weights_dtype=None, chunk_size: int | None = None,
+              progress: bool = False) -> jax.Array:
+    """GFR score ||(L P)_i||_2 on a fixed graph: pure JAX under jit, vmap and grad, streamed when eager.
 
     q_ij = ||p_i - p_j||^2 and w_ij = exp(-q_ij^2 / (2 v)) over the stored pairs (idx < N),
     each pair counted c_i c_j times, evaluated as exp(-z^2 / (2 var(z))) with z = q / mean(q),
-    the same value free of the cloud's units (so gradients stay finite at any scale); v and
-    mean(q) are accumulated in the wider of the points' and the weights' dtype. Then with
-    W = W0 + W0^T, (L P)_i = sum_j W0_ij c_j (p_i - p_j) - sum_j W0_ji c_j (p_j - p_i): a row
-    sum plus a scatter-add, no N x N matrix. Every point takes the score of ``first[i]``.
+    the same value free of the cloud's units (so gradients stay finite at any scale). Then
+    with W = W0 + W0^T, (L P)_i = sum_j W0_ij c_j (p_i - p_j) - sum_j W0_ji c_j (p_j - p_i):
+    no N x N matrix is formed. Every point takes the score of ``first[i]``.
+
+    The per-row kernels (q, then the weighted flows W0_ij (p_i - p_j)) are the same JAX
+    program per chunk of rows either way (:mod:`hgjax._stream`); the reductions differ:
+
+    * traced (inside jit, vmap or grad): v and mean(q) summed in JAX in the wider of the
+      points' and the weights' dtype, the flows summed as a row sum plus a scatter-add;
+    * concrete: fixed-size chunks streamed through the kernels, so a new cloud size does not
+      recompile; v and mean(q) are exact sums (:func:`pair_sums`) and each point sums its
+      partners' flows over the symmetric graph in float64, in global-id order, the sums a
+      tiled run computes (:func:`graph_norms`).
+
+    The two agree to rounding (1e-12 relative in float64).
 
     Args:
       points: (N, 3) float array.
@@ -378,6 +390,8 @@ def high_pass(points, idx, *, first=None, weights_dtype=None) -> jax.Array:
         point is its own location (c = 1).
       weights_dtype: dtype of q and w (default: the points' dtype); float32 for the
         reference variant, as the authors' code keeps them.
+      chunk_size: rows per streamed chunk (concrete calls only); never changes results.
+      progress: progress bar on stderr for long concrete calls.
 
     Returns:
       (N,) scores >= 0 in the points' dtype; 0 for every point when no pair is stored or
@@ -395,12 +409,21 @@ def high_pass(points, idx, *, first=None, weights_dtype=None) -> jax.Array:
       [1.0279, 0.0042, 1.0321]
     """
     _validate.check_graph(points, idx, first, weights_dtype)
+    if _stream.is_traced(points, idx, first):
+        return _pure_high_pass(points, idx, first, weights_dtype)
+    points, idx = np.asarray(points), np.asarray(idx)
+    first = None if first is None else np.asarray(first)
+    return jax.device_put(_streamed_high_pass(points, idx, first, weights_dtype, chunk_size, progress))
+
+
+def _pure_high_pass(points, idx, first, weights_dtype) -> jax.Array:
+    """:func:`high_pass` as one pure JAX program (its traced path)."""
     points, idx = jnp.asarray(points), jnp.asarray(idx)
     n = points.shape[0]
     wdtype = points.dtype if weights_dtype is None else jnp.dtype(weights_dtype)
-    offsets, valid = _stream.offsets_of(points, idx)  # (N, K, 3) p_j - p_i
+    valid = idx < n
     # q from the points cast to wdtype first, as the authors' float32 code computes it.
-    q = jax.vmap(_sq_length)(*_stream.offsets_of(points.astype(wdtype), idx))
+    q = _stream.pure_map(_sq_length, points.astype(wdtype), idx)
     acc = jnp.promote_types(points.dtype, wdtype)
     own, partner = _multiplicities(first, idx, n, acc)
     pair = jnp.where(valid, own[:, None] * partner, 0)  # point pairs each stored pair stands for
@@ -409,11 +432,31 @@ def high_pass(points, idx, *, first=None, weights_dtype=None) -> jax.Array:
     z = _common.safe_div(q.astype(acc), mean_q, 0.0)
     mean_z = _common.safe_div(jnp.sum(pair * z), count, 0.0)
     two_var = 2 * _common.safe_div(jnp.sum(pair * (z - mean_z) ** 2), count, 0.0)
-    c = jax.vmap(_flow, in_axes=(0, 0, 0, None, None, None))(offsets, valid, q, mean_q, two_var, wdtype)
+    c = _stream.pure_map(_flow_kernel(np.dtype(wdtype)), points, idx, row_args=(q,), args=(mean_q, two_var))
     lp = (jnp.sum(partner.astype(c.dtype)[..., None] * c, axis=1)
           - jnp.zeros_like(points).at[idx].add(own.astype(c.dtype)[:, None, None] * c, mode="drop"))
     score = _common.safe_sqrt(jnp.sum(lp * lp, axis=1))
     return score if first is None else score[jnp.asarray(first)]
+
+
+def _streamed_high_pass(points: np.ndarray, idx: np.ndarray, first: np.ndarray | None, weights_dtype, chunk_size,
+                        progress) -> np.ndarray:
+    """:func:`high_pass` of concrete arrays, streamed (its concrete path), in the points' dtype."""
+    n = points.shape[0]
+    wdtype = np.dtype(points.dtype if weights_dtype is None else weights_dtype)
+    valid = idx < n
+    sym = symmetric(np.repeat(np.arange(n), valid.sum(axis=1)), idx[valid], n, np.arange(n))
+    own = np.arange(n)
+    counts_ext = None if first is None else np.append(np.bincount(first, minlength=n).astype(np.float64), 0.0)
+    stream = {"chunk_size": chunk_size, "progress": progress}
+    tie_ext = np.append(own, n)
+    # q from the points cast to wdtype first, as the authors' float32 code computes it.
+    q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
+    mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
+                                      for q_b, b in zip(q, _blocks(n))]))
+    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, mean_q, two_var, points.dtype,
+                                         wdtype, **stream) for q_b, b in zip(q, _blocks(n))] or [np.zeros(0)])
+    return (lp if first is None else lp[first]).astype(points.dtype)
 
 
 def _multiplicities(first, idx, n, dtype):
@@ -493,10 +536,9 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
 def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, progress: bool = False):
     """GFR score ||(L P)_i||_2 (Chen et al. 2018) of every point on its graph; higher is sharper.
 
-    Traced (inside jit, vmap or grad): :func:`high_pass`. Eager: two streamed passes of
-    fixed-size chunks (the squared pair lengths, then the weighted pair flows), whose
-    statistics and scatter-add (W0^T) run on the host, so a new cloud size does not
-    recompile. The two paths agree to rounding (1e-12 relative in float64).
+    :func:`high_pass` of the graph: pure JAX when traced (inside jit, vmap or grad), two
+    streamed passes of fixed-size chunks when eager (the squared pair lengths, then the
+    weighted pair flows). The two paths agree to rounding (1e-12 relative in float64).
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
@@ -515,27 +557,8 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
       ((200,), True)
     """
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
-    wdtype = _weights_dtype(variant)
-    if _stream.is_traced(nb):
-        return high_pass(nb.points, nb.idx, first=nb.first, weights_dtype=wdtype)
-    points, idx = np.asarray(nb.points), np.asarray(nb.idx)
-    first = None if nb.first is None else np.asarray(nb.first)
-    _validate.check_graph(points, idx, first, wdtype)
-    n = points.shape[0]
-    wdtype = np.dtype(points.dtype if wdtype is None else wdtype)
-    valid = idx < n
-    sym = symmetric(np.repeat(np.arange(n), valid.sum(axis=1)), idx[valid], n, np.arange(n))
-    own = np.arange(n)
-    counts_ext = None if first is None else np.append(np.bincount(first, minlength=n).astype(np.float64), 0.0)
-    stream = {"chunk_size": chunk_size, "progress": progress}
-    tie_ext = np.append(own, n)
-    # q from the points cast to wdtype first, as the authors' float32 code computes it.
-    q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
-    mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
-                                      for q_b, b in zip(q, _blocks(n))]))
-    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, mean_q, two_var, points.dtype,
-                                         wdtype, **stream) for q_b, b in zip(q, _blocks(n))] or [np.zeros(0)])
-    return jax.device_put((lp if first is None else lp[first]).astype(points.dtype))
+    return high_pass(nb.points, nb.idx, first=nb.first, weights_dtype=_weights_dtype(variant), chunk_size=chunk_size,
+                     progress=progress)
 
 
 def symmetric(a: np.ndarray, b: np.ndarray, n: int, tie: np.ndarray) -> np.ndarray:
@@ -677,12 +700,12 @@ def soft_score(nb, *, variant: str = "invariant"):
     """
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
     points, idx = jnp.asarray(nb.points), jnp.asarray(nb.idx)
-    offsets, valid = _stream.offsets_of(points, idx)
+    _validate.check_graph(points, idx, nb.first, _weights_dtype(variant))
     own, partner = _multiplicities(nb.first, idx, points.shape[0], points.dtype)
-    pair = jnp.where(valid, own[:, None] * partner, 0)
-    mean_q = _common.safe_div(jnp.sum(pair * jax.vmap(_sq_length)(offsets, valid)), jnp.sum(pair), 0.0)
+    pair = jnp.where(idx < points.shape[0], own[:, None] * partner, 0)
+    mean_q = _common.safe_div(jnp.sum(pair * _stream.pure_map(_sq_length, points, idx)), jnp.sum(pair), 0.0)
     unit = _common.safe_sqrt(mean_q)  # the RMS pair length
-    return _common.safe_div(high_pass(points, idx, first=nb.first, weights_dtype=_weights_dtype(variant)), unit, 0.0)
+    return _common.safe_div(_pure_high_pass(points, idx, nb.first, _weights_dtype(variant)), unit, 0.0)
 
 
 def _select(scores, m: int, *, key=None, mode: str = "random") -> np.ndarray:

@@ -144,7 +144,7 @@ def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3)
     _validate.check_scale(nb, "hkc")
     tau = _validate.check_traced_positive(tau, "tau")
     fn = functools.partial(soft_beta, kernel_size=kernel_size, variant=variant)
-    return _common.soft_map(fn, nb, (nb.scale,), (tau,))
+    return _stream.pure_map(fn, nb.points, nb.idx, row_args=(nb.scale,), args=(tau,))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:

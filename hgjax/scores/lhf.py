@@ -488,7 +488,7 @@ def soft_score(nb, *, tau=0.1, lengths=DEFAULT_LENGTHS):
     lengths = _validate.check_lengths(lengths)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
     tau = _validate.check_traced_positive(tau, "tau")
-    return _common.soft_map(functools.partial(soft_gamma, lengths=lengths), nb, args=(tau,))
+    return _stream.pure_map(functools.partial(soft_gamma, lengths=lengths), nb.points, nb.idx, args=(tau,))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:

@@ -195,7 +195,7 @@ def soft_score(nb):
       >>> hgjax.scores.mss.soft_score(nb).shape
       (100,)
     """
-    return _common.soft_map(sharpness, nb)
+    return _stream.pure_map(sharpness, nb.points, nb.idx)
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:
