@@ -39,8 +39,7 @@ from hgjax.eval import solids  # noqa: E402
 from hgjax.scores import mss  # noqa: E402
 
 FAMILIES = solids.FAMILIES + ("boxes",)
-NOISES = (0.0, 0.1, 0.25, 0.5, 0.75, 1.0)
-HIDDEN = 16
+NOISES = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
 L2 = 1e-4
 LEARNING_RATE = 1e-2
 BETAS = (0.9, 0.999)
@@ -89,7 +88,7 @@ def dataset(n_clouds: int, seed: int):
 def init(n_features: int, seed: int):
     """Glorot-uniform weights, zero biases, from ``seed``."""
     rng = np.random.default_rng([seed, 1])
-    sizes = (n_features, HIDDEN, HIDDEN, 1)
+    sizes = (n_features, mss.HIDDEN, mss.HIDDEN, 1)
     params = []
     for a, b in zip(sizes[:-1], sizes[1:]):
         limit = np.sqrt(6.0 / (a + b))

@@ -24,8 +24,8 @@ r_8 / r_32, r_16 / r_32. The score is
 
     S = softplus(f(x)),   f = W3^T tanh(W2^T tanh(W1^T x + b1) + b2) + b3,
 
-a two-hidden-layer perceptron of ``HIDDEN`` = 16 units (F x 16 + 16 x 16 + 16 + 33 = 577
-numbers, :mod:`hgjax.scores._mss_weights`) whose logit f estimates the log-odds that the
+a two-hidden-layer perceptron of ``HIDDEN`` = 32 units (16 x 32 + 32 + 32 x 32 + 32 + 32 + 1
+= 1,633 numbers, :mod:`hgjax.scores._mss_weights`) whose logit f estimates the log-odds that the
 point lies within a spacing of a sharp edge; softplus keeps S >= 0 and strictly increasing in
 f without rounding large logits to ties. Higher is sharper; resampling keeps the largest.
 
@@ -58,7 +58,7 @@ __all__ = ["FEATURES", "HIDDEN", "LOW", "SCALES", "eigen", "features", "mlp", "n
            "soft_score", "weights"]
 
 SCALES = (8, 16, 32)  # feature scales; K = max(SCALES) neighbours per query
-HIDDEN = 16  # units per hidden layer of the edge model
+HIDDEN = 32  # units per hidden layer of the edge model
 LOW = 4  # points averaged into the denoised copy of the point
 GAP = 1e-6  # relative eigenvalue gap below which the normal's derivative leaves a term out
 
@@ -195,7 +195,7 @@ def weights(dtype) -> list:
       >>> import numpy as np
       >>> from hgjax.scores import mss
       >>> [w.shape for w in mss.weights(np.float32)][:2]
-      [(16, 16), (16,)]
+      [(16, 32), (32,)]
     """
     w = _mss_weights
     return [jnp.asarray(a, dtype) for a in (w.W1, w.B1, w.W2, w.B2, w.W3, w.B3)]
