@@ -259,22 +259,31 @@ def gfr_naive(points, max_nn=100, radius_factor=None):
     return np.linalg.norm(lap @ p, axis=1)
 
 
-def mss(points, scales=(8, 16, 32), band_scales=(16, 32), low=4):
-    """MSS sharpness (hgjax.scores.mss): mean_k 3 l0 / trace C_k + mean_k |n_k . (m_k - m_low)| / r_k,
-    from brute-force k-nearest rows and one ``np.linalg.eigh`` per scale."""
+def mss(points, weights, scales=(8, 16, 32), low=4):
+    """MSS edge score (hgjax.scores.mss): softplus of the perceptron ``weights`` over the
+    multi-scale features, from brute-force k-nearest rows and one ``np.linalg.eigh`` per scale."""
     p = np.asarray(points, dtype=np.float64)
     rows = knn_rows(p, max(scales))
+    w1, b1, w2, b2, w3, b3 = (np.asarray(w, np.float64) for w in weights)
     out = np.empty(len(p))
     for i in range(len(p)):
         x = p[rows[i]] - p[i]
-        variation, high = [], []
+        low_mean = x[:low].mean(axis=0)
+        f, normals, radii = [], [], []
         for k in scales:
-            lam = np.linalg.eigvalsh(np.cov(x[:k].T, bias=True))
-            variation.append(3 * max(lam[0], 0) / lam.sum() if lam.sum() > 0 else 0.0)
-        for k in band_scales:
             cov = np.cov(x[:k].T, bias=True)
             lam, v = np.linalg.eigh(cov)
-            shift = x[:k].mean(axis=0) - x[:low].mean(axis=0)
-            high.append(abs(v[:, 0] @ shift) / np.sqrt(np.trace(cov)) if np.trace(cov) > 0 else 0.0)
-        out[i] = np.mean(variation) + np.mean(high)
+            lam, trace = np.maximum(lam, 0), np.trace(cov)
+            shift = x[:k].mean(axis=0) - low_mean
+            along = v[:, 0] @ shift
+            r = np.sqrt(trace)
+            f += [lam[0] / trace, lam[1] / trace, abs(along) / r, np.linalg.norm(shift - along * v[:, 0]) / r] \
+                if trace > 0 else [0.0] * 4
+            normals.append(v[:, 0])
+            radii.append(r)
+        f += [abs(normals[0] @ normals[2]), abs(normals[1] @ normals[2])]
+        f += [radii[0] / radii[2], radii[1] / radii[2]] if radii[2] > 0 else [0.0, 0.0]
+        h = np.tanh(np.tanh(np.asarray(f) @ w1 + b1) @ w2 + b2)
+        out[i] = np.logaddexp(0.0, (h @ w3 + b3)[0])
     return out
+

@@ -1,7 +1,7 @@
 """MSS (hgjax.scores.mss, issue 22): kernel against the naive NumPy loop, transformations of the
 execution (streaming; jit and vmap in tests/test_api.py's variants matrix) and of the cloud
 (rotation, translation, scale, permutation), finite gradients of its smooth twin on degenerate
-clouds."""
+clouds, and the retraining of its edge model (bench/train_edges.py)."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def test_fast_matches_naive(cloud, dtype):
     p = uniform_cloud(150, seed=1) if cloud == "random" else box_union(300, seed=2)
     got = host_score(p.astype(dtype))
     assert got.dtype == dtype
-    want = naive.mss(p.astype(dtype).astype(np.float64))
+    want = naive.mss(p.astype(dtype).astype(np.float64), mss.weights(np.float64))
     tol = TOL[dtype] if dtype == np.float64 else 2e-3  # float32: the normal of a near-flat prefix
     np.testing.assert_allclose(got, want, rtol=tol, atol=tol)
 
@@ -91,8 +91,8 @@ def test_soft_gradients_finite_on_degenerate_clouds(case, dtype):
     assert np.isfinite(float(value)) and np.isfinite(np.asarray(g)).all()
     s = np.asarray(hgjax.score(nb, "mss"))
     assert np.isfinite(s).all() and (s >= 0).all()
-    if case in ("coplanar", "planar_grid", "all_equal"):
-        np.testing.assert_allclose(s, 0, atol=1e-5)
+    if case == "all_equal":  # every feature 0: one score for all
+        np.testing.assert_array_equal(s, s[0])
 
 
 def overlap(a, b):
@@ -125,3 +125,37 @@ def test_finds_the_edges_of_a_box_union_better_than_ea():
     ap = {m: hgjax.eval.average_precision(host_score(cloud.points) if m == "mss" else np.asarray(
         hgjax.score(hgjax.neighbourhoods(cloud.points, m), m)), cloud.edge_mask) for m in ("mss", "ea")}
     assert ap["mss"] > ap["ea"]
+
+
+def _train_edges():
+    import importlib.util
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "train_edges.py"
+    spec = importlib.util.spec_from_file_location("train_edges", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_small_retraining_reproduces_the_shipped_ranking():
+    """bench/train_edges.py from the shipped seed: the same weights bit for bit when run twice,
+    and, trained on 14 clouds for 300 steps (about 30 s), on held-out clouds (shape seeds outside the training set,
+    normal noise of half a spacing) the same edges: top-E overlap with the shipped model's
+    ranking >= 0.6, edge AP within 0.1 of the shipped model's and above EA's."""
+    train = _train_edges()
+    for a, b in zip(train.train(3, 20, seed=0)[0], train.train(3, 20, seed=0)[0]):
+        np.testing.assert_array_equal(a, b)
+    first, _, _ = train.train(14, 300, seed=0)
+    logits = jax.vmap(mss.mlp, in_axes=(None, 0))
+    for family in ("chamfered", "prism"):
+        held = hgjax.eval.solids.solid_cloud(seed=987_654, family=family, n_points=5000, noise=0.5,
+                                             noise_kind="normal")
+        f = jnp.asarray(train.cloud_features(held.points))
+        small = np.asarray(logits([jnp.asarray(a) for a in first], f))
+        shipped = np.asarray(logits(mss.weights(np.float64), f))
+        e = int(held.edge_mask.sum())
+        assert overlap(np.argsort(-shipped)[:e], np.argsort(-small)[:e]) >= 0.6
+        ea = np.asarray(hgjax.score(hgjax.neighbourhoods(held.points, "ea"), "ea"))
+        ap = {name: hgjax.eval.average_precision(s, held.edge_mask) for name, s in (
+            ("small", small), ("shipped", shipped), ("ea", ea))}
+        assert ap["small"] >= ap["shipped"] - 0.1 and ap["small"] > ap["ea"], ap

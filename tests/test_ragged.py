@@ -23,6 +23,9 @@ import hgjax
 SCORING = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
 RATIO = 0.2
 PATH_RTOL = {np.dtype(np.float32): 1e-6, np.dtype(np.float64): 1e-12}
+# MSS's perceptron (first-layer weights up to about 10) carries a last-bit difference of its
+# float32 features into the score a few times over: the variants' float32 tolerance.
+MSS_F32_RTOL = 1e-5
 WIDEN = 5  # sentinel columns added to cloud 1: K differs between clouds whatever the method
 
 
@@ -129,7 +132,8 @@ def test_batched_scores_equal_each_clouds_own_scores(method, dtype):
     for b, nb in enumerate(nbs):
         n = nb.points.shape[0]
         want = hgjax.score(nb, method, chunk_size=1024)  # one block: less padding work
-        assert_rows_agree(got[b, :n], want, PATH_RTOL[dtype])
+        rtol = MSS_F32_RTOL if (method, np.dtype(dtype)) == ("mss", np.dtype(np.float32)) else PATH_RTOL[dtype]
+        assert_rows_agree(got[b, :n], want, rtol)
         assert (np.asarray(got[b, n:]) == 0).all()
 
 

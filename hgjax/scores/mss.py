@@ -1,35 +1,49 @@
-"""Multi-scale sharpness (MSS): surface variation at several scales plus the graph high-pass
-read out along the local normal. Beyond the paper (issue 22).
+"""Multi-scale sharpness (MSS): a small learned model over rotation-invariant multi-scale
+features of one k-nearest neighbourhood. Beyond the paper (issue 22).
 
 One k-nearest query of K = max(``SCALES``) points (the point itself first, then by distance)
 serves every prefix k <= K. For each scale k the covariance C_k of the k nearest points has
-eigenvalues l0 <= l1 <= l2 and the eigenvector n_k of l0 (the local normal). Two signals:
+eigenvalues l0 <= l1 <= l2 and the eigenvector n_k of l0 (the local normal). The features
+(:data:`FEATURES`, F = 16) are, at every scale of ``SCALES``:
 
-* surface variation c_k = l0 / (l0 + l1 + l2) (Pauly, Keiser, Gross, "Multi-scale feature
-  extraction on point-sampled surfaces", Eurographics 2003; EA's score at one k),
-  at every scale of ``SCALES``;
-* normal high-pass h_k = |n_k . (m_k - m_low)| / r_k at every scale of ``BAND_SCALES``:
-  m_k is the mean of the k nearest points (the low-pass of the k-nearest graph), m_low that
-  of the ``LOW`` nearest (a denoised copy of the point, moving the pass band below the noise),
-  and r_k = sqrt(trace C_k) the neighbourhood's RMS radius. The graph high-pass p - m_k
-  (GFR's (L P)_i with uniform weights; Chen et al., IEEE TSP 66(3), 2018) is tangential as
-  well as normal on a plane sampled unevenly; its normal component is zero on any plane and
-  grows with the dihedral angle at a crease, so it is the sharper edge signal.
+* the normalised eigenvalues e0_k = l0 / (l0 + l1 + l2) (surface variation: Pauly, Keiser,
+  Gross, "Multi-scale feature extraction on point-sampled surfaces", Eurographics 2003; EA's
+  score at one k) and e1_k = l1 / (l0 + l1 + l2) (with e0, the linearity, planarity and
+  sphericity of Hackel, Wegner, Schindler, CVPR 2016);
+* the normal high-pass h_k = |n_k . (m_k - m_low)| / r_k: m_k is the mean of the k nearest
+  points (the low-pass of the k-nearest graph), m_low that of the ``LOW`` nearest (a
+  denoised copy of the point, moving the pass band below the noise) and r_k = sqrt(trace
+  C_k) the neighbourhood's RMS radius. The graph high-pass p - m_k (GFR's (L P)_i with
+  uniform weights; Chen et al., IEEE TSP 66(3), 2018) has a normal component that is zero on
+  any plane and grows with the dihedral angle at a crease;
+* its tangential part t_k = |(I - n_k n_k^T)(m_k - m_low)| / r_k, large at a border or where
+  the density changes;
 
-The score is S = mean_k 3 c_k + mean_k h_k (each term about 0 on a plane and of order 1 at a
-90-degree crease). Higher is sharper; resampling keeps the largest. Everything is built from
-the covariance and distances of the neighbourhood, so S does not change under rotation,
-translation, uniform scaling or a permutation of the points (up to rounding and the order of
-tied neighbour distances).
+and across scales the normals' agreement |n_8 . n_32|, |n_16 . n_32| and the radius ratios
+r_8 / r_32, r_16 / r_32. The score is
 
-The scales and the combination were chosen on synthetic box unions only (random and grid
-sampling, isotropic noise 0 to 1 spacing, rotated): bench/edge_detectors.py reports them with
-the labelled clouds, on which nothing was tuned.
+    S = softplus(f(x)),   f = W3^T tanh(W2^T tanh(W1^T x + b1) + b2) + b3,
 
-Degenerate neighbourhoods: where all points coincide C_k = 0 and S = 0; collinear or coplanar
-points give finite S. The normal's derivative (:func:`smallest_eigenpair`) is exact where
-l0 is simple and finite where it is degenerate, so gradients with respect to the points are
-finite on every cloud; the score is its own smooth twin, as EA's is.
+a two-hidden-layer perceptron of ``HIDDEN`` = 32 units (16 x 32 + 32 + 32 x 32 + 32 + 32 + 1
+= 1,633 numbers, :mod:`hgjax.scores._mss_weights`) whose logit f estimates the log-odds that the
+point lies within a spacing of a sharp edge; softplus keeps S >= 0 and strictly increasing in
+f without rounding large logits to ties. Higher is sharper; resampling keeps the largest.
+
+The model was trained by ``bench/train_edges.py`` (plain JAX, Adam written out) on synthetic
+shapes only: random polytopes, chamfered and filleted boxes, star-shaped prisms, cylinders
+and cones, spheres and box unions, sampled at random and on grids, noise 0 to 1 spacing
+isotropic and along the normals, randomly rotated, with the generators' exact sharp-edge
+labels (:mod:`hgjax.eval.solids`). bench/edge_detectors.py reports it on the labelled
+clouds, on which nothing was tuned.
+
+Every feature is built from the covariances, means and distances of the neighbourhood, so S
+does not change under rotation, translation, uniform scaling or a permutation of the points
+(up to rounding and the order of tied neighbour distances).
+
+Degenerate neighbourhoods: where all points coincide C_k = 0 and the ratios are 0; collinear
+or coplanar points give finite features. The normal's derivative (:func:`eigen`) is exact
+where l0 is simple and finite where it is degenerate, so gradients with respect to the points
+are finite on every cloud; the score is its own smooth twin, as EA's is.
 """
 
 from __future__ import annotations
@@ -38,13 +52,13 @@ import jax
 import jax.numpy as jnp
 
 from hgjax import _registry, _stream, spatial
-from hgjax.scores import _common, ea
+from hgjax.scores import _common, _mss_weights, ea
 
-__all__ = ["BAND_SCALES", "LOW", "SCALES", "neighbourhoods", "score", "sharpness", "smallest_eigenpair",
-           "soft_score"]
+__all__ = ["FEATURES", "HIDDEN", "LOW", "SCALES", "eigen", "features", "mlp", "neighbourhoods", "score", "sharpness",
+           "soft_score", "weights"]
 
-SCALES = (8, 16, 32)  # surface variation scales; K = max(SCALES) neighbours per query
-BAND_SCALES = (16, 32)  # scales of the normal high-pass
+SCALES = (8, 16, 32)  # feature scales; K = max(SCALES) neighbours per query
+HIDDEN = 32  # units per hidden layer of the edge model
 LOW = 4  # points averaged into the denoised copy of the point
 GAP = 1e-6  # relative eigenvalue gap below which the normal's derivative leaves a term out
 
@@ -56,11 +70,11 @@ def _prefix(offsets, valid, k: int):
 
 
 @jax.custom_jvp
-def smallest_eigenpair(cov):
-    """Smallest eigenvalue l0 and a unit eigenvector n (3,) of it (sign arbitrary) of a
+def eigen(cov):
+    """Eigenvalues l0 <= l1 <= l2 and a unit eigenvector n (3,) of l0 (sign arbitrary) of a
     symmetric 3 x 3 ``cov``, by one run of :mod:`hgjax.scores.ea` 's cyclic Jacobi.
 
-    The derivatives are first-order perturbation theory: dl0 = n^T dC n (as
+    The derivatives are first-order perturbation theory: dl_i = v_i^T dC v_i (as
     :func:`hgjax.scores.ea.smallest_eigenvalue`) and dn = sum_j v_j (v_j^T dC n) / (l0 - l_j)
     over the other eigenpairs, with the terms of an eigenvalue within ``GAP`` x trace of l0
     left out: exact where l0 is simple, finite where it is degenerate (there n is one vector
@@ -70,40 +84,50 @@ def smallest_eigenpair(cov):
       cov: (3, 3) symmetric.
 
     Returns:
-      (l0, n): scalar l0 and (3,) unit n, in the dtype of ``cov``.
+      (lam, n): (3,) ascending eigenvalues and (3,) unit n, in the dtype of ``cov``.
 
     Examples:
       >>> import jax.numpy as jnp
       >>> from hgjax.scores import mss
-      >>> l0, n = mss.smallest_eigenpair(jnp.diag(jnp.array([2.0, 0.5, 1.0])))
-      >>> float(l0), n.tolist()
-      (0.5, [0.0, 1.0, 0.0])
+      >>> lam, n = mss.eigen(jnp.diag(jnp.array([2.0, 0.5, 1.0])))
+      >>> lam.tolist(), n.tolist()
+      ([0.5, 1.0, 2.0], [0.0, 1.0, 0.0])
     """
     lam, vec = ea._jacobi(cov, vectors=True)
-    i = jnp.argmin(lam)
-    return lam[i], vec[:, i]
+    order = _ascending(lam)
+    return lam[order], vec[:, order[0]]
 
 
-@smallest_eigenpair.defjvp
-def _smallest_eigenpair_jvp(primals, tangents):
+def _ascending(lam):
+    """The indices (3,) that sort three values ascending (ties in index order), without a sort."""
+    low, high = jnp.argmin(lam), 2 - jnp.argmax(lam[::-1])
+    return jnp.stack([low, 3 - low - high, high])
+
+
+@eigen.defjvp
+def _eigen_jvp(primals, tangents):
     (cov,), (dcov,) = primals, tangents
     lam, vec = ea._jacobi(cov, vectors=True)
-    i = jnp.argmin(lam)
-    normal = vec[:, i]
+    order = _ascending(lam)
+    lam, vec = lam[order], vec[:, order]
+    normal = vec[:, 0]
     tol = GAP * jnp.abs(jnp.trace(cov))
     dn = jnp.zeros_like(normal)
-    for j in range(3):
-        gap = lam[i] - lam[j]
-        far = (j != i) & (jnp.abs(gap) > tol)
+    for j in (1, 2):
+        gap = lam[0] - lam[j]
+        far = jnp.abs(gap) > tol
         coef = jnp.where(far, _common.matmul(vec[:, j], dcov, normal) / jnp.where(far, gap, 1), 0)
         dn = dn + coef * vec[:, j]
-    return (lam[i], normal), (_common.matmul(normal, dcov, normal), dn)
+    dlam = jnp.stack([_common.matmul(vec[:, i], dcov, vec[:, i]) for i in range(3)])
+    return (lam, normal), (dlam, dn)
 
 
-def sharpness(offsets, valid):
-    """MSS score of ONE neighbourhood: mean_k 3 c_k + mean_k h_k (module docstring).
+FEATURES = tuple(f"{name}{k}" for k in SCALES for name in ("e0_", "e1_", "high", "tangent")) + (
+    "normals8_32", "normals16_32", "radius8_32", "radius16_32")
 
-    One covariance and one Jacobi run per scale serve both c_k and, at the band scales, h_k.
+
+def features(offsets, valid):
+    """The rotation-invariant multi-scale features (F,) of ONE neighbourhood (``FEATURES``).
 
     Args:
       offsets: (K, 3) the k nearest points minus the point, nearest first (row 0 is the
@@ -111,29 +135,100 @@ def sharpness(offsets, valid):
       valid: (K,) bool.
 
     Returns:
-      Scalar S >= 0 in the dtype of ``offsets``; 0 when all valid points coincide.
+      (F,) in the dtype of ``offsets``; the ratios are 0 when the valid points coincide.
+
+    Examples:
+      >>> import jax.numpy as jnp, numpy as np
+      >>> from hgjax.scores import mss
+      >>> x = np.random.default_rng(0).random((32, 3)); x[0] = 0
+      >>> mss.features(jnp.asarray(x), jnp.ones(32, bool)).shape == (len(mss.FEATURES),)
+      True
+    """
+    x = _common.unit_scale(jnp.where(valid[:, None], offsets, 0))
+    low_mean = _prefix(x, valid, LOW)[0]
+    out, normals, radii = [], [], []
+    for k in SCALES:
+        mean, cov = _prefix(x, valid, k)
+        trace = jnp.trace(cov)
+        lam, normal = eigen(cov)
+        lam = jnp.maximum(lam, 0)
+        shift = mean - low_mean
+        along = _common.matmul(normal, shift)
+        radius = _common.safe_sqrt(trace)
+        out += [_common.safe_div(lam[0], trace, 0.0), _common.safe_div(lam[1], trace, 0.0),
+                _common.safe_div(jnp.abs(along), radius, 0.0),
+                _common.safe_div(_common.safe_sqrt(jnp.sum(jnp.square(shift - along * normal))), radius, 0.0)]
+        normals.append(normal)
+        radii.append(radius)
+    out += [jnp.abs(_common.matmul(normals[0], normals[2])), jnp.abs(_common.matmul(normals[1], normals[2])),
+            _common.safe_div(radii[0], radii[2], 0.0), _common.safe_div(radii[1], radii[2], 0.0)]
+    return jnp.stack(out)
+
+
+def mlp(params, x):
+    """The edge model's logit: a two-hidden-layer tanh perceptron over the features x (F,).
+
+    Args:
+      params: [W1 (F, H), b1 (H,), W2 (H, H), b2 (H,), W3 (H, 1), b3 (1,)].
+      x: (F,) features (:func:`features`).
+
+    Returns:
+      Scalar logit.
+
+    Examples:
+      >>> import jax.numpy as jnp
+      >>> from hgjax.scores import mss
+      >>> params = mss.weights(jnp.float32)
+      >>> mss.mlp(params, jnp.zeros(len(mss.FEATURES))).shape
+      ()
+    """
+    w1, b1, w2, b2, w3, b3 = params
+    h = jnp.tanh(_common.matmul(x, w1) + b1)
+    h = jnp.tanh(_common.matmul(h, w2) + b2)
+    return (_common.matmul(h, w3) + b3)[0]
+
+
+def weights(dtype) -> list:
+    """The shipped edge model's parameters (:mod:`hgjax.scores._mss_weights`).
+
+    Args:
+      dtype: float dtype of the arrays.
+
+    Returns:
+      [W1 (F, H), b1 (H,), W2 (H, H), b2 (H,), W3 (H, 1), b3 (1,)] as JAX arrays.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.scores import mss
+      >>> [w.shape for w in mss.weights(np.float32)][:2]
+      [(16, 32), (32,)]
+    """
+    w = _mss_weights
+    return [jnp.asarray(a, dtype) for a in (w.W1, w.B1, w.W2, w.B2, w.W3, w.B3)]
+
+
+def sharpness(offsets, valid):
+    """MSS score of ONE neighbourhood: softplus of the edge model over :func:`features`.
+
+    Args:
+      offsets: (K, 3) the k nearest points minus the point, nearest first (row 0 is the
+        point itself), K >= max(SCALES); padding rows masked by ``valid`` (K,).
+      valid: (K,) bool.
+
+    Returns:
+      Scalar S > 0 in the dtype of ``offsets``.
 
     Examples:
       >>> import jax.numpy as jnp, numpy as np
       >>> from hgjax.scores import mss
       >>> g = np.stack(np.meshgrid(np.arange(-3, 3), np.arange(-3, 3), [0.0]), -1).reshape(-1, 3)
       >>> g = g[np.argsort((g ** 2).sum(1), kind="stable")]
-      >>> float(mss.sharpness(jnp.asarray(g), jnp.ones(36, bool)))
-      0.0
+      >>> bent = g.copy(); bent[:, 2] = np.abs(g[:, 0])  # a 90-degree crease through the point
+      >>> flat, crease = (float(mss.sharpness(jnp.asarray(x), jnp.ones(36, bool))) for x in (g, bent))
+      >>> flat < crease
+      True
     """
-    x = jnp.where(valid[:, None], offsets, 0)
-    low_mean = _prefix(x, valid, LOW)[0]
-    variation, high = 0.0, 0.0
-    for k in SCALES:
-        mean, cov = _prefix(x, valid, k)
-        trace = jnp.trace(cov)
-        if k in BAND_SCALES:
-            l0, normal = smallest_eigenpair(cov)
-            high = high + _common.safe_div(jnp.abs(_common.matmul(normal, mean - low_mean)), _common.safe_sqrt(trace), 0.0)
-        else:
-            l0 = ea.smallest_eigenvalue(cov)
-        variation = variation + _common.safe_div(3 * jnp.maximum(l0, 0), trace, 0.0)
-    return variation / len(SCALES) + high / len(BAND_SCALES)
+    return jax.nn.softplus(mlp(weights(offsets.dtype), features(offsets, valid)))
 
 
 def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) -> spatial.Neighbourhoods:
@@ -209,7 +304,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
 
 METHOD = _registry.Method(
     "mss", "knn", largest=True, needs_key=False,
-    summary="multi-scale sharpness: surface variation at 8/16/32 neighbours plus the normal graph high-pass",
+    summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 8/16/32 neighbours, trained on synthetic shapes",
     citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
     soft_score=soft_score, params=_registry.stages(build=("capacity", "dedupe"), score=("chunk_size", "progress")),
     tile_params=tile_params, rows=ea.tile_rows, kernel=lambda params: (sharpness, False))
