@@ -47,3 +47,13 @@ def client():
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   host="127.0.0.1") as cluster, distributed.Client(cluster) as c:
         yield c
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+def pytest_collection_modifyitems(items):
+    """Groups for pytest-xdist's ``--dist loadgroup`` (the README's test command): the tests of one
+    file run in one worker (its module fixtures and compiled kernels are made once), and every test
+    of the Dask ``client`` runs in one worker, so the suite starts one LocalCluster."""
+    for item in items:
+        group = "dask-client" if "client" in getattr(item, "fixturenames", ()) else item.nodeid.split("::")[0]
+        item.add_marker(pytest.mark.xdist_group(group))

@@ -16,7 +16,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 import hgjax
 import naive
 from conftest import TOL
-from fixtures import degenerate_clouds, uniform_cloud
+from fixtures import degenerate_clouds, grid, uniform_cloud
 
 ea_module = importlib.import_module("hgjax.scores.ea")
 pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")
@@ -191,7 +191,7 @@ def test_fps_properties():
 
 
 def test_voxel_one_point_per_voxel():
-    centres = np.stack(np.meshgrid(*[np.arange(4.0)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5
+    centres = grid((4, 4, 4)) + 0.5
     p = np.concatenate([centres - 0.01, centres + 0.02, centres])  # tight clusters of three
     idx = hgjax.voxel_sample(p, 1 / 3)  # 64 voxels, one per cluster, its most central point
     np.testing.assert_array_equal(np.sort(idx), np.arange(128, 192))

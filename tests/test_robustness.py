@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from fixtures import box_union
+from fixtures import box_union, grid
 
 DEFAULTS = ["hkc", "hkf", "lhf", "ea", "gfr"]
 SELECT = {"gfr": {"mode": "top"}}
@@ -48,10 +48,8 @@ def test_a_far_outlier_changes_nothing_else(base, method):
 def _mixed_density():
     """A 40 x 40 grid plane of spacing 1 with a 100 x 100 patch of spacing 0.01 beside it:
     area densities differ 1e4-fold."""
-    g = np.arange(40.0)
-    sparse = np.stack(np.meshgrid(g, g, [0.0]), -1).reshape(-1, 3)
-    f = np.arange(100.0) * 0.01
-    dense = np.stack(np.meshgrid(f + 40.5, f + 10, [0.0]), -1).reshape(-1, 3)
+    sparse = grid((40, 40, 1))
+    dense = grid((100, 100, 1), 0.01) + [40.5, 10.0, 0.0]
     return np.concatenate([sparse, dense])
 
 

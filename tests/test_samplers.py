@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from fixtures import normal_cloud
+from fixtures import grid, normal_cloud
 from hgjax import samplers
 
 needs_fpsample = pytest.mark.skipif(importlib.util.find_spec("fpsample") is None, reason="fpsample not installed")
@@ -121,7 +121,7 @@ def test_voxel_size_matches_naive(dtype):
 @pytest.mark.parametrize("name", ["normal", "grid", "one_voxel"])
 def test_voxel_table_matches_the_sort(name, dtype, monkeypatch):
     base = normal_cloud(3000, seed=6)
-    p = {"normal": base, "grid": np.stack(np.meshgrid(*[np.arange(12.0)] * 3), -1).reshape(-1, 3) * 0.25,
+    p = {"normal": base, "grid": grid((12, 12, 12), 0.25),
          "one_voxel": 1e-3 * base}[name].astype(dtype)  # grid: points on voxel faces
     calls = [lambda: hgjax.voxel_sample(p, voxel_size=0.7), lambda: hgjax.voxel_sample(p, 0.1),
              lambda: hgjax.voxel_sample(p, 0.1, voxel_size=2.0)]

@@ -7,7 +7,7 @@ import pytest
 import hgjax
 from hgjax.spatial import SpatialIndex
 
-from fixtures import uniform_cloud
+from fixtures import grid, uniform_cloud
 from naive import knn_rows, resolution
 
 
@@ -243,7 +243,7 @@ def test_spatial_order_breaks_shared_cells_by_coordinates():
 @pytest.mark.parametrize("jitter", [0.0, 0.01])  # a lattice (distance ties everywhere) and a noisy one
 def test_one_nearest_query_serves_spacing_and_ball_exactly(jitter):
     from hgjax import spatial
-    g = np.stack(np.meshgrid(np.arange(12.0), np.arange(12.0), np.arange(3.0)), -1).reshape(-1, 3)
+    g = grid((12, 12, 3))
     index = SpatialIndex(g + np.random.default_rng(0).normal(0, jitter, g.shape), dedupe=True)
     rows = np.arange(index.n)
     spacing, reach = spatial.local_spacing(index, rows)

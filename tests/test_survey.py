@@ -55,12 +55,20 @@ def _kept_ids(paths, out_dir):
     return np.concatenate(ids)
 
 
+@pytest.fixture(scope="module")
+def survey_reference(tmp_path_factory):
+    """The four-tile survey's cloud (the same in .las and .laz) and its tiled HKC kept ids, computed once."""
+    _, cloud = _survey(tmp_path_factory.mktemp("reference"))
+    return cloud, np.sort(tiles.resample(cloud, 0.2, method="hkc", tile=30.0))
+
+
 @pytest.mark.parametrize("ext", [".las", ".laz"])
-def test_survey_equals_the_concatenated_cloud(tmp_path, ext):
+def test_survey_equals_the_concatenated_cloud(tmp_path, ext, survey_reference):
     paths, cloud = _survey(tmp_path, ext)
+    reference, want = survey_reference
+    np.testing.assert_array_equal(cloud, reference)
     before = [Path(p).read_bytes() for p in paths]
     result = tiles.resample_files(str(tmp_path / f"*{ext}"), tmp_path / "kept", 0.2, method="hkc", tile=30.0)
-    want = np.sort(tiles.resample(cloud, 0.2, method="hkc", tile=30.0))
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), want)
     assert [Path(p).read_bytes() for p in paths] == before
     assert result.failures == {} and len(result.written) == 4

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from fixtures import box_union
+from fixtures import box_union, grid
 from hgjax import select, spatial, tiles
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
@@ -42,8 +42,7 @@ def test_tiled_equals_one_process(method, params, which, request):
 
 
 def test_points_on_tile_edges_are_owned_once():
-    g = np.arange(0.0, 2.01, 0.25)
-    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)  # every coordinate on a tile edge
+    p = grid((9, 9, 9), 0.25)  # every coordinate on a tile edge
     _, cloud = tiles.plan(p, 0.2, method="ea", tile=0.5)
     owned = np.sort(np.concatenate(list(cloud.members.values())))
     np.testing.assert_array_equal(owned, np.arange(len(p)))
@@ -57,8 +56,7 @@ def test_points_on_tile_edges_are_owned_once():
 
 
 def test_halo_slabs_hold_every_point_of_the_box_and_no_other():
-    g = np.arange(0.0, 2.01, 1 / 16)  # coordinates on tile, sub-cell and halo-box edges
-    lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    lattice = grid((33, 33, 33), 1 / 16)  # coordinates on tile, sub-cell and halo-box edges
     rough = np.random.default_rng(0).uniform(0, 2, (3000, 3))
     for p in (lattice, rough):
         _, cloud = tiles.plan(p, 0.2, method="ea", tile=0.5)
@@ -117,8 +115,7 @@ def test_gfr_reference_is_refused_with_tiles(smooth):
 
 
 def test_knn_ties_are_broken_by_global_id():
-    g = np.arange(6.0)
-    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)  # a lattice: ties everywhere
+    p = grid((6, 6, 6))  # a lattice: ties everywhere
     gid = np.random.default_rng(0).permutation(len(p)) + 1000
     index = spatial.SpatialIndex(p, gid=gid)
     idx, reach = index.knn(9, np.arange(index.n))
