@@ -193,3 +193,38 @@ def test_uniform_reads_no_coordinate_after_the_check(tmp_path, monkeypatch):
     assert sorted(read) == sorted(os.path.abspath(p) for p in paths)  # the check's one read of each file
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.3, method="uniform", key=key)))
+
+
+COPC = Path(__file__).parent / "data" / "survey.copc.laz"  # written by tests/data/make_copc.py
+
+
+def test_copc_tiles_read_only_the_octree_nodes_they_meet(tmp_path, monkeypatch):
+    path = tmp_path / "octree.laz"  # a COPC file is known by its COPC info VLR, not by its name
+    path.write_bytes(COPC.read_bytes())
+    src = laspy.read(path)
+    cloud = np.stack([np.asarray(src.x), np.asarray(src.y), np.asarray(src.z)], axis=1)
+    assert len(tiles.plan(cloud, 0.2, method="hkc", tile=100.0)[1].members) >= 4
+    decoded, fetch = [], laspy.copc.CopcReader._fetch_and_decompress_points_of_nodes
+    monkeypatch.setattr(laspy.copc.CopcReader, "_fetch_and_decompress_points_of_nodes",
+                        lambda reader, nodes: decoded.append(len(nodes)) or fetch(reader, nodes))
+    tiles.resample_files([path], tmp_path / "kept", 0.2, method="hkc", tile=100.0)
+    with laspy.copc.CopcReader.open(path) as reader:
+        nodes = len(laspy.copc.load_octree_for_query(reader.source, reader.copc_info, reader.root_page))
+    assert max(decoded) == nodes and min(decoded) < nodes  # the check reads every node, a tile only some
+    want = np.sort(hgjax.resample(cloud, 0.2, method="hkc"))
+    out = laspy.read(tmp_path / "kept" / "octree.laz")
+    np.testing.assert_array_equal(out.points.array, src.points.array[want])  # every attribute, bit for bit
+    assert list(out.point_format.dimension_names) == list(src.point_format.dimension_names)
+    np.testing.assert_array_equal(out.header.scales, src.header.scales)
+    np.testing.assert_array_equal(out.header.offsets, src.header.offsets)
+
+
+def test_copc_among_las_tiles_keeps_global_ids_in_file_order(tmp_path):
+    paths, cloud = _survey(tmp_path, ".laz", n_files=1, n=1500)
+    copc = io.read_points(COPC).points
+    tiles.resample_files([COPC, *paths], tmp_path / "kept", 0.2, method="ea", tile=100.0)
+    want = np.sort(hgjax.resample(np.concatenate([copc, cloud]), 0.2, method="ea"))
+    kept = want[want < copc.shape[0]]
+    out = laspy.read(tmp_path / "kept" / COPC.name)
+    np.testing.assert_array_equal(out.points.array, laspy.read(COPC).points.array[kept])
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept") + copc.shape[0], want[want >= copc.shape[0]])
