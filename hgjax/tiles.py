@@ -967,8 +967,9 @@ def _copc_nodes(path: str, box: tuple | None):
     hierarchy entry: offset, point count). The whole hierarchy is read (laspy's
     ``load_octree_for_query``, every page), then only the nodes whose bounds, grown by one
     scale step, meet ``box`` are decompressed (laspy's ``CopcReader`` chunk reader, nodes
-    batched up to PASS_ROWS points), in file order. A point outside its node's bounds (one
-    scale step of slack) makes the file unreadable: a spatial query could miss it.
+    batched by PASS_ROWS points: a batch starts at the node holding the next multiple), in
+    file order. A point outside its node's bounds (one scale step of slack) makes the file
+    unreadable: a spatial query could miss it.
 
     Raises:
       hgjax.io.PointCloudReadError: a point lies outside its node's bounds.
@@ -984,10 +985,10 @@ def _copc_nodes(path: str, box: tuple | None):
         step = np.asarray(reader.header.scales, dtype=np.float64)
         picked = [(s, node) for s, node in zip(starts, nodes)
                   if box is None or ((node.bounds.mins - step <= box[1]) & (node.bounds.maxs + step >= box[0])).all()]
-        while picked:
-            sizes = np.cumsum([node.point_count for _, node in picked])
-            take = max(1, int(np.searchsorted(sizes, PASS_ROWS, side="right")))
-            batch, picked = picked[:take], picked[take:]
+        counts = np.array([node.point_count for _, node in picked], dtype=np.int64)
+        firsts = np.flatnonzero(np.diff((np.cumsum(counts) - counts) // PASS_ROWS)) + 1
+        batches = np.split(np.arange(len(picked)), firsts)
+        for batch in ([picked[i] for i in rows] for rows in batches if rows.size):
             record = reader._fetch_and_decompress_points_of_nodes([node for _, node in batch])
             xyz = np.stack([np.asarray(record.x), np.asarray(record.y), np.asarray(record.z)], axis=1)
             at = 0
