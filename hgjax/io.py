@@ -738,6 +738,10 @@ def _las_writer(points, attributes, header, compress: bool) -> Callable[[BinaryI
                         f" got {type(header).__name__}")
     else:
         header = copy.deepcopy(header)
+        for name in ("vlrs", "evlrs"):  # a COPC input's octree describes its own points: the output is plain LAS/LAZ
+            records = getattr(header, name)
+            if records:
+                setattr(header, name, type(records)(v for v in records if v.user_id != "copc"))
     dims = set(header.point_format.dimension_names)
     flat = []
     for name, value in pairs:
@@ -787,7 +791,8 @@ def write_points(path, points, *, attributes: Mapping[str, np.ndarray] | None = 
       scores: optional (N,) per-point score, written as the column ``score``.
       header: LAS/LAZ only: the :attr:`PointData.header` of the file the points were read
         from. Its point format, version, scale, offset, extra dimensions and VLRs are
-        kept, so a subset of a LAS file writes back bit-exact; attributes the format lacks
+        kept (except a COPC file's octree VLRs, user id ``copc``: the output is plain
+        LAS/LAZ), so a subset of a LAS file writes back bit-exact; attributes the format lacks
         become extra dimensions. With None (default), a LAS 1.4 file of point format 6
         (7 with ``colors``, 8 with ``colors`` and ``nir``) is written with offset the
         floor of each axis' minimum and one scale for all axes: 1e-6 of the largest

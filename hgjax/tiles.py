@@ -285,7 +285,8 @@ class _Survey(_Cloud):
     The grid and ownership are :class:`_Cloud`'s. The client holds the files' records, each
     occupied tile's point count and the owners of the sampled ids (:func:`hgjax.spatial.sample_ids`),
     taken by one census task per file; never the coordinates. :meth:`gather` reads, one chunk
-    at a time, only the files whose exact bounds meet the tile's box.
+    at a time, only the files whose exact bounds meet the tile's box, and of a COPC file only
+    the octree nodes whose bounds meet it.
     """
 
     def __init__(self, sources: _Sources, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile: float | None,
@@ -326,7 +327,7 @@ class _Survey(_Cloud):
         for f in self.files:
             if ((f.hi - self.origin < box_lo - slack) | (f.lo - self.origin > box_hi + slack)).any():
                 continue
-            for first, xyz in _chunks(f.path):
+            for first, xyz in _chunks(f.path, (box_lo + self.origin - slack, box_hi + self.origin + slack)):
                 x = xyz - self.origin
                 core = self.codes(x) == code
                 keep = np.flatnonzero(core | ((x >= box_lo) & (x < box_hi)).all(axis=1))
@@ -929,9 +930,14 @@ def _header_count(path: str) -> int | None:
         raise io.PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
 
 
-def _chunks(path: str):
-    """(index of the first point in the file, (R, 3) float64 coordinates): LAS/LAZ PASS_ROWS points at a time
-    (laspy's chunked reading), any other format whole (:func:`hgjax.io.read_points`)."""
+def _chunks(path: str, box: tuple | None = None):
+    """(position of the first point in the file, (R, 3) float64 coordinates of consecutive points), in file order.
+
+    LAS/LAZ PASS_ROWS points at a time (laspy's chunked reading); a COPC file (one with a COPC
+    info VLR, whatever its name) one octree node at a time (:func:`_copc_nodes`), only the nodes
+    whose bounds meet ``box`` (lo (3,), hi (3,) in file coordinates) when given; any other
+    format whole (:func:`hgjax.io.read_points`). Chunks may hold points outside ``box``.
+    """
     from hgjax import io
 
     if not _is_las(path):
@@ -941,11 +947,57 @@ def _chunks(path: str):
     at = 0
     try:
         with laspy.open(path) as f:
+            if any(isinstance(v, laspy.copc.CopcInfoVlr) for v in f.header.vlrs):
+                yield from _copc_nodes(path, box)
+                return
             for chunk in f.chunk_iterator(PASS_ROWS):
                 yield at, np.stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1)
                 at += len(chunk)
+    except io.PointCloudReadError:
+        raise
     except Exception as err:
         raise io.PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
+
+
+def _copc_nodes(path: str, box: tuple | None):
+    """(position of a node's first point in the file, (R, 3) float64 coordinates) per COPC octree node.
+
+    The nodes' point chunks are stored in the file in the order of their offsets, so a node's
+    first point sits at the sum of the point counts of the nodes stored before it (its
+    hierarchy entry: offset, point count). The whole hierarchy is read (laspy's
+    ``load_octree_for_query``, every page), then only the nodes whose bounds, grown by one
+    scale step, meet ``box`` are decompressed (laspy's ``CopcReader`` chunk reader, nodes
+    batched by PASS_ROWS points: a batch starts at the node holding the next multiple), in
+    file order. A point outside its node's bounds (one scale step of slack) makes the file
+    unreadable: a spatial query could miss it.
+
+    Raises:
+      hgjax.io.PointCloudReadError: a point lies outside its node's bounds.
+    """
+    from laspy.copc import CopcReader, load_octree_for_query
+
+    from hgjax import io
+
+    with CopcReader.open(path) as reader:
+        nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page)
+        nodes = sorted((node for node in nodes if node.point_count > 0), key=lambda node: node.offset)
+        starts = np.cumsum([0] + [node.point_count for node in nodes])[:-1].tolist()
+        step = np.asarray(reader.header.scales, dtype=np.float64)
+        picked = [(s, node) for s, node in zip(starts, nodes)
+                  if box is None or ((node.bounds.mins - step <= box[1]) & (node.bounds.maxs + step >= box[0])).all()]
+        counts = np.array([node.point_count for _, node in picked], dtype=np.int64)
+        firsts = np.flatnonzero(np.diff((np.cumsum(counts) - counts) // PASS_ROWS)) + 1
+        batches = np.split(np.arange(len(picked)), firsts)
+        for batch in ([picked[i] for i in rows] for rows in batches if rows.size):
+            record = reader._fetch_and_decompress_points_of_nodes([node for _, node in batch])
+            xyz = np.stack([np.asarray(record.x), np.asarray(record.y), np.asarray(record.z)], axis=1)
+            at = 0
+            for s, node in batch:
+                x, at = xyz[at:at + node.point_count], at + node.point_count
+                if ((x < node.bounds.mins - step) | (x > node.bounds.maxs + step)).any():
+                    raise io.PointCloudReadError(f"cannot read {path}: a point of COPC node {node.key} lies outside"
+                                                 f" the node's bounds (corrupt octree)")
+                yield s, x
 
 
 def _scan(entry: tuple):
@@ -1007,7 +1059,10 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     (LAS/LAZ in chunks of PASS_ROWS points, through laspy) for its exact bounds and checks
     them, so every input is checked before any output is written; one census task per file
     counts the points of each tile; each tile's task reads its core and halo from only the
-    files whose bounds meet its box. The client holds per file its path, count and bounds,
+    files whose bounds meet its box, and of a COPC file (known by its COPC info VLR) only the
+    octree nodes whose bounds meet it (a node's points are numbered from the point counts of
+    the nodes stored before it in the file, so ids are those of the whole file read in order).
+    The client holds per file its path, count and bounds,
     per tile its count, and, while writing, one input file with its attributes; never the
     survey's coordinates. Tasks read the inputs by absolute path, so Dask workers must see
     them. ``uniform`` reads no coordinate after that check (a point's draw comes from the key
@@ -1035,7 +1090,8 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = "hkc", tile: f
     Returns:
       :class:`SurveyResult`. Each output holds its input's kept points in input order, with
       every attribute, and a LAS/LAZ output keeps its input's header (point format, scale,
-      offset, extra dimensions). ``out_dir/hgjax-manifest.json`` records the run, the
+      offset, extra dimensions); the output of a COPC input is a plain LAZ file of the same
+      name (its octree VLRs are dropped: nothing here writes COPC). ``out_dir/hgjax-manifest.json`` records the run, the
       number of points N and kept M, each output's count, and under ``resolved`` what
       decided the kept set: the :class:`Plan` (origin, bounds, resolved build and score
       parameters, halo), the selection's global statistics (LHF's Gamma_a and Gamma_b,

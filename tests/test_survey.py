@@ -2,6 +2,7 @@
 
 import json
 import os
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -201,3 +202,81 @@ def test_uniform_reads_no_coordinate_after_the_check(tmp_path, monkeypatch):
     assert sorted(read) == sorted(os.path.abspath(p) for p in paths)  # the check's one read of each file
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.3, method="uniform", key=key)))
+
+
+COPC = Path(__file__).parent / "data" / "survey.copc.laz"  # written by tests/data/make_copc.py
+
+
+def test_copc_tiles_read_only_the_octree_nodes_they_meet(tmp_path, monkeypatch):
+    path = tmp_path / "octree.laz"  # a COPC file is known by its COPC info VLR, not by its name
+    path.write_bytes(COPC.read_bytes())
+    src = laspy.read(path)
+    cloud = np.stack([np.asarray(src.x), np.asarray(src.y), np.asarray(src.z)], axis=1)
+    assert len(tiles.plan(cloud, 0.2, method="hkc", tile=100.0)[1].members) >= 4
+    decoded, fetch = [], laspy.copc.CopcReader._fetch_and_decompress_points_of_nodes
+    monkeypatch.setattr(laspy.copc.CopcReader, "_fetch_and_decompress_points_of_nodes",
+                        lambda reader, nodes: decoded.append(len(nodes)) or fetch(reader, nodes))
+    tiles.resample_files([path], tmp_path / "kept", 0.2, method="hkc", tile=100.0)
+    with laspy.copc.CopcReader.open(path) as reader:
+        nodes = len(laspy.copc.load_octree_for_query(reader.source, reader.copc_info, reader.root_page))
+    assert max(decoded) == nodes and min(decoded) < nodes  # the check reads every node, a tile only some
+    want = np.sort(hgjax.resample(cloud, 0.2, method="hkc"))
+    out = laspy.read(tmp_path / "kept" / "octree.laz")
+    np.testing.assert_array_equal(out.points.array, src.points.array[want])  # every attribute, bit for bit
+    assert list(out.point_format.dimension_names) == list(src.point_format.dimension_names)
+    np.testing.assert_array_equal(out.header.scales, src.header.scales)
+    np.testing.assert_array_equal(out.header.offsets, src.header.offsets)
+
+
+def test_copc_among_las_tiles_on_a_local_cluster_keeps_global_ids_in_file_order(tmp_path, client):
+    paths, cloud = _survey(tmp_path, ".laz", n_files=1, n=1500)
+    copc = io.read_points(COPC).points
+    tiles.resample_files([COPC, *paths], tmp_path / "kept", 0.2, method="ea", tile=100.0, client=client)
+    want = np.sort(hgjax.resample(np.concatenate([copc, cloud]), 0.2, method="ea"))
+    kept = want[want < copc.shape[0]]
+    out = laspy.read(tmp_path / "kept" / COPC.name)
+    np.testing.assert_array_equal(out.points.array, laspy.read(COPC).points.array[kept])
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept") + copc.shape[0], want[want >= copc.shape[0]])
+
+
+def _corrupt_copc(path, what):
+    """Rewrite the COPC file ``path`` in place: one node's hierarchy count one short, or its octree half as wide."""
+    data = bytearray(path.read_bytes())
+    with laspy.copc.CopcReader.open(path) as reader:
+        info, entry = reader.copc_info, max(reader.root_page.entries.values(), key=lambda e: e.point_count)
+    if what == "count":
+        k = entry.key
+        old = struct.pack("<iiiiQii", k.level, k.x, k.y, k.z, entry.offset, entry.byte_size, entry.point_count)
+        new = old[:-4] + struct.pack("<i", entry.point_count - 1)
+    else:
+        old = struct.pack("<4d", *info.center, info.halfsize)
+        new = struct.pack("<4d", *info.center, info.halfsize / 2)
+    at = data.index(old)
+    data[at:at + len(old)] = new
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("what,message", [("count", "header announces 4000"), ("bounds", "outside the node's bounds")])
+def test_a_corrupt_copc_octree_is_named_before_any_output(tmp_path, what, message):
+    paths, _ = _survey(tmp_path, ".laz", n_files=1, n=1000)
+    bad = tmp_path / "bad.copc.laz"
+    bad.write_bytes(COPC.read_bytes())
+    _corrupt_copc(bad, what)
+    with pytest.raises(io.PointCloudReadError, match=message):
+        tiles.resample_files([*paths, bad], tmp_path / "kept", 0.2, method="ea", tile=100.0)
+    assert not os.path.exists(tmp_path / "kept") or os.listdir(tmp_path / "kept") == []
+
+
+def test_copc_chunks_number_points_in_file_order(monkeypatch):
+    monkeypatch.setattr(tiles, "PASS_ROWS", 500)  # several batches of nodes
+    src = laspy.read(COPC)
+    xyz = np.stack([np.asarray(src.x), np.asarray(src.y), np.asarray(src.z)], axis=1)
+    whole = list(tiles._chunks(str(COPC)))
+    np.testing.assert_array_equal(np.concatenate([s + np.arange(x.shape[0]) for s, x in whole]), np.arange(len(xyz)))
+    np.testing.assert_array_equal(np.concatenate([x for _, x in whole]), xyz)
+    lo, hi = xyz.min(axis=0) + 40.0, xyz.min(axis=0) + 90.0
+    part = list(tiles._chunks(str(COPC), (lo, hi)))
+    ids = np.concatenate([s + np.arange(x.shape[0]) for s, x in part])
+    np.testing.assert_array_equal(np.concatenate([x for _, x in part]), xyz[ids])
+    inside = np.flatnonzero(((xyz >= lo) & (xyz <= hi)).all(axis=1))
+    assert inside.size and np.isin(inside, ids).all() and ids.size < len(xyz)
