@@ -17,6 +17,7 @@ from hgjax import io, tiles
 laspy = pytest.importorskip("laspy")
 
 OFFSET = np.array([500000.0, 4000000.0, 0.0])
+TILE = 120.0  # the four-file survey in 37 tiles, each holding points of several files
 
 
 def _survey(directory, ext=".las", n_files=4, n=3000):
@@ -60,7 +61,7 @@ def _kept_ids(paths, out_dir):
 def survey_reference(tmp_path_factory):
     """The four-tile survey's cloud (the same in .las and .laz) and its tiled HKC kept ids, computed once."""
     _, cloud = _survey(tmp_path_factory.mktemp("reference"))
-    return cloud, np.sort(tiles.resample(cloud, 0.2, method="hkc", tile=30.0))
+    return cloud, np.sort(tiles.resample(cloud, 0.2, method="hkc", tile=TILE))
 
 
 @pytest.mark.parametrize("ext", [".las", ".laz"])
@@ -69,7 +70,7 @@ def test_survey_equals_the_concatenated_cloud(tmp_path, ext, survey_reference):
     reference, want = survey_reference
     np.testing.assert_array_equal(cloud, reference)
     before = [Path(p).read_bytes() for p in paths]
-    result = tiles.resample_files(str(tmp_path / f"*{ext}"), tmp_path / "kept", 0.2, method="hkc", tile=30.0)
+    result = tiles.resample_files(str(tmp_path / f"*{ext}"), tmp_path / "kept", 0.2, method="hkc", tile=TILE)
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), want)
     assert [Path(p).read_bytes() for p in paths] == before
     assert result.failures == {} and len(result.written) == 4
@@ -101,7 +102,7 @@ def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
 
 def test_survey_on_a_local_cluster(tmp_path, client):
     paths, cloud = _survey(tmp_path)
-    tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0, client=client)
+    tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, client=client)
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.2, method="ea")))
 
