@@ -50,9 +50,17 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
       >>> len(set(idx.tolist()))
       3
     """
-    pts = _validate.check_points(points)
-    m = _validate.n_keep(pts.shape[0], _validate.check_ratio(ratio))
-    return keyed_top(_validate.check_key(key, "uniform"), pts.shape[0], m)
+    return uniform_ids(_validate.check_points(points).shape[0], ratio, key=key)
+
+
+def uniform_ids(n: int, ratio: float, *, key) -> np.ndarray:
+    """:func:`uniform_sample` of a cloud of ``n`` points, from its size alone (a survey's count).
+
+    Raises:
+      TypeError, ValueError: invalid ratio or key.
+    """
+    m = _validate.n_keep(n, _validate.check_ratio(ratio))
+    return keyed_top(_validate.check_key(key, "uniform"), n, m)
 
 
 def _voxel_cells(cols: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:

@@ -869,8 +869,7 @@ def _uniform(points, ratio, tile, client, *, key=None) -> np.ndarray:
     n = points.n if isinstance(points, _Sources) else _validate.check_points(points).shape[0]
     if tile is not None:
         _validate.check_positive(tile, "tile")
-    m = _validate.n_keep(n, _validate.check_ratio(ratio))
-    return select.keyed_top(_validate.check_key(key, "uniform"), n, m)
+    return samplers.uniform_ids(n, ratio, key=key)
 
 
 _TILED_SAMPLERS = {"uniform": _uniform, "voxel": _voxel}  # samplers with an engine of their own here
