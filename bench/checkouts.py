@@ -54,7 +54,7 @@ def child(n: int, methods: list[str]) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--old", type=Path, required=True, help="the other checkout's root")
+    ap.add_argument("--old", type=Path, help="the other checkout's root (required)")
     ap.add_argument("--n", type=int, default=10**6)
     ap.add_argument("--methods", default="hkc,hkf")
     ap.add_argument("--rounds", type=int, default=3)
@@ -65,13 +65,17 @@ def main() -> None:
     if args.child:
         print(json.dumps(child(args.n, methods)))
         return
+    if args.old is None:
+        ap.error("--old is required")
     checkouts = {"old": args.old.resolve(), "new": HERE.parent}
     runs = {k: [] for k in checkouts}
     for r in range(args.rounds):
         for name, root in checkouts.items():
             env = {**os.environ, "PYTHONPATH": str(root)}
             proc = subprocess.run([sys.executable, __file__, "--child", "--n", str(args.n), "--methods", args.methods],
-                                  env=env, capture_output=True, text=True, check=True)
+                                  env=env, capture_output=True, text=True)
+            if proc.returncode:
+                sys.exit(f"{name} child failed:\n{proc.stderr}")
             runs[name].append(json.loads(proc.stdout.strip().splitlines()[-1]))
             print(f"round {r} {name}: " + ", ".join(f"{m} {runs[name][-1][m][0]:.2f} s" for m in ["floor"] + methods),
                   file=sys.stderr, flush=True)
