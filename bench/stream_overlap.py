@@ -29,13 +29,17 @@ import _report  # noqa: E402
 
 def _sequential(cloud, cell, plan_, stream=None):
     """:func:`hgjax.tiles.tile_scores` with every core neighbourhood built before the kernel starts."""
-    from hgjax import _stream, pipeline, tiles
+    import numpy as np
+
+    from hgjax import _stream, pipeline, spatial, tiles
 
     entry = pipeline.METHODS[plan_.method]
 
     def rows_of(index, rows):
-        idx, row_args, reach = entry.rows(index, rows, plan_.build, plan_.dtype)
-        return (idx, row_args), reach
+        parts = list(entry.rows(index, rows, plan_.build, plan_.dtype))
+        idx = spatial.pad_parts(index, [p[1] for p in parts], None, "neighbourhood", rows.size)
+        row_args = tuple(np.concatenate(a) for a in zip(*(p[2] for p in parts)))
+        return (idx, row_args), np.concatenate([p[3] for p in parts])
 
     gids, core, index, rows, (idx, row_args) = tiles._covered(cloud, cell, plan_.halo, plan_.build["dedupe"], rows_of)
     kernel, narrow = entry.kernel(plan_.score)

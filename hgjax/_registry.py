@@ -55,11 +55,13 @@ class Method:
       resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
         whole cloud, ``stats()`` giving the seeded sample's nearest distances
         (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
-      rows: ``rows(index, rows, build, dtype) -> (idx, row_args, reach)``: a tile's
-        neighbourhoods of the sorted-frame ``rows``, the per-row kernel arguments and the
-        radius each neighbourhood reaches; None for the graph method.
+      rows: ``rows(index, rows, build, dtype)``: a tile's neighbourhoods of the sorted-frame
+        ``rows``, yielded batch by batch as ``(part, idx, row_args, reach)`` (a slice of
+        ``rows``, their neighbour rows, per-row kernel arguments and the radius each
+        neighbourhood reaches); None for the graph method.
       kernel: ``kernel(score_params) -> (row kernel, narrow)``: the per-neighbourhood kernel
-        the tiles stream (:func:`hgjax._stream.map_rows`); None for the graph method.
+        the tiles stream (:class:`hgjax._stream.Stream`, or :class:`hgjax._stream.NarrowStream`
+        when ``narrow``); None for the graph method.
       tiled_select: ``tiled_select(runner, parts, plan, key) -> (parts, keyed parts,
         statistics, largest)``: the global selection over the tiles' (gids, scores) parts,
         as order keys for :func:`hgjax.select.top_pairs`; None keeps the top scores.

@@ -32,6 +32,7 @@ from hgjax import _validate
 BLOCK = 1024  # rows per vmapped block
 CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
 MIN_POINT_ROWS = 1 << 16  # the smallest device copy of a cloud's points (see point_rows)
+MIN_WIDTH = 8  # the narrowest kernel of a NarrowStream (columns)
 
 
 def is_traced(*trees) -> bool:
@@ -111,8 +112,8 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       progress: tqdm bar on stderr for long streamed runs.
       narrow: the rows list their neighbours first and padding after, and ``fn`` gives the
         same result whatever the number of padding columns (e.g. exact counts). The
-        streamed path then runs the rows in up to three kernels of fewer columns
-        (:func:`narrow_groups`): far less work when a few rows set K.
+        streamed path then runs each row in the kernel as narrow as its neighbours
+        (:class:`NarrowStream`): far less work when a few rows set K.
 
     Returns:
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
@@ -131,7 +132,7 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
     """Host engine of :func:`map_neighbourhoods`: ``fn`` on the rows ``own`` of ``points``.
 
     The points go to the device once (:func:`device_points`) and the rows stream through
-    one :class:`Stream` per kernel width.
+    one :class:`Stream` (a :class:`NarrowStream` when ``narrow``).
 
     Args:
       fn, row_args, args, chunk_size, progress, narrow: as :func:`map_neighbourhoods`;
@@ -144,22 +145,11 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
     Returns:
       ``fn``'s outputs stacked over the rows, as NumPy arrays (R, ...).
     """
-    ext = device_points(points, dtype)
-    args = tuple(jax.device_put(np.asarray(a)) for a in args)
-    row_args = tuple(np.asarray(a) for a in row_args)
-
-    def run(own, idx, row_args):
-        stream = Stream(fn, ext, args=args, chunk_size=chunk_size, progress=progress, total=idx.shape[0])
-        stream.push(own, idx, row_args)
-        return stream.collect()
-
-    groups = narrow_groups(np.asarray(idx), points.shape[0]) if narrow else []
-    if len(groups) > 1:
-        own, idx = np.asarray(own), np.asarray(idx)
-        parts = [run(own[rows], idx[rows, :k], tuple(a[rows] for a in row_args)) for rows, k in groups]
-        back = np.argsort(np.concatenate([rows for rows, _ in groups]))  # rows back in order
-        return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
-    return run(own, idx, row_args)
+    stream = (NarrowStream if narrow else Stream)(fn, device_points(points, dtype),
+                                                  args=tuple(jax.device_put(np.asarray(a)) for a in args),
+                                                  chunk_size=chunk_size, progress=progress, total=np.shape(idx)[0])
+    stream.push(own, idx, tuple(np.asarray(a) for a in row_args))
+    return stream.collect()
 
 
 def device_points(points: np.ndarray, dtype) -> tuple:
@@ -249,25 +239,51 @@ def point_rows(n: int) -> int:
     return max(MIN_POINT_ROWS, 1 << (2 * -(-int(n).bit_length() // 2)))
 
 
-def narrow_groups(idx: np.ndarray, n: int) -> list[tuple[np.ndarray, int]]:
-    """Rows of ``idx`` (R, K) (neighbours first, padding N after) as (rows, columns) groups.
+def narrow_widths(count: np.ndarray) -> np.ndarray:
+    """The kernel width of rows holding ``count`` (R,) neighbours: the next power of two, at least MIN_WIDTH."""
+    return np.maximum(MIN_WIDTH, 1 << np.frexp(np.maximum(np.asarray(count), 1) - 1)[1])
 
-    At most three groups (kernels): the widths are K and up to two powers of two below it,
-    chosen to minimise rows x columns, fewer groups on ties (each row goes to the narrowest
-    group that holds its neighbours). Groups without rows are left out.
+
+class NarrowStream:
+    """Rows of a narrow kernel, each streamed through the kernel as narrow as its neighbours.
+
+    For kernels whose result does not depend on the number of padding columns (``narrow``
+    in :func:`map_neighbourhoods`): a pushed row goes to one :class:`Stream` per width, that
+    of :func:`narrow_widths` of its neighbour count, so a few wide rows never widen the
+    others. Same interface and results as :class:`Stream`.
     """
-    count = (idx < n).sum(axis=1)
-    k = idx.shape[1]
-    widths = [w for w in (8 << i for i in range(20)) if w < k] + [k]
-    need = np.searchsorted(np.asarray(widths), count)  # the narrowest width that holds each row
-    hist = np.bincount(need, minlength=len(widths))
 
-    def cost(chosen):
-        return sum(int(hist[i]) * next(w for w in chosen if w >= widths[i]) for i in range(len(widths)))
+    def __init__(self, fn: Callable, ext: tuple, *, args=(), chunk_size: int | None = None, progress: bool = False,
+                 total: int = 0):
+        self.new = functools.partial(Stream, fn, ext, args=args, chunk_size=chunk_size)
+        self.n, self.streams, self.widths = int(ext[2]), {}, []
+        self.bar = _progress(total, progress and total > 4 * chunk_rows(chunk_size))
 
-    bounds = np.asarray(min((sorted({a, b, k}) for a in widths for b in widths), key=lambda c: (cost(c), len(c))))
-    group = np.searchsorted(bounds, count)
-    return [(np.flatnonzero(group == g), int(w)) for g, w in enumerate(bounds) if np.any(group == g)]
+    def push(self, own, idx, row_args=()) -> None:
+        """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K), listed first, and ``row_args``."""
+        idx = np.asarray(idx)
+        width = narrow_widths((idx < self.n).sum(axis=1))
+        for w in np.unique(width) if width.size else [MIN_WIDTH]:
+            rows = np.flatnonzero(width == w)
+            cut = idx[rows, :w]
+            if cut.shape[1] < w:
+                cut = np.pad(cut, ((0, 0), (0, w - cut.shape[1])), constant_values=self.n)
+            self.streams.setdefault(int(w), self.new()).push(np.asarray(own)[rows], cut,
+                                                            tuple(np.asarray(a)[rows] for a in row_args))
+        self.widths.append(width)
+        if self.bar is not None:
+            self.bar.update(width.size)
+
+    def collect(self):
+        """``fn``'s outputs of every pushed row, in push order, as NumPy arrays (R, ...)."""
+        width = np.concatenate(self.widths)
+        if self.bar is not None:
+            self.bar.close()
+        order = np.argsort(width, kind="stable")  # the rows of each width in push order, narrowest first
+        back = np.empty_like(order)
+        back[order] = np.arange(order.size)
+        parts = [self.streams[w].collect() for w in sorted(self.streams)]
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
 
 
 def _gathered(fn: Callable, hi, lo, n, own, nbr, row_args, args):

@@ -487,19 +487,34 @@ def bucket(width: int) -> int:
     return max(8, 1 << max(0, int(width) - 1).bit_length())
 
 
+def batches(n_rows: int):
+    """Slices of ``range(n_rows)`` of QUERY_ROWS rows each, in order."""
+    return [slice(start, min(start + QUERY_ROWS, n_rows)) for start in range(0, n_rows, QUERY_ROWS)]
+
+
 def pad_queries(index: SpatialIndex, query, capacity, what: str, n_rows: int) -> np.ndarray:
-    """Run ``query(part)`` over slices of ``range(n_rows)`` in batches; pad to ``capacity`` or a bucket.
+    """Run ``query(part)`` over :func:`batches` of ``range(n_rows)``; pad to ``capacity`` or a bucket.
 
     Raises:
       ValueError: when a fixed ``capacity`` is smaller than the fullest row.
     """
-    parts = [query(slice(start, min(start + QUERY_ROWS, n_rows))) for start in range(0, n_rows, QUERY_ROWS)]
+    return pad_parts(index, [query(part) for part in batches(n_rows)], capacity, what, n_rows)
+
+
+def pad_parts(index: SpatialIndex, parts: list, capacity, what: str, n_rows: int) -> np.ndarray:
+    """The (R_i, W_i) neighbour rows ``parts`` of :func:`batches` as one (n_rows, K) array padded with n.
+
+    K is ``capacity``, or the bucket of the widest part.
+
+    Raises:
+      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
+    """
     width = max((p.shape[1] for p in parts), default=1)
     _validate.check_capacity(capacity, width, what)
     out = np.empty((n_rows, bucket(width) if capacity is None else capacity), dtype=np.int32)
-    for start, p in zip(range(0, n_rows, QUERY_ROWS), parts):  # each element written once
-        out[start:start + p.shape[0], :p.shape[1]] = p
-        out[start:start + p.shape[0], p.shape[1]:] = index.n
+    for part, p in zip(batches(n_rows), parts):  # each element written once
+        out[part, :p.shape[1]] = p
+        out[part, p.shape[1]:] = index.n
     return out
 
 
@@ -749,7 +764,7 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
 
 def chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`SpatialIndex.knn` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
-    parts = [index.knn(k, rows[start:start + QUERY_ROWS]) for start in range(0, rows.size, QUERY_ROWS)]
+    parts = [index.knn(k, rows[part]) for part in batches(rows.size)]
     if not parts:
         return np.zeros((0, k), np.int32), np.zeros(0)
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

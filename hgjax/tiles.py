@@ -35,7 +35,6 @@ refused with a tile size.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import glob
 import json
 import os
@@ -606,19 +605,14 @@ def tile_scores(cloud: _Cloud, cell, plan_: Plan, stream: dict | None = None) ->
 
     def rows_of(index, rows):
         """(the kernel's values, to wait for, and the reach) of the core ``rows``."""
-        if narrow:  # the kernel's rows are grouped by their widths: every row first
-            idx, row_args, reach = entry.rows(index, rows, plan_.build, plan_.dtype)
-            return functools.partial(_stream.map_rows, kernel, index.points, rows, idx, row_args=row_args,
-                                     dtype=plan_.dtype, narrow=True, **stream), reach
         # Each batch's neighbourhoods go to the device as soon as they are built.
-        out = _stream.Stream(kernel, _stream.device_points(index.points, plan_.dtype), total=rows.size, **stream)
-        reach = []
-        for start in range(0, rows.size, spatial.QUERY_ROWS):
-            part = rows[start:start + spatial.QUERY_ROWS]
-            idx, row_args, part_reach = entry.rows(index, part, plan_.build, plan_.dtype)
-            out.push(part, idx, row_args)
-            reach.append(part_reach)
-        return out.collect, np.concatenate(reach)
+        out = (_stream.NarrowStream if narrow else _stream.Stream)(
+            kernel, _stream.device_points(index.points, plan_.dtype), total=rows.size, **stream)
+        reach = np.empty(rows.size)
+        for part, idx, row_args, part_reach in entry.rows(index, rows, plan_.build, plan_.dtype):
+            out.push(rows[part], idx, row_args)
+            reach[part] = part_reach
+        return out.collect, reach
 
     gids, core, index, rows, values = _covered(cloud, cell, plan_.halo, plan_.build["dedupe"], rows_of)
     return gids[core], _per_point(index, rows, core, values())

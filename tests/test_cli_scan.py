@@ -68,14 +68,14 @@ if stage == "read":
 
     hgjax.io._read_npy = _read_npy
 elif stage == "score":
-    map_rows = hgjax._stream.map_rows  # the stream of HKC's per-row kernel in every tile
+    collect = hgjax._stream.NarrowStream.collect  # the stream of HKC's per-row kernel in every tile
 
-    def looping_map_rows(*args, **kwargs):
+    def looping_collect(self):
         fire_soon()
         while True:
-            np.asarray(map_rows(*args, **kwargs))
+            collect(self)
 
-    hgjax._stream.map_rows = looping_map_rows
+    hgjax._stream.NarrowStream.collect = looping_collect
 elif stage == "write":
     atomic_write = hgjax.io._atomic_write
 

@@ -103,12 +103,12 @@ def test_float_parameter_sweeps_do_not_recompile():
     assert events == []
     assert weights._cache_size() == 1
     # HKC's d_factor changes the neighbourhoods (host), never the kernel of a row width: a
-    # sweep compiles only the narrow widths (_stream.narrow_groups) its counts newly select
+    # sweep compiles only the narrow widths (_stream.narrow_widths) its counts newly select
     kernel = _stream._jitted(hkc._kernel(3, "invariant"), 1)
     p = box_surface(2000, seed=8)
 
     def widths(nb):
-        return {k for _, k in _stream.narrow_groups(np.asarray(nb.idx), len(p))}
+        return set(_stream.narrow_widths((np.asarray(nb.idx) < len(p)).sum(axis=1)).tolist())
 
     nb = hgjax.neighbourhoods(p, "hkc", capacity=256)
     hgjax.score(nb, "hkc")
@@ -119,3 +119,21 @@ def test_float_parameter_sweeps_do_not_recompile():
             new |= widths(nb) - seen
             hgjax.score(nb, "hkc")
     assert kernel._cache_size() - compiled <= len(new) and len(events) <= len(new)
+
+
+@pytest.mark.parametrize("method", ["hkc", "hkf"])
+def test_narrow_stream_gives_each_row_the_wide_kernels_score_in_push_order(method):
+    # rows pushed in uneven parts go to kernels of different widths and come back in push order
+    nb = hgjax.neighbourhoods(box_surface(3000, seed=9), method, capacity=256)
+    points, idx, scale = np.asarray(nb.points), np.asarray(nb.idx), np.asarray(nb.scale)
+    fn = (hkc if method == "hkc" else hkf)._kernel(3, "invariant")
+    ext = _stream.device_points(points, points.dtype)
+    wide = _stream.Stream(fn, ext, chunk_size=1024)
+    wide.push(np.arange(len(points)), idx, (scale,))
+    narrow = _stream.NarrowStream(fn, ext, chunk_size=1024)
+    order = np.random.default_rng(0).permutation(len(points))
+    for part in np.array_split(order, [5, 1200, 1201]):
+        narrow.push(part, idx[part], (scale[part],))
+    assert len(narrow.streams) >= 2
+    assert set(narrow.streams) <= set(_stream.narrow_widths((idx < len(points)).sum(axis=1)).tolist())
+    np.testing.assert_array_equal(narrow.collect(), wide.collect()[order])

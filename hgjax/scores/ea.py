@@ -205,10 +205,11 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(idx, (), reach): the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.spatial.chunked_knn`)."""
+    """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:meth:`hgjax.spatial.SpatialIndex.knn`)."""
     del dtype  # no per-row arguments
-    idx, reach = spatial.chunked_knn(index, build["k"], rows)
-    return idx, (), reach
+    for part in spatial.batches(rows.size):
+        idx, reach = index.knn(build["k"], rows[part])
+        yield part, idx, (), reach
 
 
 KNN_PARAMS = _registry.stages(build=("capacity", "dedupe", "k"), score=("chunk_size", "progress"))

@@ -168,9 +168,9 @@ def resolve_build(build: dict, stats) -> dict:
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(idx, (d,), reach): the cube neighbourhoods of ``rows`` (:func:`hgjax.scores.voxel.build_rows`)."""
-    idx, scale, reach = voxel.build_rows(index, rows, build)
-    return idx, (scale.astype(dtype),), reach
+    """(part, idx, (d,), reach) per batch: the cube neighbourhoods of ``rows`` (:func:`hgjax.scores.voxel.row_batches`)."""
+    for part, idx, scale, reach in voxel.row_batches(index, rows, build):
+        yield part, idx, (scale.astype(dtype),), reach
 
 
 def _tile_kernel(params: dict):

@@ -366,15 +366,19 @@ def resolve(params: dict, stats: spatial.SampleStats | None) -> dict:
     return out
 
 
-def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
-               capacity: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params`` (see :func:`resolve`).
+def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
+    """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params`` (see :func:`resolve`), batch by batch.
 
-    Returns:
-      (idx, scale, reach): idx (R, K) int32 sorted-frame indices by increasing distance
-      (Chebyshev for "reference", Euclidean for "invariant"), padded with n; scale (R,)
-      float64 voxel spacing d; reach (R,) the distance per axis within which every point
-      the row used lies (cube or ball, and spacing estimate).
+    Batches are :func:`hgjax.spatial.batches` of the rows; each is built as soon as the
+    previous one is consumed, reusing what the previous ones found (spacings of shared
+    neighbours, the typical row width).
+
+    Yields:
+      (part, idx, scale, reach) per batch: part a slice of ``rows``; idx (r, W) int32
+      sorted-frame indices by increasing distance (Chebyshev for "reference", Euclidean for
+      "invariant"), padded with n, W the batch's fullest row; scale (r,) float64 voxel
+      spacing d; reach (r,) the distance per axis within which every point the row used
+      lies (cube or ball, and spacing estimate).
     """
     rows = np.asarray(rows, dtype=np.int64)
     k = params["kernel_size"]
@@ -387,29 +391,40 @@ def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
     norm = 2 if invariant else np.inf
     adaptive = params["resolution"] is None
     rk = np.full(index.n, np.nan) if adaptive else None
-    half, reach = np.empty(rows.size), np.empty(rows.size)
-    start = [64 if adaptive else 32]
-
-    def query(part):
+    start = 64 if adaptive else 32
+    for part in spatial.batches(rows.size):
         if adaptive:
             # One query per batch serves the spacing (its first LOCAL_K + 1 columns) and the
             # ball (a prefix of each row; rows whose ball is longer are queried again).
-            width = min(max(start[0], LOCAL_K + 2), index.n)
-            nearest = index.nearest(rows[part], width)
-            res, reach[part] = spatial.local_spacing(index, rows[part], LOCAL_K, query=nearest, rk=rk)
+            nearest = index.nearest(rows[part], min(max(start, LOCAL_K + 2), index.n))
+            res, reach = spatial.local_spacing(index, rows[part], LOCAL_K, query=nearest, rk=rk)
         else:
-            nearest, res, reach[part] = None, params["resolution"], 0.0
-        half[part] = factor * res
-        reach[part] = np.maximum(reach[part], half[part])
-        idx, half[part] = index.cube(half[part], rows[part], capacity=start[0], max_count=max_count, norm=norm,
-                                     query=nearest if invariant else None)
+            nearest, res, reach = None, params["resolution"], 0.0
+        half = np.broadcast_to(factor * res, rows[part].shape)
+        reach = np.maximum(reach, half)
+        idx, half = index.cube(half, rows[part], capacity=start, max_count=max_count, norm=norm,
+                               query=nearest if invariant else None)
         # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
         # percentile count instead of doubling up from 32 again.
-        start[0] = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
-        return idx
+        start = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
+        yield part, idx, 2 / k * half / widen, reach
 
-    idx = spatial.pad_queries(index, query, capacity, "cube", rows.size)
-    return idx, 2 / k * half / widen, reach
+
+def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
+               capacity: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params``: :func:`row_batches` in one array.
+
+    Returns:
+      (idx, scale, reach): idx (R, K) int32 padded with n (K: ``capacity``, or the bucket of
+      the fullest row); scale (R,) and reach (R,) as :func:`row_batches`.
+
+    Raises:
+      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
+    """
+    parts = list(row_batches(index, rows, params))
+    idx = spatial.pad_parts(index, [p[1] for p in parts], capacity, "cube", len(rows))
+    scale, reach = (np.concatenate([np.empty(0)] + [p[i] for p in parts]) for i in (2, 3))
+    return idx, scale, reach
 
 
 def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
