@@ -99,43 +99,6 @@ def _row_sum(x):
     return out
 
 
-def _ascending(lam):
-    """(3,) values sorted ascending by min / max (a sort inside a custom_jvp breaks its batching)."""
-    a, b, c = lam[0], lam[1], lam[2]
-    mid = jnp.maximum(jnp.minimum(a, b), jnp.minimum(jnp.maximum(a, b), c))
-    return jnp.stack([jnp.minimum(jnp.minimum(a, b), c), mid, jnp.maximum(jnp.maximum(a, b), c)])
-
-
-@jax.custom_jvp
-def eigenvalues(cov):
-    """Ascending eigenvalues (3,) of a symmetric 3 x 3 matrix, by :mod:`hgjax.scores.ea` 's Jacobi.
-
-    The derivative of each is v_k^T dC v_k with v_k its eigenvector: finite everywhere; where
-    eigenvalues are equal, the derivative along one vector of their eigenspace.
-
-    Args:
-      cov: (3, 3) symmetric.
-
-    Returns:
-      (3,) ascending, in the dtype of ``cov``.
-
-    Examples:
-      >>> import jax.numpy as jnp
-      >>> from hgjax.scores import lhf
-      >>> lhf.eigenvalues(jnp.array([[2.0, 1, 0], [1, 2, 0], [0, 0, 0.5]])).round(6).tolist()
-      [0.5, 1.0, 3.0]
-    """
-    return _ascending(ea._jacobi(cov, vectors=False)[0])
-
-
-@eigenvalues.defjvp
-def _eigenvalues_jvp(primals, tangents):
-    (cov,), (dcov,) = primals, tangents
-    lam, vec = ea._jacobi(cov, vectors=True)
-    order = jnp.argsort(lam)
-    return _ascending(lam), jnp.stack([_common.matmul(vec[:, i], dcov, vec[:, i]) for i in (order[0], order[1], order[2])])
-
-
 class Bands(NamedTuple):
     """Eigenspace sums of the invariant LHF (Eq. (14)) for one signal, from :func:`bands`.
 
@@ -182,10 +145,10 @@ def bands(s, *, unrolled: bool = True) -> Bands:
     x = [s[:, k] for k in range(3)]
     c = [row_sum(xk) / n for xk in x]  # centroid offset
     y = [xk - ck for xk, ck in zip(x, c)]
-    # C written out elementwise: XLA fuses it, batched dots of this size are slow.
-    cxx, cyy, czz, cxy, cxz, cyz = (row_sum(y[i] * y[j]) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)))
-    cov = jnp.stack([jnp.stack([cxx, cxy, cxz]), jnp.stack([cxy, cyy, cyz]), jnp.stack([cxz, cyz, czz])])
-    mu = jnp.maximum(eigenvalues(cov), 0)
+    # C written out elementwise and passed on as six scalars: XLA fuses it, batched dots of this
+    # size are slow, and a stacked (3, 3) costs the kernel a third more.
+    cov = tuple(row_sum(y[i] * y[j]) for i, j in ea.PAIRS)
+    mu = jnp.maximum(jnp.stack(ea.eigenvalues(cov)), 0)
     if n == 3:  # three centred rows span at most a plane
         mu = mu.at[0].set(0)
     r = _common.safe_div(mu, mu[2], 0.0)
