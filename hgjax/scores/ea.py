@@ -31,18 +31,15 @@ DEFAULT_K = 16
 JACOBI_SWEEPS = 5
 
 
-PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # the six entries of a symmetric 3 x 3, in this order
-
-
 def _jacobi(cov, *, vectors: bool):
     """:func:`_rotations` of the six entries of a symmetric 3 x 3 ``cov``: (eigenvalues (3,), vectors or None)."""
-    lam, vec = _rotations(tuple(cov[pq] for pq in PAIRS), vectors=vectors)
+    lam, vec = _rotations(tuple(cov[pq] for pq in _common.PAIRS), vectors=vectors)
     return jnp.stack(lam), vec
 
 
 def _rotations(entries, *, vectors: bool):
     """Eigenvalues (three scalars, in no particular order) and, with ``vectors``, eigenvectors
-    (3, 3) as columns of the symmetric 3 x 3 with ``entries`` (six scalars in PAIRS order), by
+    (3, 3) as columns of the symmetric 3 x 3 with ``entries`` (six scalars in ``_common.PAIRS`` order), by
     JACOBI_SWEEPS cyclic sweeps of rotations.
 
     Each rotation zeroes a[p, q] with t = tan(angle) in the form that never divides by
@@ -52,7 +49,7 @@ def _rotations(entries, *, vectors: bool):
     took 1.8x the time).
     """
     def sweep(_, carry):
-        a, v = dict(zip(PAIRS, carry[0])), [list(row) for row in carry[1]]
+        a, v = dict(zip(_common.PAIRS, carry[0])), [list(row) for row in carry[1]]
         for p, q in ((0, 1), (0, 2), (1, 2)):
             r = 3 - p - q
             rp, rq = (min(r, p), max(r, p)), (min(r, q), max(r, q))
@@ -66,7 +63,7 @@ def _rotations(entries, *, vectors: bool):
             a[rp], a[rq] = c * a[rp] - s * a[rq], s * a[rp] + c * a[rq]
             for row in v:
                 row[p], row[q] = c * row[p] - s * row[q], s * row[p] + c * row[q]
-        return tuple(a[pq] for pq in PAIRS), tuple(tuple(row) for row in v)
+        return tuple(a[pq] for pq in _common.PAIRS), tuple(tuple(row) for row in v)
 
     dtype = jnp.result_type(*entries)
     eye = tuple(tuple(jnp.asarray(float(i == j), dtype) for j in range(3)) for i in range(3)) if vectors else ()
@@ -89,7 +86,7 @@ def eigenvalues(entries):
     equal, the derivative along one vector of their eigenspace.
 
     Args:
-      entries: six scalars C[0, 0], C[1, 1], C[2, 2], C[0, 1], C[0, 2], C[1, 2] (``PAIRS``).
+      entries: six scalars C[0, 0], C[1, 1], C[2, 2], C[0, 1], C[0, 2], C[1, 2] (``_common.PAIRS``).
 
     Returns:
       Three scalars l0 <= l1 <= l2, in the dtype of ``entries``.
@@ -116,7 +113,7 @@ def _eigenvalues_jvp(primals, tangents):
 
 
 def symmetric_entries(cov):
-    """The six entries (``PAIRS`` order) of the symmetric part of a 3 x 3 ``cov``."""
+    """The six entries (``_common.PAIRS`` order) of the symmetric part of a 3 x 3 ``cov``."""
     return (cov[0, 0], cov[1, 1], cov[2, 2], (cov[0, 1] + cov[1, 0]) / 2, (cov[0, 2] + cov[2, 0]) / 2,
             (cov[1, 2] + cov[2, 1]) / 2)
 
@@ -160,9 +157,9 @@ def variation(offsets, valid):
       >>> float(hgjax.scores.ea.variation(flat, jnp.ones(4, bool)))
       0.0
     """
-    _, _, cov = _common.centred_scatter(_common.unit_scale(jnp.where(valid[:, None], offsets, 0)), valid)
-    l0 = jnp.maximum(smallest_eigenvalue(cov), 0)
-    trace = jnp.trace(cov)
+    _, cov = _common.centred_entries(_common.unit_scale(jnp.where(valid[:, None], offsets, 0)), valid)
+    l0 = jnp.maximum(eigenvalues(cov)[0], 0)
+    trace = cov[0] + cov[1] + cov[2]
     return jnp.where(trace > 0, l0 / jnp.where(trace > 0, trace, 1), 0.0)
 
 

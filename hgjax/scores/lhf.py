@@ -89,16 +89,6 @@ def _null_dim(n: int) -> int:
     return max(n - 3, 1)
 
 
-def _row_sum(x):
-    """Sum over the last axis, written out as adds for short axes (XLA CPU reductions are slow there)."""
-    if x.shape[-1] > 32:
-        return jnp.sum(x, axis=-1)
-    out = x[..., 0]
-    for j in range(1, x.shape[-1]):
-        out = out + x[..., j]
-    return out
-
-
 class Bands(NamedTuple):
     """Eigenspace sums of the invariant LHF (Eq. (14)) for one signal, from :func:`bands`.
 
@@ -138,16 +128,9 @@ def bands(s, *, unrolled: bool = True) -> Bands:
       ``null`` and ``amplitude`` are meaningful).
     """
     n = s.shape[0]
-    row_sum = _row_sum if unrolled else functools.partial(jnp.sum, axis=-1)
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it and no square under- or overflows.
-    s = _common.unit_scale(s)
-    x = [s[:, k] for k in range(3)]
-    c = [row_sum(xk) / n for xk in x]  # centroid offset
-    y = [xk - ck for xk, ck in zip(x, c)]
-    # C written out elementwise and passed on as six scalars: XLA fuses it, batched dots of this
-    # size are slow, and a stacked (3, 3) costs the kernel a third more.
-    cov = tuple(row_sum(y[i] * y[j]) for i, j in ea.PAIRS)
+    c, cov = _common.centred_entries(_common.unit_scale(s), unrolled=unrolled)  # c: the centroid offset
     mu = jnp.maximum(jnp.stack(ea.eigenvalues(cov)), 0)
     if n == 3:  # three centred rows span at most a plane
         mu = mu.at[0].set(0)
