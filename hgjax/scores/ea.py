@@ -10,9 +10,10 @@ is 0 on a plane and grows towards 1/3 at sharp features and in isotropic clutter
 the points with the largest c. A neighbourhood whose points all coincide has C = 0; its
 variation is defined as 0 (no shape at all, hence not sharp), so no NaN ever appears.
 
-l0 comes from cyclic Jacobi rotations on the 3 x 3 covariance (:func:`smallest_eigenvalue`):
-element-wise arithmetic that XLA fuses over the whole batch, where a batched LAPACK
-``eigvalsh`` makes one call per matrix and iterates longer on near-planar neighbourhoods.
+l0 comes from cyclic Jacobi rotations on the six entries of the 3 x 3 covariance
+(:func:`eigenvalues`, also LHF's): element-wise arithmetic that XLA fuses over the whole
+batch, where a batched LAPACK ``eigvalsh`` makes one call per matrix and iterates longer on
+near-planar neighbourhoods.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def _rotations(entries, *, vectors: bool):
     a[p, q] (Golub and Van Loan, Alg. 8.5.1); t = 0 when the pair is already diagonal. The
     sweeps run as a loop over one sweep, not written out: XLA CPU would otherwise fuse the
     computation of the entries into every rotation and recompute it there (LHF's kernel
-    took 1.8x the time).
+    runs 1.8x slower written out).
     """
     def sweep(_, carry):
         a, v = dict(zip(_common.PAIRS, carry[0])), [list(row) for row in carry[1]]
