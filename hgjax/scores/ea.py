@@ -40,8 +40,8 @@ def _jacobi(cov, *, vectors: bool):
 
 def _rotations(entries, *, vectors: bool):
     """Eigenvalues (three scalars, in no particular order) and, with ``vectors``, eigenvectors
-    (3, 3) as columns of the symmetric 3 x 3 with ``entries`` (six scalars in ``_common.PAIRS`` order), by
-    JACOBI_SWEEPS cyclic sweeps of rotations.
+    (3, 3) as columns of the symmetric 3 x 3 with ``entries`` (six scalars in
+    ``_common.PAIRS`` order), by JACOBI_SWEEPS cyclic sweeps of rotations.
 
     Each rotation zeroes a[p, q] with t = tan(angle) in the form that never divides by
     a[p, q] (Golub and Van Loan, Alg. 8.5.1); t = 0 when the pair is already diagonal. The
