@@ -41,40 +41,26 @@ def centred_scatter(x: jax.Array, valid: jax.Array) -> tuple[jax.Array, jax.Arra
 PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # the six entries of a symmetric 3 x 3, in this order
 
 
-def row_sum(x: jax.Array) -> jax.Array:
-    """Sum over the last axis, written out as adds for short axes (XLA CPU reductions are slow there)."""
-    if x.shape[-1] > 32:
-        return jnp.sum(x, axis=-1)
-    out = x[..., 0]
-    for j in range(1, x.shape[-1]):
-        out = out + x[..., j]
-    return out
-
-
-def centred_entries(x: jax.Array, valid: jax.Array | None = None, *, unrolled: bool = True):
+def centred_entries(x: jax.Array, valid: jax.Array | None = None):
     """(mean, entries) of the rows of x (n, 3): the mean row and the scatter sum (x - mean)(x - mean)^T.
 
-    Written out per coordinate, with the scatter as its six entries in ``PAIRS`` order
-    (scalars, not a stacked (3, 3)): XLA fuses these sums into one loop, where batched dots of
-    this size and stacked matrices are slow (:func:`hgjax.scores.ea.eigenvalues` takes the
-    entries as they are).
+    Summed per coordinate, with the scatter as its six entries in ``PAIRS`` order (scalars,
+    not a stacked (3, 3)): XLA fuses these sums, where batched dots of this size and stacked
+    matrices are slow (:func:`hgjax.scores.ea.eigenvalues` takes the entries as they are).
 
     Args:
       x: (n, 3) rows.
       valid: (n,) bool, or None for all rows. Padding rows take no part, whatever they hold;
         the count is at least 1, so an empty neighbourhood gives a zero mean and scatter.
-      unrolled: sums written out as adds (:func:`row_sum`) or as reductions (``jnp.sum``;
-        value_and_grad through written-out adds compiles several times slower). Static.
 
     Returns:
       (mean: three scalars, entries: six scalars), in the dtype of ``x``.
     """
-    total = row_sum if unrolled else functools.partial(jnp.sum, axis=-1)
     cols = [x[:, k] if valid is None else jnp.where(valid, x[:, k], 0) for k in range(3)]
     count = x.shape[0] if valid is None else jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
-    mean = [total(col) / count for col in cols]
+    mean = [jnp.sum(col) / count for col in cols]
     y = [col - m if valid is None else jnp.where(valid, col - m, 0) for col, m in zip(cols, mean)]
-    return mean, tuple(total(y[i] * y[j]) for i, j in PAIRS)
+    return mean, tuple(jnp.sum(y[i] * y[j]) for i, j in PAIRS)
 
 
 def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:

@@ -100,7 +100,7 @@ class Bands(NamedTuple):
     jumps: jax.Array  #: (3,) mu0 / mu2, (mu1 - mu0) / mu2, 1 - mu1 / mu2: the last three steps of lam.
 
 
-def bands(s, *, unrolled: bool = True) -> Bands:
+def bands(s) -> Bands:
     """Eigenspace sums of the invariant LHF (Eq. (14)) through the 3 x 3 covariance.
 
     With s_c = s - 1 c^T (c the mean row, the neighbourhood centroid minus the point), R =
@@ -119,9 +119,6 @@ def bands(s, *, unrolled: bool = True) -> Bands:
 
     Args:
       s: (n, 3) local signal (Eq. (13)).
-      unrolled: sums over the n rows written out as adds (the hard kernel) or as reductions
-        (the differentiated soft path: value_and_grad through written-out adds compiles
-        several times slower than its forward; bench/results/compile_grad.md). Static.
 
     Returns:
       :class:`Bands` in the dtype of ``s``, for s scaled by a power of two (only ratios of
@@ -130,7 +127,7 @@ def bands(s, *, unrolled: bool = True) -> Bands:
     n = s.shape[0]
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it and no square under- or overflows.
-    c, cov = _common.centred_entries(_common.unit_scale(s), unrolled=unrolled)  # c: the centroid offset
+    c, cov = _common.centred_entries(_common.unit_scale(s))  # c: the centroid offset
     mu = jnp.maximum(jnp.stack(ea.eigenvalues(cov)), 0)
     if n == 3:  # three centred rows span at most a plane
         mu = mu.at[0].set(0)
@@ -243,7 +240,7 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     signal = jnp.where(valid[:, None], offsets, 0)
     out = []
     for n in lengths:
-        b = bands(signal[:n], unrolled=False)
+        b = bands(signal[:n])
         # softmax is shift-invariant: the max is a constant shift (no derivative; XLA CPU
         # compiles the JVP of a traced max here under jit and vmap into NaN).
         top = jax.lax.stop_gradient(jnp.max(b.jumps))
