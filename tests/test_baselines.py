@@ -81,6 +81,36 @@ def test_smallest_eigenvalue_gradient(dtype):
     np.testing.assert_allclose(grad[simple], np.einsum("mi,mj->mij", v0, v0)[simple], atol=100 * TOL[dtype])
 
 
+def _entries(m):
+    """The six entries (``_common.PAIRS`` order) of (M, 3, 3) matrices, each as an (M,) array."""
+    return tuple(jnp.asarray(m[:, i, j]) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)))
+
+
+def test_eigenvalues_of_six_entries_match_lapack(dtype):
+    m = hard_symmetric_3x3(seed=2)
+    ref = np.linalg.eigvalsh(m)
+    got = np.stack([np.asarray(x) for x in jax.jit(jax.vmap(ea_module.eigenvalues))(_entries(m.astype(dtype)))], 1)
+    assert got.dtype == dtype and np.all(np.diff(got, axis=1) >= 0)
+    scale = np.abs(ref).max(axis=1, keepdims=True)
+    assert np.all(np.abs(got - ref) <= 16 * np.finfo(dtype).eps * scale + 1e-300)
+
+
+def test_eigenvalues_of_six_entries_derivative_is_v_dc_v(dtype):
+    m = hard_symmetric_3x3(seed=3).astype(dtype)
+    ref = np.linalg.eigh(m.astype(np.float64))
+    dm = np.random.default_rng(4).normal(size=m.shape)
+    dm = (dm + dm.transpose(0, 2, 1)).astype(dtype)  # a symmetric direction
+    _, tangent = jax.jit(jax.vmap(lambda e, d: jax.jvp(ea_module.eigenvalues, (e,), (d,))))(_entries(m), _entries(dm))
+    tangent = np.stack([np.asarray(t) for t in tangent], 1)
+    assert np.all(np.isfinite(tangent))
+    want = np.einsum("mik,mij,mjk->mk", ref.eigenvectors, dm.astype(np.float64), ref.eigenvectors)
+    lam = ref.eigenvalues
+    gaps = np.diff(lam, axis=1)
+    own_gap = np.stack([gaps[:, 0], np.minimum(gaps[:, 0], gaps[:, 1]), gaps[:, 1]], 1)  # to the nearest eigenvalue
+    simple = own_gap > 1e-3 * np.abs(lam).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(tangent[simple], want[simple], atol=100 * TOL[dtype] * np.abs(dm).max())
+
+
 def test_ea_with_duplicates_matches_naive_on_the_distinct_points():
     base = uniform_cloud(60, seed=5)
     p = np.concatenate([base, base[:30], base[:5]])  # 60 distinct points, 35 copies

@@ -282,6 +282,24 @@ def test_unit_scale_is_an_exact_power_of_two(dtype):
     assert np.isfinite(np.asarray(unit_scale(jnp.asarray(tiny)))).all()
 
 
+def test_centred_entries_are_the_scatter_of_the_valid_rows(dtype):
+    x = np.random.default_rng(21).normal(size=(16, 3)) + 5.0
+    valid = np.arange(16) < 11
+    for mask in (None, valid):
+        rows = x if mask is None else x[mask]
+        want_mean = rows.mean(axis=0)
+        want = (rows - want_mean).T @ (rows - want_mean)
+        xin = np.where(valid[:, None], x, 1e6) if mask is not None else x  # padding rows take no part
+        mean, entries = jax.jit(_common.centred_entries)(
+            jnp.asarray(xin, dtype), None if mask is None else jnp.asarray(mask))
+        assert all(np.asarray(v).dtype == dtype for v in (*mean, *entries))
+        np.testing.assert_allclose(np.asarray(mean), want_mean, rtol=TOL[dtype])
+        np.testing.assert_allclose(np.asarray(entries), [want[i, j] for i, j in _common.PAIRS],
+                                   rtol=TOL[dtype], atol=TOL[dtype] * np.abs(want).max())
+    mean, entries = _common.centred_entries(jnp.ones((4, 3), dtype), jnp.zeros(4, bool))  # no valid row
+    assert not np.asarray(mean).any() and not np.asarray(entries).any()
+
+
 def test_lhf_isotropic_signal_has_a_three_dimensional_eigenspace():
     sig = _isotropic_signal(np.random.default_rng(14))
     lam, _, _ = _spectrum(sig)

@@ -38,6 +38,31 @@ def centred_scatter(x: jax.Array, valid: jax.Array) -> tuple[jax.Array, jax.Arra
     return count, mean, matmul(y.T, y)
 
 
+PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # the six entries of a symmetric 3 x 3, in this order
+
+
+def centred_entries(x: jax.Array, valid: jax.Array | None = None):
+    """(mean, entries) of the rows of x (n, 3): the mean row and the scatter sum (x - mean)(x - mean)^T.
+
+    Summed per coordinate, with the scatter as its six entries in ``PAIRS`` order (scalars,
+    not a stacked (3, 3)): XLA fuses these sums, where batched dots of this size and stacked
+    matrices are slow (:func:`hgjax.scores.ea.eigenvalues` takes the entries as they are).
+
+    Args:
+      x: (n, 3) rows.
+      valid: (n,) bool, or None for all rows. Padding rows take no part, whatever they hold;
+        the count is at least 1, so an empty neighbourhood gives a zero mean and scatter.
+
+    Returns:
+      (mean: three scalars, entries: six scalars), in the dtype of ``x``.
+    """
+    cols = [x[:, k] if valid is None else jnp.where(valid, x[:, k], 0) for k in range(3)]
+    count = x.shape[0] if valid is None else jnp.maximum(jnp.sum(valid), 1).astype(x.dtype)
+    mean = [jnp.sum(col) / count for col in cols]
+    y = [col - m if valid is None else jnp.where(valid, col - m, 0) for col, m in zip(cols, mean)]
+    return mean, tuple(jnp.sum(y[i] * y[j]) for i, j in PAIRS)
+
+
 def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:
     """num / den, and ``empty`` where den == 0 (no NaN, finite gradients)."""
     ok = den > 0

@@ -89,53 +89,6 @@ def _null_dim(n: int) -> int:
     return max(n - 3, 1)
 
 
-def _row_sum(x):
-    """Sum over the last axis, written out as adds for short axes (XLA CPU reductions are slow there)."""
-    if x.shape[-1] > 32:
-        return jnp.sum(x, axis=-1)
-    out = x[..., 0]
-    for j in range(1, x.shape[-1]):
-        out = out + x[..., j]
-    return out
-
-
-def _ascending(lam):
-    """(3,) values sorted ascending by min / max (a sort inside a custom_jvp breaks its batching)."""
-    a, b, c = lam[0], lam[1], lam[2]
-    mid = jnp.maximum(jnp.minimum(a, b), jnp.minimum(jnp.maximum(a, b), c))
-    return jnp.stack([jnp.minimum(jnp.minimum(a, b), c), mid, jnp.maximum(jnp.maximum(a, b), c)])
-
-
-@jax.custom_jvp
-def eigenvalues(cov):
-    """Ascending eigenvalues (3,) of a symmetric 3 x 3 matrix, by :mod:`hgjax.scores.ea` 's Jacobi.
-
-    The derivative of each is v_k^T dC v_k with v_k its eigenvector: finite everywhere; where
-    eigenvalues are equal, the derivative along one vector of their eigenspace.
-
-    Args:
-      cov: (3, 3) symmetric.
-
-    Returns:
-      (3,) ascending, in the dtype of ``cov``.
-
-    Examples:
-      >>> import jax.numpy as jnp
-      >>> from hgjax.scores import lhf
-      >>> lhf.eigenvalues(jnp.array([[2.0, 1, 0], [1, 2, 0], [0, 0, 0.5]])).round(6).tolist()
-      [0.5, 1.0, 3.0]
-    """
-    return _ascending(ea._jacobi(cov, vectors=False)[0])
-
-
-@eigenvalues.defjvp
-def _eigenvalues_jvp(primals, tangents):
-    (cov,), (dcov,) = primals, tangents
-    lam, vec = ea._jacobi(cov, vectors=True)
-    order = jnp.argsort(lam)
-    return _ascending(lam), jnp.stack([_common.matmul(vec[:, i], dcov, vec[:, i]) for i in (order[0], order[1], order[2])])
-
-
 class Bands(NamedTuple):
     """Eigenspace sums of the invariant LHF (Eq. (14)) for one signal, from :func:`bands`.
 
@@ -147,7 +100,7 @@ class Bands(NamedTuple):
     jumps: jax.Array  #: (3,) mu0 / mu2, (mu1 - mu0) / mu2, 1 - mu1 / mu2: the last three steps of lam.
 
 
-def bands(s, *, unrolled: bool = True) -> Bands:
+def bands(s) -> Bands:
     """Eigenspace sums of the invariant LHF (Eq. (14)) through the 3 x 3 covariance.
 
     With s_c = s - 1 c^T (c the mean row, the neighbourhood centroid minus the point), R =
@@ -166,26 +119,16 @@ def bands(s, *, unrolled: bool = True) -> Bands:
 
     Args:
       s: (n, 3) local signal (Eq. (13)).
-      unrolled: sums over the n rows written out as adds (the hard kernel) or as reductions
-        (the differentiated soft path: value_and_grad through written-out adds compiles
-        several times slower than its forward; bench/results/compile_grad.md). Static.
 
     Returns:
       :class:`Bands` in the dtype of ``s``, for s scaled by a power of two (only ratios of
       ``null`` and ``amplitude`` are meaningful).
     """
     n = s.shape[0]
-    row_sum = _row_sum if unrolled else functools.partial(jnp.sum, axis=-1)
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it and no square under- or overflows.
-    s = _common.unit_scale(s)
-    x = [s[:, k] for k in range(3)]
-    c = [row_sum(xk) / n for xk in x]  # centroid offset
-    y = [xk - ck for xk, ck in zip(x, c)]
-    # C written out elementwise: XLA fuses it, batched dots of this size are slow.
-    cxx, cyy, czz, cxy, cxz, cyz = (row_sum(y[i] * y[j]) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)))
-    cov = jnp.stack([jnp.stack([cxx, cxy, cxz]), jnp.stack([cxy, cyy, cyz]), jnp.stack([cxz, cyz, czz])])
-    mu = jnp.maximum(eigenvalues(cov), 0)
+    c, cov = _common.centred_entries(_common.unit_scale(s))  # c: the centroid offset
+    mu = jnp.maximum(jnp.stack(ea.eigenvalues(cov)), 0)
     if n == 3:  # three centred rows span at most a plane
         mu = mu.at[0].set(0)
     r = _common.safe_div(mu, mu[2], 0.0)
@@ -297,7 +240,7 @@ def soft_gamma(offsets, valid, tau, *, lengths=DEFAULT_LENGTHS):
     signal = jnp.where(valid[:, None], offsets, 0)
     out = []
     for n in lengths:
-        b = bands(signal[:n], unrolled=False)
+        b = bands(signal[:n])
         # softmax is shift-invariant: the max is a constant shift (no derivative; XLA CPU
         # compiles the JVP of a traced max here under jit and vmap into NaN).
         top = jax.lax.stop_gradient(jnp.max(b.jumps))
