@@ -127,7 +127,7 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
 
 
 def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray, *, row_args=(), args=(), dtype,
-             chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
+             ext: tuple | None = None, chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
     """Host engine of :func:`map_neighbourhoods`: ``fn`` on the rows ``own`` of ``points``.
 
     The points go to the device once (:func:`device_points`) and the rows stream through
@@ -140,11 +140,13 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
       own: (R,) the row of each neighbourhood's own point.
       idx: (R, K) neighbour rows.
       dtype: the kernel's float dtype.
+      ext: :func:`device_points` ``(points, dtype)``, when the caller made them once for
+        several calls on the same points; None: made here.
 
     Returns:
       ``fn``'s outputs stacked over the rows, as NumPy arrays (R, ...).
     """
-    ext = device_points(points, dtype)
+    ext = device_points(points, dtype) if ext is None else ext
     args = tuple(jax.device_put(np.asarray(a)) for a in args)
     row_args = tuple(np.asarray(a) for a in row_args)
 

@@ -172,18 +172,15 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
       want: (n,) bool, the rows whose partners are returned.
 
     Yields:
-      (own, sym): own (C,) ascending wanted rows, sym (C, W) int32 their partners ordered
-      by global id, padded with n; the chunks' own together are ``flatnonzero(want)``.
+      (own, sym): own (C,) ascending wanted rows, sym (C, W) int32 their partners (in the
+      order of the ball query), padded with n; the chunks' own together are
+      ``flatnonzero(want)``.
     """
     m = index.n
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
     coords = tuple(np.append(index.points[:, axis], np.nan) for axis in range(3))  # row n: no point
     balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
              for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))] if r > 0 else []
-    by_gid = np.argsort(index.gid[:-1], kind="stable")
-    rank = np.empty(m + 1, dtype=np.int32)  # each row's place in global-id order; the padding n last
-    rank[by_gid], rank[m] = np.arange(m), m
-    by_gid = np.append(by_gid, m).astype(np.int32)
     capped = np.isfinite(cut_q)
     for at in range(len(balls)):
         own, counts, cols = balls[at]
@@ -197,7 +194,7 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
                       | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
         counts = np.bincount(line[kept], minlength=own.size)
         width = spatial.bucket(counts.max(initial=0))  # few compiled widths
-        yield own, by_gid[np.sort(_dense(counts, rank[cols[kept]], m, width), axis=1)]
+        yield own, _dense(counts, cols[kept], m, width)
     if not balls:  # no pair (r = 0): every wanted row alone
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
 
@@ -454,8 +451,9 @@ def _streamed_high_pass(points: np.ndarray, idx: np.ndarray, first: np.ndarray |
     q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
     mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
                                       for q_b, b in zip(q, _blocks(n))]))
-    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, mean_q, two_var, points.dtype,
-                                         wdtype, **stream) for q_b, b in zip(q, _blocks(n))] or [np.zeros(0)])
+    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, tie_ext, mean_q, two_var,
+                                         points.dtype, wdtype, **stream) for q_b, b in zip(q, _blocks(n))]
+                        or [np.zeros(0)])
     return (lp if first is None else lp[first]).astype(points.dtype)
 
 
@@ -584,9 +582,13 @@ def _blocks(n: int):
     return [slice(s, min(s + SCORE_ROWS, n)) for s in range(0, n, SCORE_ROWS)]
 
 
-def pair_lengths(points, own, nbr, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
-    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``nbr`` (R, K)."""
-    return _stream.map_rows(_sq_length, points, own, nbr, dtype=wdtype, chunk_size=chunk_size, progress=progress)
+def pair_lengths(points, own, nbr, wdtype, *, ext=None, chunk_size=None, progress=False) -> np.ndarray:
+    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``nbr`` (R, K).
+
+    ``ext``: the points' :func:`hgjax._stream.device_points` in ``wdtype``, when the caller made them once.
+    """
+    return _stream.map_rows(_sq_length, points, own, nbr, dtype=wdtype, ext=ext, chunk_size=chunk_size,
+                            progress=progress)
 
 
 def pair_sums(q, own, nbr, tie_ext, counts_ext) -> tuple:
@@ -620,25 +622,51 @@ def moments(sums) -> tuple[float, float]:
     return mean_q, 2 * max(z_sq - mean_z * mean_z, 0.0)
 
 
-def laplacian_norms(points, own, nbr, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
-                    progress=False) -> np.ndarray:
-    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K), in column order.
+def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, dtype, wdtype, *, ext=None,
+                    chunk_size=None, progress=False) -> np.ndarray:
+    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K).
 
     ``q`` (R, K) the squared pair lengths of :func:`pair_lengths`, or None when ``wdtype`` is
     ``dtype``: the kernel then takes them from its own offsets (the same values).
 
-    The flows come from one compiled kernel; each row is then summed column by column in
-    float64, so padding columns (zeros) never change a sum's bits. ``counts_ext`` as
+    The flows come from one compiled kernel (on ``ext``, the points'
+    :func:`hgjax._stream.device_points` when the caller made them once for several calls);
+    each row is then summed in float64 as if its partners were added one by one in the order
+    of their ``tie_ext`` (global ids), so a point's score depends neither on how the graph
+    was cut nor on the order of its columns (:func:`row_sums`). ``counts_ext`` as
     :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
     kernel, row_args = (_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_flow, ())
-    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype,
+    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype, ext=ext,
                              chunk_size=chunk_size, progress=progress)
-    lp = [np.add.accumulate(flows[..., axis] if counts_ext is None else counts_ext[nbr] * flows[..., axis], axis=1,
-                            dtype=np.float64)[:, -1] for axis in range(3)]  # each row summed in column order
-    return np.sqrt(lp[0] * lp[0] + lp[1] * lp[1] + lp[2] * lp[2])
+    lp = row_sums(flows, nbr, counts_ext, tie_ext)
+    return np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2])
+
+
+def row_sums(flows: np.ndarray, nbr: np.ndarray, counts_ext, tie_ext: np.ndarray) -> np.ndarray:
+    """(R, 3) float64 sums over each row of the terms c_j f_ij (``flows`` (R, K, 3), partners ``nbr`` (R, K)).
+
+    Each sum has the bits of the terms added one by one in float64, in the order of the
+    partners' ``tie_ext`` (padding columns, whose terms are 0, last). Most rows need no
+    order: every term is an integer multiple of 2^e, e the exponent of the unit in the last
+    place of the row's smallest non-zero flow (c_j is an integer), so when the sum of the
+    terms' magnitudes is at most 2^(e + 52), every partial sum in any order is a multiple of
+    2^e below 2^(e + 53), exactly a float64, and every order gives the exact sum. Only the
+    other rows are ordered and added one by one (all rows of float64 flows, in practice).
+    """
+    terms = flows if counts_ext is None else counts_ext[nbr][..., None] * flows
+    lp = np.sum(terms, axis=1, dtype=np.float64)
+    size = np.abs(flows)
+    smallest = np.min(np.where(size > 0, size, np.inf), axis=1)  # (R, 3), inf where every flow is 0
+    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1.0))[1] - (np.finfo(flows.dtype).nmant + 1)
+    mass = np.sum(size if counts_ext is None else np.abs(terms), axis=1, dtype=np.float64)
+    slow = np.flatnonzero(~(mass <= np.ldexp(1.0, unit + 52)).all(axis=1))
+    if slow.size:
+        order = np.argsort(tie_ext[nbr[slow]], axis=1, kind="stable")[..., None]
+        lp[slow] = np.add.accumulate(np.take_along_axis(terms[slow], order, axis=1), axis=1, dtype=np.float64)[:, -1]
+    return lp
 
 
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
@@ -651,9 +679,11 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
     want = np.zeros(index.n, bool)
     want[rows] = True
     counts_ext = _counts_ext(index)
+    ext = _stream.device_points(index.points, dtype)
     chunks, sums = [], []
     for own, sym in location_rows(index, r, max_nn, want):
-        sums.append(pair_sums(pair_lengths(index.points, own, sym, dtype), own, sym, index.gid, counts_ext))
+        q = pair_lengths(index.points, own, sym, dtype, ext=ext)
+        sums.append(pair_sums(q, own, sym, index.gid, counts_ext))
         valid = sym < index.n
         chunks.append((own, valid.sum(axis=1), sym[valid]))
     return chunks, summed(sums)
@@ -663,10 +693,11 @@ def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_va
                 chunk_size=None, progress=False) -> np.ndarray:
     """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, in their order."""
     counts_ext, out = _counts_ext(index), []
+    ext = _stream.device_points(index.points, dtype)
     for own, counts, flat in chunks:
         sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
-        out.append(laplacian_norms(index.points, own, sym, None, counts_ext, mean_q, two_var, dtype, dtype,
-                                   chunk_size=chunk_size, progress=progress))
+        out.append(laplacian_norms(index.points, own, sym, None, counts_ext, index.gid, mean_q, two_var, dtype, dtype,
+                                   ext=ext, chunk_size=chunk_size, progress=progress))
     return np.concatenate(out) if out else np.zeros(0)
 
 
