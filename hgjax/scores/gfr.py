@@ -485,9 +485,21 @@ def _flow_kernel(wdtype):
     return functools.partial(_flow, wdtype=wdtype)
 
 
-def _own_flow(offsets, valid, mean_q, two_var):
-    """:func:`_flow` with q = :func:`_sq_length` of the same offsets (q and w in the points' dtype)."""
-    return _flow(offsets, valid, _sq_length(offsets, valid), mean_q, two_var, offsets.dtype)
+def _summary(flow):
+    """One row's flows (K, 3) as (flows (3, K), smallest non-zero |flow| (3,), inf if none; largest |flow| (3,))."""
+    size = jnp.abs(flow)
+    return flow.T, jnp.min(jnp.where(size > 0, size, jnp.inf), axis=0), jnp.max(size, axis=0)
+
+
+@functools.lru_cache(maxsize=None)
+def _summed_flow_kernel(wdtype):
+    return lambda offsets, valid, q, mean_q, two_var: _summary(_flow(offsets, valid, q, mean_q, two_var, wdtype))
+
+
+def _own_summed_flow(offsets, valid, mean_q, two_var):
+    """:func:`_flow` with q = :func:`_sq_length` of the same offsets (q and w in the points' dtype),
+    summarised by :func:`_summary`."""
+    return _summary(_flow(offsets, valid, _sq_length(offsets, valid), mean_q, two_var, offsets.dtype))
 
 
 def _weights_dtype(variant: str):
@@ -638,34 +650,45 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    kernel, row_args = (_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_flow, ())
+    kernel, row_args = (_summed_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_summed_flow, ())
     flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype, ext=ext,
                              chunk_size=chunk_size, progress=progress)
-    lp = row_sums(flows, nbr, counts_ext, tie_ext)
+    lp = row_sums(*flows, nbr, counts_ext, tie_ext)
     return np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2])
 
 
-def row_sums(flows: np.ndarray, nbr: np.ndarray, counts_ext, tie_ext: np.ndarray) -> np.ndarray:
-    """(R, 3) float64 sums over each row of the terms c_j f_ij (``flows`` (R, K, 3), partners ``nbr`` (R, K)).
+def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: np.ndarray, counts_ext,
+             tie_ext: np.ndarray) -> np.ndarray:
+    """(R, 3) float64 sums over each row of the terms c_j f_ij.
 
     Each sum has the bits of the terms added one by one in float64, in the order of the
     partners' ``tie_ext`` (padding columns, whose terms are 0, last). Most rows need no
     order: every term is an integer multiple of 2^e, e the exponent of the unit in the last
-    place of the row's smallest non-zero flow (c_j is an integer), so when the sum of the
-    terms' magnitudes is at most 2^(e + 52), every partial sum in any order is a multiple of
-    2^e below 2^(e + 53), exactly a float64, and every order gives the exact sum. Only the
-    other rows are ordered and added one by one (all rows of float64 flows, in practice).
+    place of the row's smallest non-zero flow (c_j is an integer), so when K max_j c_j
+    max_j |f_ij| is at most 2^(e + 53), every partial sum in any order is a multiple of
+    2^e of magnitude at most 2^(e + 53), exactly a float64, and every order gives the exact
+    sum. Only the other rows are ordered and added one by one (in practice: the rows of
+    float64 flows, and about one float32 row in 1e5).
+
+    Args:
+      flows: (R, 3, K) f_ij, padding columns 0.
+      smallest, largest: (R, 3) each row's smallest non-zero |f_ij| (inf if none) and largest |f_ij|.
+      nbr: (R, K) partners, padded with n.
+      counts_ext: (n + 1,) c_j, 0 for the padding; None: every c_j = 1.
+      tie_ext: (n + 1,) the order of the partners, the padding n last.
     """
-    terms = flows if counts_ext is None else counts_ext[nbr][..., None] * flows
-    lp = np.sum(terms, axis=1, dtype=np.float64)
-    size = np.abs(flows)
-    smallest = np.min(np.where(size > 0, size, np.inf), axis=1)  # (R, 3), inf where every flow is 0
-    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1.0))[1] - (np.finfo(flows.dtype).nmant + 1)
-    mass = np.sum(size if counts_ext is None else np.abs(terms), axis=1, dtype=np.float64)
-    slow = np.flatnonzero(~(mass <= np.ldexp(1.0, unit + 52)).all(axis=1))
+    width = flows.shape[2]
+    if counts_ext is None:
+        lp, most = np.sum(flows, axis=2, dtype=np.float64), largest * float(width)
+    else:
+        c = counts_ext[nbr][:, None, :]
+        flows = c * flows
+        lp, most = np.sum(flows, axis=2), largest * (float(width) * c.max(axis=2, initial=0.0))
+    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1))[1] - (np.finfo(smallest.dtype).nmant + 1)
+    slow = np.flatnonzero(~(most <= np.ldexp(1.0, unit + 53)).all(axis=1))
     if slow.size:
-        order = np.argsort(tie_ext[nbr[slow]], axis=1, kind="stable")[..., None]
-        lp[slow] = np.add.accumulate(np.take_along_axis(terms[slow], order, axis=1), axis=1, dtype=np.float64)[:, -1]
+        order = np.argsort(tie_ext[nbr[slow]], axis=1, kind="stable")[:, None, :]
+        lp[slow] = np.add.accumulate(np.take_along_axis(flows[slow], order, axis=2), axis=2, dtype=np.float64)[..., -1]
     return lp
 
 
