@@ -211,6 +211,34 @@ def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int) -> np.ndarr
     return out
 
 
+def _in_ball(u: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r: float):
+    """(valid (R, k) bool, n_valid (R,)): which of a bounded k-nearest query's hits have 0 < q < r.
+
+    q = ||u_row - u_j||^2 exactly in float64. The tree's distances ``dist`` (R, k), ascending
+    in each row (inf after the last hit), are within a few ulps of sqrt(q), so they decide
+    every hit except those within SURE_GAP r of q = 0 (the row itself) or of q = r, where
+    the exact q does. The hits below sqrt(r (1 + SURE_GAP)) are a prefix of each row; the
+    unsure ones lie at its two ends.
+    """
+    lo, hi = np.sqrt(SURE_GAP * r), np.sqrt(r * (1 - SURE_GAP))
+    n_near = np.sum(dist < np.sqrt(r * (1 + SURE_GAP)), axis=1)
+    unsure = []
+    for low in (True, False):  # walk in from the prefix's start (q near 0) and from its end (q near r)
+        at = np.zeros(rows.size, np.int64) if low else n_near - 1
+        left = np.flatnonzero(n_near > 0)
+        while left.size:
+            d = dist[left, at[left]]
+            left = left[(d <= lo) if low else (d >= hi)]
+            unsure.append(left * dist.shape[1] + at[left])
+            at[left] += 1 if low else -1
+            left = left[(at[left] < n_near[left]) & (at[left] >= 0)]
+    unsure = np.unique(np.concatenate(unsure))  # a hit can be near both ends when r is tiny
+    valid = np.arange(dist.shape[1]) < n_near[:, None]
+    q = _sq_dist(u, rows[unsure // dist.shape[1]], j.ravel()[unsure])
+    valid.ravel()[unsure] = (q > 0) & (q < r)
+    return valid, n_near - np.bincount(unsure[~valid.ravel()[unsure]] // dist.shape[1], minlength=rows.size)
+
+
 def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
            cut_q: np.ndarray, cut_g: np.ndarray):
     """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the balls of the wanted ones.
@@ -233,13 +261,7 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         rows = batch[todo]
         dist, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
         dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
-        near = dist * dist  # within a few ulps of q (inf where the query found no point)
-        valid = (near > 0) & (near < r)
-        # the exact q decides where the tree's distance cannot: q near 0 (the row itself) or near r
-        unsure = np.flatnonzero((near <= SURE_GAP * r) | (np.abs(near - r) <= SURE_GAP * r))
-        q = _sq_dist(u, rows[unsure // k], j.ravel()[unsure])
-        valid.ravel()[unsure] = (q > 0) & (q < r)
-        n_valid = valid.sum(axis=1)
+        valid, n_valid = _in_ball(u, rows, dist, j, r)
         seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
