@@ -172,9 +172,10 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
       want: (n,) bool, the rows whose partners are returned.
 
     Yields:
-      (own, sym): own (C,) ascending wanted rows, sym (C, W) int32 their partners (in the
-      order of the ball query), padded with n; the chunks' own together are
-      ``flatnonzero(want)``.
+      (own, sym): own (C,) wanted rows, sym (C, W) int32 their partners (in the order of
+      the ball query), padded with n, W a power of two chosen per group of rows
+      (:func:`hgjax._stream.narrow_groups`); the chunks' own together are
+      ``flatnonzero(want)``, each in one chunk.
     """
     m = index.n
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
@@ -193,8 +194,9 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
                       | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
         counts = np.bincount(line[kept], minlength=own.size)
-        width = spatial.bucket(counts.max(initial=0))  # few compiled widths
-        yield own, _dense(counts, cols[kept], m, width)
+        sym = _dense(counts, cols[kept], m, spatial.bucket(counts.max(initial=0)))  # few compiled widths
+        for group, width in _stream.narrow_groups(sym, m):  # rows as narrow as their contents
+            yield own[group], sym[group, :width]
     if not balls:  # no pair (r = 0): every wanted row alone
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
 
@@ -736,14 +738,15 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 
 def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_var: float, dtype, *,
                 chunk_size=None, progress=False) -> np.ndarray:
-    """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, in their order."""
-    counts_ext, out = _counts_ext(index), []
+    """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, ascending rows."""
+    counts_ext, out, rows = _counts_ext(index), [], []
     ext = _stream.device_points(index.points, dtype)
     for own, counts, flat in chunks:
         sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
         out.append(laplacian_norms(index.points, own, sym, None, counts_ext, index.gid, mean_q, two_var, dtype, dtype,
                                    ext=ext, chunk_size=chunk_size, progress=progress))
-    return np.concatenate(out) if out else np.zeros(0)
+        rows.append(own)
+    return np.concatenate(out)[np.argsort(np.concatenate(rows))] if out else np.zeros(0)
 
 
 def _counts_ext(index: spatial.SpatialIndex) -> np.ndarray | None:
