@@ -128,7 +128,7 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
 
 
 def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray, *, row_args=(), args=(), dtype,
-             chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
+             ext: tuple | None = None, chunk_size: int | None = None, progress: bool = False, narrow: bool = False):
     """Host engine of :func:`map_neighbourhoods`: ``fn`` on the rows ``own`` of ``points``.
 
     The points go to the device once (:func:`device_points`) and the rows stream through
@@ -141,11 +141,13 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
       own: (R,) the row of each neighbourhood's own point.
       idx: (R, K) neighbour rows.
       dtype: the kernel's float dtype.
+      ext: :func:`device_points` ``(points, dtype)``, when the caller made them once for
+        several calls on the same points; None: made here.
 
     Returns:
       ``fn``'s outputs stacked over the rows, as NumPy arrays (R, ...).
     """
-    stream = (NarrowStream if narrow else Stream)(fn, device_points(points, dtype),
+    stream = (NarrowStream if narrow else Stream)(fn, device_points(points, dtype) if ext is None else ext,
                                                   args=tuple(jax.device_put(np.asarray(a)) for a in args),
                                                   chunk_size=chunk_size, progress=progress, total=np.shape(idx)[0])
     stream.push(own, idx, tuple(np.asarray(a) for a in row_args))
@@ -244,6 +246,23 @@ def narrow_widths(count: np.ndarray) -> np.ndarray:
     return np.maximum(MIN_WIDTH, 1 << np.frexp(np.maximum(np.asarray(count), 1) - 1)[1])
 
 
+def narrow_split(idx, n: int):
+    """The rows of ``idx`` (R, K) (neighbours first, padded with ``n``) grouped by :func:`narrow_widths`.
+
+    Yields:
+      (rows, cut): rows (R_w,) the rows of one width w, cut (R_w, w) their columns, cut or
+      padded with ``n`` to w; one (empty, (0, MIN_WIDTH)) group when R = 0.
+    """
+    idx = np.asarray(idx)
+    width = narrow_widths((idx < n).sum(axis=1))
+    for w in np.unique(width) if width.size else [MIN_WIDTH]:
+        rows = np.flatnonzero(width == w)
+        cut = idx[rows, :w]
+        if cut.shape[1] < w:
+            cut = np.pad(cut, ((0, 0), (0, w - cut.shape[1])), constant_values=n)
+        yield rows, cut
+
+
 class NarrowStream:
     """Rows of a narrow kernel, each streamed through the kernel as narrow as its neighbours.
 
@@ -261,15 +280,11 @@ class NarrowStream:
 
     def push(self, own, idx, row_args=()) -> None:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K), listed first, and ``row_args``."""
-        idx = np.asarray(idx)
-        width = narrow_widths((idx < self.n).sum(axis=1))
-        for w in np.unique(width) if width.size else [MIN_WIDTH]:
-            rows = np.flatnonzero(width == w)
-            cut = idx[rows, :w]
-            if cut.shape[1] < w:
-                cut = np.pad(cut, ((0, 0), (0, w - cut.shape[1])), constant_values=self.n)
-            self.streams.setdefault(int(w), self.new()).push(np.asarray(own)[rows], cut,
-                                                            tuple(np.asarray(a)[rows] for a in row_args))
+        width = np.empty(np.shape(idx)[0], dtype=np.int64)
+        for rows, cut in narrow_split(idx, self.n):
+            width[rows] = cut.shape[1]
+            self.streams.setdefault(cut.shape[1], self.new()).push(np.asarray(own)[rows], cut,
+                                                                  tuple(np.asarray(a)[rows] for a in row_args))
         self.widths.append(width)
         if self.bar is not None:
             self.bar.update(width.size)

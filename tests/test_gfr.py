@@ -297,3 +297,33 @@ def test_exact_sum_is_the_exact_sum_in_any_grouping():
                 hgjax.select.ExactSum())
     assert whole.value() == parts.value() == exact
     assert hgjax.select.ExactSum.of(np.zeros(4)).value() == hgjax.select.ExactSum.of([]).value() == 0.0
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("with_counts", [False, True])
+def test_row_sums_are_the_sums_in_global_id_order(dtype, with_counts):
+    """row_sums has the bits of each row's terms added one by one in global-id order, for rows whose sum is
+    exact in any order (flows of one magnitude) and for rows where the order changes the rounding."""
+    rng = np.random.default_rng(7)
+    n, rows, k = 60, 400, 16
+    tie_ext = np.append(rng.permutation(n), n)  # the padding n last
+    counts_ext = np.append(rng.integers(1, 6, n).astype(np.float64), 0.0) if with_counts else None
+    nbr = np.full((rows, k), n)
+    flows = np.zeros((rows, k, 3), dtype)
+    for i in range(rows):
+        width = rng.integers(0, k + 1)
+        nbr[i, :width] = rng.choice(n, width, replace=False)
+        span = 3 if i % 2 else 40  # odd rows: one magnitude (exact sums); even rows: rounding depends on order
+        flows[i, :width] = rng.choice([-1, 1], (width, 3)) * 2.0 ** rng.uniform(-span - 5, -5, (width, 3))
+        flows[i, rng.random(k) < 0.1] = 0
+    c = np.ones(n + 1) if counts_ext is None else counts_ext
+    expected = np.zeros((rows, 3))
+    for i in range(rows):
+        for j in sorted(range(k), key=lambda col: tie_ext[nbr[i, col]]):
+            expected[i] += c[nbr[i, j]] * flows[i, j].astype(np.float64)
+    size = np.abs(flows)
+    smallest, largest = np.where(size > 0, size, np.inf).min(axis=1), size.max(axis=1)
+    got = gfr_module.row_sums(flows.transpose(0, 2, 1).copy(), smallest, largest, nbr, counts_ext, tie_ext)
+    assert np.array_equal(got, expected)
+    unordered = np.sum(c[nbr][..., None] * flows, axis=1, dtype=np.float64)
+    assert not np.array_equal(unordered, expected)  # the order matters in some rows: the test can fail

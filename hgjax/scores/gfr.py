@@ -172,18 +172,16 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
       want: (n,) bool, the rows whose partners are returned.
 
     Yields:
-      (own, sym): own (C,) ascending wanted rows, sym (C, W) int32 their partners ordered
-      by global id, padded with n; the chunks' own together are ``flatnonzero(want)``.
+      (own, sym): own (C,) wanted rows, sym (C, W) int32 their partners (in the order of
+      the ball query), padded with n, W a power of two chosen per group of rows
+      (:func:`hgjax._stream.narrow_split`); the chunks' own together are
+      ``flatnonzero(want)``, each in one chunk.
     """
     m = index.n
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
     coords = tuple(np.append(index.points[:, axis], np.nan) for axis in range(3))  # row n: no point
     balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
              for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))] if r > 0 else []
-    by_gid = np.argsort(index.gid[:-1], kind="stable")
-    rank = np.empty(m + 1, dtype=np.int32)  # each row's place in global-id order; the padding n last
-    rank[by_gid], rank[m] = np.arange(m), m
-    by_gid = np.append(by_gid, m).astype(np.int32)
     capped = np.isfinite(cut_q)
     for at in range(len(balls)):
         own, counts, cols = balls[at]
@@ -196,8 +194,9 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
                       | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
         counts = np.bincount(line[kept], minlength=own.size)
-        width = spatial.bucket(counts.max(initial=0))  # few compiled widths
-        yield own, by_gid[np.sort(_dense(counts, rank[cols[kept]], m, width), axis=1)]
+        sym = _dense(counts, cols[kept], m, spatial.bucket(counts.max(initial=0)))  # few compiled widths
+        for group, cut in _stream.narrow_split(sym, m):  # rows as narrow as their contents
+            yield own[group], cut
     if not balls:  # no pair (r = 0): every wanted row alone
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
 
@@ -212,6 +211,34 @@ def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int) -> np.ndarr
     out = np.full((counts.size, width), n, dtype=np.int32)
     out[np.arange(width) < counts[:, None]] = flat  # row-major: each row's first counts values, in order
     return out
+
+
+def _in_ball(u: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r: float):
+    """(valid (R, k) bool, n_valid (R,)): which of a bounded k-nearest query's hits have 0 < q < r.
+
+    q = ||u_row - u_j||^2 exactly in float64. The tree's distances ``dist`` (R, k), ascending
+    in each row (inf after the last hit), are within a few ulps of sqrt(q), so they decide
+    every hit except those within SURE_GAP r of q = 0 (the row itself) or of q = r, where
+    the exact q does. The hits below sqrt(r (1 + SURE_GAP)) are a prefix of each row; the
+    unsure ones lie at its two ends.
+    """
+    lo, hi = np.sqrt(SURE_GAP * r), np.sqrt(r * (1 - SURE_GAP))
+    n_near = np.sum(dist < np.sqrt(r * (1 + SURE_GAP)), axis=1)
+    unsure = []
+    for low in (True, False):  # walk in from the prefix's start (q near 0) and from its end (q near r)
+        at = np.zeros(rows.size, np.int64) if low else n_near - 1
+        left = np.flatnonzero(n_near > 0)
+        while left.size:
+            d = dist[left, at[left]]
+            left = left[(d <= lo) if low else (d >= hi)]
+            unsure.append(left * dist.shape[1] + at[left])
+            at[left] += 1 if low else -1
+            left = left[(at[left] < n_near[left]) & (at[left] >= 0)]
+    unsure = np.unique(np.concatenate(unsure))  # a hit can be near both ends when r is tiny
+    valid = np.arange(dist.shape[1]) < n_near[:, None]
+    q = _sq_dist(u, rows[unsure // dist.shape[1]], j.ravel()[unsure])
+    valid.ravel()[unsure] = (q > 0) & (q < r)
+    return valid, n_near - np.bincount(unsure[~valid.ravel()[unsure]] // dist.shape[1], minlength=rows.size)
 
 
 def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
@@ -236,13 +263,7 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         rows = batch[todo]
         dist, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
         dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
-        near = dist * dist  # within a few ulps of q (inf where the query found no point)
-        valid = (near > 0) & (near < r)
-        # the exact q decides where the tree's distance cannot: q near 0 (the row itself) or near r
-        unsure = np.flatnonzero((near <= SURE_GAP * r) | (np.abs(near - r) <= SURE_GAP * r))
-        q = _sq_dist(u, rows[unsure // k], j.ravel()[unsure])
-        valid.ravel()[unsure] = (q > 0) & (q < r)
-        n_valid = valid.sum(axis=1)
+        valid, n_valid = _in_ball(u, rows, dist, j, r)
         seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
@@ -454,8 +475,9 @@ def _streamed_high_pass(points: np.ndarray, idx: np.ndarray, first: np.ndarray |
     q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
     mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
                                       for q_b, b in zip(q, _blocks(n))]))
-    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, mean_q, two_var, points.dtype,
-                                         wdtype, **stream) for q_b, b in zip(q, _blocks(n))] or [np.zeros(0)])
+    lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, tie_ext, mean_q, two_var,
+                                         points.dtype, wdtype, **stream) for q_b, b in zip(q, _blocks(n))]
+                        or [np.zeros(0)])
     return (lp if first is None else lp[first]).astype(points.dtype)
 
 
@@ -487,9 +509,21 @@ def _flow_kernel(wdtype):
     return functools.partial(_flow, wdtype=wdtype)
 
 
-def _own_flow(offsets, valid, mean_q, two_var):
-    """:func:`_flow` with q = :func:`_sq_length` of the same offsets (q and w in the points' dtype)."""
-    return _flow(offsets, valid, _sq_length(offsets, valid), mean_q, two_var, offsets.dtype)
+def _summary(flow):
+    """One row's flows (K, 3) as (flows (3, K), smallest non-zero |flow| (3,), inf if none; largest |flow| (3,))."""
+    size = jnp.abs(flow)
+    return flow.T, jnp.min(jnp.where(size > 0, size, jnp.inf), axis=0), jnp.max(size, axis=0)
+
+
+@functools.lru_cache(maxsize=None)
+def _summed_flow_kernel(wdtype):
+    return lambda offsets, valid, q, mean_q, two_var: _summary(_flow(offsets, valid, q, mean_q, two_var, wdtype))
+
+
+def _own_summed_flow(offsets, valid, mean_q, two_var):
+    """:func:`_flow` with q = :func:`_sq_length` of the same offsets (q and w in the points' dtype),
+    summarised by :func:`_summary`."""
+    return _summary(_flow(offsets, valid, _sq_length(offsets, valid), mean_q, two_var, offsets.dtype))
 
 
 def _weights_dtype(variant: str):
@@ -584,9 +618,13 @@ def _blocks(n: int):
     return [slice(s, min(s + SCORE_ROWS, n)) for s in range(0, n, SCORE_ROWS)]
 
 
-def pair_lengths(points, own, nbr, wdtype, *, chunk_size=None, progress=False) -> np.ndarray:
-    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``nbr`` (R, K)."""
-    return _stream.map_rows(_sq_length, points, own, nbr, dtype=wdtype, chunk_size=chunk_size, progress=progress)
+def pair_lengths(points, own, nbr, wdtype, *, ext=None, chunk_size=None, progress=False) -> np.ndarray:
+    """(R, K) squared pair lengths q in ``wdtype`` of the rows ``own`` (R,) with partners ``nbr`` (R, K).
+
+    ``ext``: the points' :func:`hgjax._stream.device_points` in ``wdtype``, when the caller made them once.
+    """
+    return _stream.map_rows(_sq_length, points, own, nbr, dtype=wdtype, ext=ext, chunk_size=chunk_size,
+                            progress=progress)
 
 
 def pair_sums(q, own, nbr, tie_ext, counts_ext) -> tuple:
@@ -620,25 +658,62 @@ def moments(sums) -> tuple[float, float]:
     return mean_q, 2 * max(z_sq - mean_z * mean_z, 0.0)
 
 
-def laplacian_norms(points, own, nbr, q, counts_ext, mean_q, two_var, dtype, wdtype, *, chunk_size=None,
-                    progress=False) -> np.ndarray:
-    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K), in column order.
+def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, dtype, wdtype, *, ext=None,
+                    chunk_size=None, progress=False) -> np.ndarray:
+    """(R,) float64 ||(L P)_i|| of the rows ``own``: sum_j c_j w_ij (p_i - p_j) over ``nbr`` (R, K).
 
     ``q`` (R, K) the squared pair lengths of :func:`pair_lengths`, or None when ``wdtype`` is
     ``dtype``: the kernel then takes them from its own offsets (the same values).
 
-    The flows come from one compiled kernel; each row is then summed column by column in
-    float64, so padding columns (zeros) never change a sum's bits. ``counts_ext`` as
+    The flows come from one compiled kernel (on ``ext``, the points'
+    :func:`hgjax._stream.device_points` when the caller made them once for several calls);
+    each row is then summed in float64 as if its partners were added one by one in the order
+    of their ``tie_ext`` (global ids), so a point's score depends neither on how the graph
+    was cut nor on the order of its columns (:func:`row_sums`). ``counts_ext`` as
     :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    kernel, row_args = (_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_flow, ())
-    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype,
+    kernel, row_args = (_summed_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_summed_flow, ())
+    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype, ext=ext,
                              chunk_size=chunk_size, progress=progress)
-    lp = [np.add.accumulate(flows[..., axis] if counts_ext is None else counts_ext[nbr] * flows[..., axis], axis=1,
-                            dtype=np.float64)[:, -1] for axis in range(3)]  # each row summed in column order
-    return np.sqrt(lp[0] * lp[0] + lp[1] * lp[1] + lp[2] * lp[2])
+    lp = row_sums(*flows, nbr, counts_ext, tie_ext)
+    return np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2])
+
+
+def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: np.ndarray, counts_ext,
+             tie_ext: np.ndarray) -> np.ndarray:
+    """(R, 3) float64 sums over each row of the terms c_j f_ij.
+
+    Each sum has the bits of the terms added one by one in float64, in the order of the
+    partners' ``tie_ext`` (padding columns, whose terms are 0, last). Most rows need no
+    order: every term is an integer multiple of 2^e, e the exponent of the unit in the last
+    place of the row's smallest non-zero flow (c_j is an integer), so when K max_j c_j
+    max_j |f_ij| is at most 2^(e + 53), every partial sum in any order is a multiple of
+    2^e of magnitude at most 2^(e + 53), exactly a float64, and every order gives the exact
+    sum. Only the other rows are ordered and added one by one (in practice: the rows of
+    float64 flows, and about one float32 row in 1e5).
+
+    Args:
+      flows: (R, 3, K) f_ij, padding columns 0.
+      smallest, largest: (R, 3) each row's smallest non-zero |f_ij| (inf if none) and largest |f_ij|.
+      nbr: (R, K) partners, padded with n.
+      counts_ext: (n + 1,) c_j, 0 for the padding; None: every c_j = 1.
+      tie_ext: (n + 1,) the order of the partners, the padding n last.
+    """
+    width = flows.shape[2]
+    if counts_ext is None:
+        lp, most = np.sum(flows, axis=2, dtype=np.float64), largest * float(width)
+    else:
+        c = counts_ext[nbr][:, None, :]
+        flows = c * flows
+        lp, most = np.sum(flows, axis=2), largest * (float(width) * c.max(axis=2, initial=0.0))
+    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1))[1] - (np.finfo(smallest.dtype).nmant + 1)
+    slow = np.flatnonzero(~(most <= np.ldexp(1.0, unit + 53)).all(axis=1))
+    if slow.size:
+        order = np.argsort(tie_ext[nbr[slow]], axis=1, kind="stable")[:, None, :]
+        lp[slow] = np.add.accumulate(np.take_along_axis(flows[slow], order, axis=2), axis=2, dtype=np.float64)[..., -1]
+    return lp
 
 
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
@@ -651,9 +726,11 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
     want = np.zeros(index.n, bool)
     want[rows] = True
     counts_ext = _counts_ext(index)
+    ext = _stream.device_points(index.points, dtype)
     chunks, sums = [], []
     for own, sym in location_rows(index, r, max_nn, want):
-        sums.append(pair_sums(pair_lengths(index.points, own, sym, dtype), own, sym, index.gid, counts_ext))
+        q = pair_lengths(index.points, own, sym, dtype, ext=ext)
+        sums.append(pair_sums(q, own, sym, index.gid, counts_ext))
         valid = sym < index.n
         chunks.append((own, valid.sum(axis=1), sym[valid]))
     return chunks, summed(sums)
@@ -661,13 +738,15 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 
 def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_var: float, dtype, *,
                 chunk_size=None, progress=False) -> np.ndarray:
-    """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, in their order."""
-    counts_ext, out = _counts_ext(index), []
+    """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, ascending rows."""
+    counts_ext, out, rows = _counts_ext(index), [], []
+    ext = _stream.device_points(index.points, dtype)
     for own, counts, flat in chunks:
         sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
-        out.append(laplacian_norms(index.points, own, sym, None, counts_ext, mean_q, two_var, dtype, dtype,
-                                   chunk_size=chunk_size, progress=progress))
-    return np.concatenate(out) if out else np.zeros(0)
+        out.append(laplacian_norms(index.points, own, sym, None, counts_ext, index.gid, mean_q, two_var, dtype, dtype,
+                                   ext=ext, chunk_size=chunk_size, progress=progress))
+        rows.append(own)
+    return np.concatenate(out)[np.argsort(np.concatenate(rows))] if out else np.zeros(0)
 
 
 def _counts_ext(index: spatial.SpatialIndex) -> np.ndarray | None:
