@@ -227,20 +227,18 @@ class _Cloud:
         return self.lo + c * self.tile - halo, self.lo + (c + 1) * self.tile + halo
 
     def subcells(self, x: np.ndarray, cell) -> np.ndarray:
-        """(R, 3) int64 sub-cell of ``cell`` nearest each point of frame coordinates ``x`` (clipped to the tile).
+        """(R, 3) int64 sub-cell of ``cell`` (R, 3) or (3,) nearest each point of frame coordinates ``x``
+        (R, 3) or (3,) (clipped to the tile).
 
         Non-decreasing in each coordinate, so the sub-cells of a box's corners bound those of its points.
         """
         at = np.floor((x - self.lo) * (SUB / self.tile)).astype(np.int64) - SUB * np.asarray(cell, dtype=np.int64)
         return np.clip(at, 0, SUB - 1, out=at)
 
-    def slab(self, cell, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
-        """Global ids of the sub-cells of ``cell`` that meet the box [box_lo, box_hi]: all its points in the box."""
+    def slab(self, cell, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """Global ids of the sub-cells of ``cell`` from ``first`` to ``last`` (3,) (:meth:`subcells`), inclusive."""
         at, starts = self.subs[cell]
-        first, last = self.subcells(np.stack([box_lo, box_hi]), cell)
         ids = self.members[cell]
-        if (first == 0).all() and (last == SUB - 1).all():  # the box holds the whole tile
-            return ids
         hit = np.flatnonzero(((at >= first) & (at <= last)).all(axis=1))
         return np.concatenate([ids[starts[i]:starts[i + 1]] for i in hit.tolist()] or [ids[:0]])
 
@@ -251,8 +249,12 @@ class _Cloud:
             return core, self.frame(core), np.ones(core.size, bool)
         box_lo, box_hi = self.box(cell, halo)
         first, last = self.cells(np.stack([box_lo, box_hi]))
-        meets = np.flatnonzero(((self.grid >= first) & (self.grid <= last)).all(axis=1))
-        near = [self.slab(c, box_lo, box_hi) for c in map(tuple, self.grid[meets].tolist()) if c != cell]
+        meets = self.grid[((self.grid >= first) & (self.grid <= last)).all(axis=1)]
+        meets = meets[(meets != cell).any(axis=1)]  # the other tiles the box meets, and the sub-cells it meets
+        sub_lo, sub_hi = self.subcells(box_lo, meets), self.subcells(box_hi, meets)
+        whole = ((sub_lo == 0) & (sub_hi == SUB - 1)).all(axis=1)
+        near = [self.members[c] if w else self.slab(c, a, b)
+                for c, w, a, b in zip(map(tuple, meets.tolist()), whole.tolist(), sub_lo, sub_hi)]
         gids = np.concatenate([core] + near)
         order = np.argsort(gids, kind="stable")
         gids, is_core = gids[order], order < core.size
