@@ -267,9 +267,12 @@ class _Cloud:
         if self.tile is None:
             return True
         box_lo, box_hi = self.box(cell, halo)
-        left = (box_lo <= self.lo) | (x - reach[:, None] >= box_lo)
-        right = (box_hi > self.hi) | (x + reach[:, None] < box_hi)
-        return bool((left & right).all())
+        for a in range(3):  # only the faces inside the cloud bound a neighbourhood
+            if box_lo[a] > self.lo[a] and not (x[:, a] - reach >= box_lo[a]).all():
+                return False
+            if box_hi[a] <= self.hi[a] and not (x[:, a] + reach < box_hi[a]).all():
+                return False
+        return True
 
 
 @dataclasses.dataclass(frozen=True)
