@@ -115,7 +115,7 @@ def _stable_order(key: np.ndarray, top: int) -> np.ndarray:
     """
     order = np.argsort(key.astype(np.uint16), kind="stable")
     for shift in range(16, max(1, int(top - 1).bit_length()), 16):
-        order = order[np.argsort((key[order] >> shift).astype(np.uint16), kind="stable")]
+        order = order[np.argsort((key >> shift).astype(np.uint16)[order], kind="stable")]
     return order
 
 

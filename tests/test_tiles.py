@@ -53,6 +53,13 @@ def test_many_small_tiles_give_the_one_process_indices_and_compile_a_few_program
     assert events == []
 
 
+def test_the_grid_is_planned_by_a_stable_sort_of_keys_of_any_width():
+    rng = np.random.default_rng(5)
+    for top, dtype in ((3, np.uint32), (70_000, np.uint32), (1 << 32, np.uint32), (1 << 40, np.uint64)):
+        key = rng.integers(0, top, 50_000, dtype=np.uint64).astype(dtype)  # ties at every width
+        np.testing.assert_array_equal(tiles._stable_order(key, top), np.argsort(key, kind="stable"), err_msg=str(top))
+
+
 def test_points_on_tile_edges_are_owned_once():
     p = grid((9, 9, 9), 0.25)  # every coordinate on a tile edge
     _, cloud = tiles.plan(p, 0.2, method="ea", tile=0.5)
