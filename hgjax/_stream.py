@@ -10,8 +10,10 @@ the batch layout: results do not depend on the chunk size. It runs two ways:
 * pure (:func:`pure_map`: inside the caller's ``jit``, ``vmap`` or ``grad``, and every soft
   score): the whole (N, K) neighbourhood array is one chunk;
 * streamed (:class:`Stream`: eager calls, :func:`hgjax.resample`, the tiles): the points go
-  to the device once and fixed-size chunks of rows stream through ONE jitted program per
-  (method, K) as the host produces them, so a new cloud size never recompiles, the device
+  to the device once and chunks of rows stream through one jitted program per (method, K)
+  and chunk size as the host produces them, a chunk of 1, 2, 4, ... ``CHUNK_BLOCKS`` blocks
+  (:func:`chunk_rows`: a small tile runs one block), so a new cloud or tile size compiles
+  at most those few chunk shapes (and a new device copy size: :func:`point_rows`), the device
   computes while the host builds the next rows, and peak memory grows with the chunk,
   not with N. With several devices in ``jax.devices()`` each chunk's rows are split over
   them with ``shard_map``.
@@ -46,19 +48,28 @@ def is_traced(*trees) -> bool:
                                                                                             jax.core.Tracer)
 
 
-def chunk_rows(chunk_size: int | None = None) -> int:
-    """Rows per streamed chunk: a multiple of BLOCK per local device, fixed by default.
+def chunk_rows(chunk_size: int | None = None, total: int = 0) -> int:
+    """Rows per streamed chunk: a power of two multiple of BLOCK per local device, from a fixed set.
+
+    The chunk is the requested size (default ``CHUNK_BLOCKS`` blocks), cut down to the
+    smallest power of two number of blocks that holds ``total`` rows when there are fewer:
+    a tile of a few points runs one block, not a chunk of padding. Without a requested size
+    a stream's chunks come from the ``log2(CHUNK_BLOCKS) + 1`` sizes of 1, 2, 4, ...
+    ``CHUNK_BLOCKS`` blocks, so a cloud size or tile size never compiles more than those.
 
     Args:
-      chunk_size: requested rows (an integer >= 1, rounded up), or None for ``CHUNK_BLOCKS`` blocks.
+      chunk_size: requested rows (an integer >= 1, rounded up to whole blocks), or None.
+      total: the number of rows the stream will run, or 0 when unknown.
 
     Raises:
       TypeError, ValueError: ``chunk_size`` is not an integer >= 1.
     """
     unit = BLOCK * len(jax.devices())
-    if chunk_size is None:
-        return CHUNK_BLOCKS * unit
-    return -(-_validate.check_int(chunk_size, "chunk_size", minimum=1) // unit) * unit
+    blocks = (CHUNK_BLOCKS if chunk_size is None
+              else -(-_validate.check_int(chunk_size, "chunk_size", minimum=1) // unit))
+    if total > 0:
+        blocks = min(blocks, 1 << (-(-int(total) // unit) - 1).bit_length())
+    return blocks * unit
 
 
 def _blocks(fn: Callable, offsets, valid, row_args, args):
@@ -176,7 +187,7 @@ def device_points(points: np.ndarray, dtype) -> tuple:
 
 
 class Stream:
-    """Rows of one kernel sent to the device in fixed chunks of C rows as the host produces them.
+    """Rows of one kernel sent to the device in chunks of C rows (:func:`chunk_rows`) as the host produces them.
 
     :meth:`push` cuts the rows it is given into chunks of C rows (their own rows (C,) and
     neighbours (C, K)) and dispatches each full chunk to ONE compiled program at once; JAX
@@ -189,13 +200,13 @@ class Stream:
       ext: :func:`device_points` of the points the rows index.
       args: device arrays broadcast to every row.
       chunk_size, progress: as :func:`map_neighbourhoods`.
-      total: the number of rows to come (for the progress bar).
+      total: the number of rows to come (sets the chunk: :func:`chunk_rows`; and the progress bar).
     """
 
     def __init__(self, fn: Callable, ext: tuple, *, args=(), chunk_size: int | None = None, progress: bool = False,
                  total: int = 0):
         self.fn, self.ext, self.args, self.n = fn, ext, args, int(ext[2])
-        self.chunk = chunk_rows(chunk_size)
+        self.chunk = chunk_rows(chunk_size, total)
         self.pending, self.outputs, self.rows = None, [], 0
         self.bar = _progress(total, progress and total > 4 * self.chunk)
 

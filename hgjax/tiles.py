@@ -106,12 +106,26 @@ def _grid_shape(lo: np.ndarray, hi: np.ndarray, tile: float) -> tuple:
     return tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
 
 
+def _stable_order(key: np.ndarray, top: int) -> np.ndarray:
+    """(n,) int64 permutation that sorts the unsigned integer ``key`` (n,), all < ``top``, equal keys in index order.
+
+    A least-significant-digit radix sort in 16-bit digits: NumPy's stable argsort of 16-bit
+    integers is a counting sort, linear in n, so a key of up to 32 bits costs two passes.
+    """
+    order = np.argsort(key.astype(np.uint16), kind="stable")
+    for shift in range(16, max(1, int(top - 1).bit_length()), 16):
+        order = order[np.argsort((key >> shift).astype(np.uint16)[order], kind="stable")]
+    return order
+
+
 class _Cloud:
     """Points by global id, and the global ids of each tile (host; the points are never copied whole).
 
     ``members[cell]`` holds a tile's global ids grouped by its SUB^3 sub-cells (ascending
-    within each), and ``subs[cell]`` the (occupied sub-cell codes, their starts): a halo reads
-    only the sub-cells of its neighbours that meet its box. ``keep`` (set by the runner) keeps
+    within each), ``subs[cell]`` the (S, 3) coordinates of its S occupied sub-cells and their
+    (S + 1,) starts in it, and ``grid`` the (T, 3) occupied cells in grid order: a halo reads
+    only the sub-cells of its neighbours that meet its box. One radix sort of each point's
+    (tile, sub-cell) key orders the whole cloud. ``keep`` (set by the runner) keeps
     every tile's host index once built, instead of only the last one, until :meth:`release`.
     """
 
@@ -125,27 +139,32 @@ class _Cloud:
         self.n = n = points.shape[0]
         if tile is None:
             self.shape, self.members, self.subs = (1, 1, 1), {(0, 0, 0): np.arange(n, dtype=np.int64)}, {}
+            self.grid = np.zeros((1, 3), np.int64)
             return
         self.shape = _grid_shape(lo, hi, tile)
-        code = np.empty(n, dtype=np.int64)  # each point's tile and sub-cell, one chunk of the cloud at a time
-        sub = np.empty(n, dtype=np.int16)
-        for s in range(0, n, PASS_ROWS):
-            x = self.frame(np.arange(s, min(s + PASS_ROWS, n)))
+        per_tile = SUB ** 3
+        top = int(np.prod(self.shape)) * per_tile
+        key = np.empty(n, dtype=np.uint32 if top <= 1 << 32 else np.uint64)  # (tile, sub-cell) of each point
+        for s in range(0, n, PASS_ROWS):  # one chunk of the cloud at a time
+            x = np.asarray(points[s:s + PASS_ROWS], dtype=np.float64) - origin
             c = self.cells(x)
-            code[s:s + PASS_ROWS] = np.ravel_multi_index(c.T, self.shape)
-            sub[s:s + PASS_ROWS] = np.ravel_multi_index(self.subcells(x, c).T, (SUB,) * 3)
-        order = np.argsort(code, kind="stable")  # by tile, then ascending global id
-        code = code[order]
-        bounds = np.flatnonzero(code[1:] != code[:-1]) + 1
-        firsts, ends, code = np.r_[0, bounds], np.r_[bounds, n], code[np.r_[0, bounds]]
+            key[s:s + PASS_ROWS] = (np.ravel_multi_index(c.T, self.shape) * per_tile
+                                    + np.ravel_multi_index(self.subcells(x, c).T, (SUB,) * 3))
+        order = _stable_order(key, top)  # by tile, then sub-cell, then ascending global id
+        key = key[order]
+        firsts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])  # the first point of each occupied sub-cell
+        runs = key[firsts]
+        tiles_of, sub_codes = runs // per_tile, (runs % per_tile).astype(np.int64)
+        del key
+        heads = np.flatnonzero(np.r_[True, tiles_of[1:] != tiles_of[:-1]])  # each tile's first sub-cell
+        ends = np.r_[heads[1:], runs.size]
         self.members, self.subs = {}, {}
-        for s, e, c in zip(firsts, ends, code):
-            ids = order[s:e]  # a view: the members share one array
-            ids[:] = ids[np.argsort(sub[ids], kind="stable")]  # by sub-cell, then ascending global id
-            codes = sub[ids]
-            starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
-            cell = tuple(int(i) for i in np.unravel_index(c, self.shape))
-            self.members[cell], self.subs[cell] = ids, (codes[starts], np.r_[starts, e - s])
+        for h, e in zip(heads.tolist(), ends.tolist()):
+            s, t = int(firsts[h]), int(firsts[e]) if e < runs.size else n
+            cell = tuple(int(i) for i in np.unravel_index(int(tiles_of[h]), self.shape))
+            at = np.stack(np.unravel_index(sub_codes[h:e], (SUB,) * 3), axis=1)
+            self.members[cell], self.subs[cell] = order[s:t], (at, np.r_[firsts[h:e], t] - s)  # views of one array
+        self.grid = np.array(list(self.members), dtype=np.int64).reshape(-1, 3)
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__, keep=False, _indices={})
@@ -196,7 +215,8 @@ class _Cloud:
 
     def cells(self, x: np.ndarray) -> np.ndarray:
         """(R, 3) int64 grid cell owning each point of frame coordinates ``x``."""
-        return np.clip(np.floor((x - self.lo) / self.tile).astype(np.int64), 0, np.array(self.shape) - 1)
+        c = np.floor((x - self.lo) / self.tile).astype(np.int64)
+        return np.clip(c, 0, np.array(self.shape) - 1, out=c)
 
     def box(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray]:
         """The half-open box [lo, hi) of ``cell`` grown by ``halo``, in frame coordinates."""
@@ -206,21 +226,20 @@ class _Cloud:
         return self.lo + c * self.tile - halo, self.lo + (c + 1) * self.tile + halo
 
     def subcells(self, x: np.ndarray, cell) -> np.ndarray:
-        """(R, 3) int64 sub-cell of ``cell`` nearest each point of frame coordinates ``x`` (clipped to the tile).
+        """(R, 3) int64 sub-cell of ``cell`` (R, 3) or (3,) nearest each point of frame coordinates ``x``
+        (R, 3) or (3,) (clipped to the tile).
 
         Non-decreasing in each coordinate, so the sub-cells of a box's corners bound those of its points.
         """
-        start = self.lo + np.asarray(cell, dtype=np.float64) * self.tile
-        return np.clip(np.floor((x - start) * (SUB / self.tile)).astype(np.int64), 0, SUB - 1)
+        at = np.floor((x - self.lo) * (SUB / self.tile)).astype(np.int64) - SUB * np.asarray(cell, dtype=np.int64)
+        return np.clip(at, 0, SUB - 1, out=at)
 
-    def slab(self, cell, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
-        """Global ids of the sub-cells of ``cell`` that meet the box [box_lo, box_hi]: all its points in the box."""
-        codes, starts = self.subs[cell]
-        first, last = self.subcells(np.stack([box_lo, box_hi]), cell)
-        at = np.stack(np.unravel_index(codes, (SUB,) * 3), axis=1)
-        hit = np.flatnonzero(((at >= first) & (at <= last)).all(axis=1))
+    def slab(self, cell, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """Global ids of the sub-cells of ``cell`` from ``first`` to ``last`` (3,) (:meth:`subcells`), inclusive."""
+        at, starts = self.subs[cell]
         ids = self.members[cell]
-        return np.concatenate([ids[starts[i]:starts[i + 1]] for i in hit] or [ids[:0]])
+        hit = np.flatnonzero(((at >= first) & (at <= last)).all(axis=1))
+        return np.concatenate([ids[starts[i]:starts[i + 1]] for i in hit.tolist()] or [ids[:0]])
 
     def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(gids (n,) ascending, frame coordinates (n, 3), core mask (n,)) of a tile and its halo."""
@@ -228,9 +247,13 @@ class _Cloud:
         if self.tile is None:
             return core, self.frame(core), np.ones(core.size, bool)
         box_lo, box_hi = self.box(cell, halo)
-        first, last = self.cells(box_lo[None])[0], self.cells(box_hi[None])[0]
-        near = [self.slab(c, box_lo, box_hi) for c in self.members
-                if c != cell and all(first[a] <= c[a] <= last[a] for a in range(3))]
+        first, last = self.cells(np.stack([box_lo, box_hi]))
+        meets = self.grid[((self.grid >= first) & (self.grid <= last)).all(axis=1)]
+        meets = meets[(meets != cell).any(axis=1)]  # the other tiles the box meets, and the sub-cells it meets
+        sub_lo, sub_hi = self.subcells(box_lo, meets), self.subcells(box_hi, meets)
+        whole = ((sub_lo == 0) & (sub_hi == SUB - 1)).all(axis=1)
+        near = [self.members[c] if w else self.slab(c, a, b)
+                for c, w, a, b in zip(map(tuple, meets.tolist()), whole.tolist(), sub_lo, sub_hi)]
         gids = np.concatenate([core] + near)
         order = np.argsort(gids, kind="stable")
         gids, is_core = gids[order], order < core.size
@@ -243,9 +266,12 @@ class _Cloud:
         if self.tile is None:
             return True
         box_lo, box_hi = self.box(cell, halo)
-        left = (box_lo <= self.lo) | (x - reach[:, None] >= box_lo)
-        right = (box_hi > self.hi) | (x + reach[:, None] < box_hi)
-        return bool((left & right).all())
+        for a in range(3):  # only the faces inside the cloud bound a neighbourhood
+            if box_lo[a] > self.lo[a] and not (x[:, a] - reach >= box_lo[a]).all():
+                return False
+            if box_hi[a] <= self.hi[a] and not (x[:, a] + reach < box_hi[a]).all():
+                return False
+        return True
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Clouds the tests build, the degenerate clouds, and the variants helper (one matrix per kernel).
+"""Clouds the tests build, the degenerate clouds, the variants helper (one matrix per kernel), a compile counter.
 
 Every test file takes its clouds from here, so each kind of cloud is built one way. The
 variants helper runs one function of a :class:`hgjax.Neighbourhoods` the ways a JAX user
@@ -9,6 +9,8 @@ the per-cloud results, so a new way of calling is one more entry.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import jax
 import numpy as np
@@ -161,3 +163,21 @@ def assert_variants_agree(fn, nbs, *, rtol=None, atol=None):
         for i, got in enumerate(variant(fn, nbs)):
             assert_close(got, want[i], rtol, atol, err_msg=f"variant {name}, cloud {i}")
     return want
+
+
+# ----------------------------------------------------------------------------- compilations
+
+@contextlib.contextmanager
+def backend_compiles():
+    """Counts XLA backend compilations inside the block (jax.monitoring event listener)."""
+    events = []
+
+    def listener(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            events.append(kwargs.get("fun_name", event))
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield events
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)

@@ -69,9 +69,10 @@ def test_soft_score_equals_score():
 
 def test_a_new_cloud_size_does_not_recompile():
     kernel = _stream._jitted(mss.sharpness, 0)
-    host_score(uniform_cloud(400, seed=7))
+    for n in (400, 9000):  # chunks of one block and of CHUNK_BLOCKS blocks (_stream.chunk_rows)
+        host_score(uniform_cloud(n, seed=7))
     compiled = kernel._cache_size()
-    for n in (500, 9000):
+    for n in (500, 12_000):
         host_score(uniform_cloud(n, seed=n))
     assert kernel._cache_size() == compiled
 

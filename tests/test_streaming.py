@@ -1,13 +1,11 @@
-"""Streaming: one compilation for all chunks and all cloud sizes, chunk size never changes results."""
-
-import contextlib
+"""Streaming: a few chunk shapes compile for every cloud and tile size, chunk size never changes results."""
 
 import jax
 import numpy as np
 import pytest
 
 import hgjax
-from fixtures import box_surface
+from fixtures import backend_compiles, box_surface
 from hgjax import _stream
 from hgjax.scores import ea, hkc, hkf, lhf
 
@@ -15,22 +13,6 @@ SCORING = sorted(m for m, entry in hgjax.METHODS.items() if isinstance(entry, hg
 # (method, params) pairs covering every streamed kernel and variant
 VARIANTS = [("hkc", {}), ("hkc", {"variant": "reference"}), ("hkf", {}), ("hkf", {"variant": "reference"}),
             ("lhf", {}), ("lhf", {"variant": "reference"}), ("lhf", {"solver": "eigh"}), ("ea", {}), ("pca_ac", {})]
-
-
-@contextlib.contextmanager
-def backend_compiles():
-    """Counts XLA backend compilations inside the block (jax.monitoring event listener)."""
-    events = []
-
-    def listener(event, duration, **kwargs):
-        if event == "/jax/core/compile/backend_compile_duration":
-            events.append(kwargs.get("fun_name", event))
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    try:
-        yield events
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listener)
 
 
 @pytest.mark.parametrize("method", SCORING)
@@ -54,10 +36,15 @@ def test_scores_are_bitwise_chunk_invariant(method, params):
     np.testing.assert_array_equal(np.asarray(traced), base)
 
 
-def test_chunk_rows_is_fixed_and_independent_of_n():
+def test_chunk_rows_come_from_a_fixed_set_and_fit_small_streams():
     unit = _stream.BLOCK * len(jax.devices())
     assert _stream.chunk_rows() == _stream.CHUNK_BLOCKS * unit
     assert _stream.chunk_rows(1) == unit and _stream.chunk_rows(unit + 1) == 2 * unit
+    for total, blocks in ((1, 1), (unit, 1), (unit + 1, 2), (3 * unit, 4), (10**7, _stream.CHUNK_BLOCKS)):
+        assert _stream.chunk_rows(total=total) == blocks * unit, total
+    assert _stream.chunk_rows(3 * unit, total=10 * unit) == 3 * unit  # a requested size is the largest chunk
+    assert _stream.chunk_rows(3 * unit, total=unit + 1) == 2 * unit
+    assert len({_stream.chunk_rows(total=t) for t in range(1, 20 * unit, 97)}) == _stream.CHUNK_BLOCKS.bit_length()
 
 
 def test_large_float32_streaming_run_with_small_chunks():
@@ -71,23 +58,31 @@ def test_large_float32_streaming_run_with_small_chunks():
     assert len(np.unique(idx)) == 20_000
 
 
-def test_one_compilation_for_all_chunks_and_cloud_sizes():
-    kernels = [(hkc._kernel(3, "invariant"), 1, "hkc", {}), (hkf._kernel(3, "invariant"), 1, "hkf", {}),
-               (lhf._kernel(lhf.DEFAULT_LENGTHS, "invariant", "gram"), 0, "lhf", {}),
-               (ea.variation, 0, "ea", {})]
-    for fn, n_row_args, method, params in kernels:
+def test_compilations_are_bounded_by_the_chunk_sizes_whatever_the_cloud_size():
+    sizes = [_stream.BLOCK << i for i in range(_stream.CHUNK_BLOCKS.bit_length())]  # 1, 2, 4, ... blocks
+    kernels = [(hkc._kernel(3, "invariant"), 1, "hkc", True), (hkf._kernel(3, "invariant"), 1, "hkf", True),
+               (lhf._kernel(lhf.DEFAULT_LENGTHS, "invariant", "gram"), 0, "lhf", False),
+               (ea.variation, 0, "ea", False)]
+    for fn, n_row_args, method, narrow in kernels:
         kernel = _stream._jitted(fn, n_row_args)
+        before = kernel._cache_size()
         # a fixed capacity: the same K for every cloud (the HKC/HKF cube never holds 256 points)
-        first = hgjax.neighbourhoods(box_surface(5000, seed=3), method, capacity=256, **params)
-        hgjax.score(first, method, **params)  # compiles the default chunk shape
-        hgjax.score(first, method, chunk_size=4096, **params)  # a new chunk size is a new shape
+        clouds = [hgjax.neighbourhoods(box_surface(n, seed=seed), method, capacity=256)
+                  for n, seed in ((5000, 3), (700, 4), (3000, 5), (20_000, 6))]
+        for nb in clouds:
+            for chunk in sizes + [None]:
+                hgjax.score(nb, method, chunk_size=chunk)
+        widths = {k for nb in clouds
+                  for _, k in (_stream.narrow_groups(np.asarray(nb.idx), len(nb.points)) if narrow else [(0, 0)])}
+        assert kernel._cache_size() - before <= len(sizes) * len(widths), method
+        if narrow:
+            continue
         compiled = kernel._cache_size()
-        assert compiled >= 1
-        with backend_compiles() as events:
-            for n, seed in ((5000, 4), (3000, 5), (20_000, 6)):  # other data, other sizes, more chunks
-                nb = hgjax.neighbourhoods(box_surface(n, seed=seed), method, capacity=256, **params)
-                hgjax.score(nb, method, chunk_size=4096, **params)
-                hgjax.score(nb, method, **params)
+        with backend_compiles() as events:  # other data, other sizes, more chunks: the shapes are compiled
+            for n, seed in ((4000, 7), (12_000, 8), (300, 9)):
+                nb = hgjax.neighbourhoods(box_surface(n, seed=seed), method, capacity=256)
+                hgjax.score(nb, method, chunk_size=4096)
+                hgjax.score(nb, method)
         assert kernel._cache_size() == compiled, method
         assert events == [], (method, events)
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import hgjax
-from fixtures import box_union, grid
-from hgjax import select, spatial, tiles
+from fixtures import backend_compiles, box_union, grid
+from hgjax import _stream, select, spatial, tiles
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
 VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
@@ -39,6 +39,25 @@ def test_tiled_equals_one_process(method, params, which, request):
         _, cloud = tiles.plan(p, 0.2, method="ea", tile=tile)
         assert len(cloud.members) >= 4
         np.testing.assert_array_equal(_tiled(p, method, tile, **params), want)
+
+
+@pytest.mark.parametrize("method", ["ea", "lhf"])
+def test_many_small_tiles_give_the_one_process_indices_and_compile_a_few_programs(smooth, method):
+    want = hgjax.resample(smooth, 0.2, method=method)
+    assert len(tiles.plan(smooth, 0.2, method=method, tile=0.6)[1].members) >= 300  # of about 8 points each
+    with backend_compiles() as events:
+        np.testing.assert_array_equal(_tiled(smooth, method, 0.6), want)
+    assert len(events) <= _stream.CHUNK_BLOCKS.bit_length(), events  # a few chunk sizes, not one per tile
+    with backend_compiles() as events:
+        np.testing.assert_array_equal(_tiled(smooth, method, 0.8), want)
+    assert events == []
+
+
+def test_the_grid_is_planned_by_a_stable_sort_of_keys_of_any_width():
+    rng = np.random.default_rng(5)
+    for top, dtype in ((3, np.uint32), (70_000, np.uint32), (1 << 32, np.uint32), (1 << 40, np.uint64)):
+        key = rng.integers(0, top, 50_000, dtype=np.uint64).astype(dtype)  # ties at every width
+        np.testing.assert_array_equal(tiles._stable_order(key, top), np.argsort(key, kind="stable"), err_msg=str(top))
 
 
 def test_points_on_tile_edges_are_owned_once():
