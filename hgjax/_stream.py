@@ -285,9 +285,9 @@ class NarrowStream:
 
     def __init__(self, fn: Callable, ext: tuple, *, args=(), chunk_size: int | None = None, progress: bool = False,
                  total: int = 0):
-        self.new = functools.partial(Stream, fn, ext, args=args, chunk_size=chunk_size)
+        self.new = functools.partial(Stream, fn, ext, args=args, chunk_size=chunk_size, total=total)
         self.n, self.streams, self.widths = int(ext[2]), {}, []
-        self.bar = _progress(total, progress and total > 4 * chunk_rows(chunk_size))
+        self.bar = _progress(total, progress and total > 4 * chunk_rows(chunk_size, total))
 
     def push(self, own, idx, row_args=()) -> None:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K), listed first, and ``row_args``."""

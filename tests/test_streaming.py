@@ -72,8 +72,8 @@ def test_compilations_are_bounded_by_the_chunk_sizes_whatever_the_cloud_size():
         for nb in clouds:
             for chunk in sizes + [None]:
                 hgjax.score(nb, method, chunk_size=chunk)
-        widths = {k for nb in clouds
-                  for _, k in (_stream.narrow_groups(np.asarray(nb.idx), len(nb.points)) if narrow else [(0, 0)])}
+        widths = {cut.shape[1] for nb in clouds
+                  for _, cut in (_stream.narrow_split(nb.idx, len(nb.points)) if narrow else [(0, nb.idx)])}
         assert kernel._cache_size() - before <= len(sizes) * len(widths), method
         if narrow:
             continue
