@@ -183,6 +183,17 @@ def _select(scores, m: int, *, key=None, n_clusters: int = DEFAULT_N_CLUSTERS) -
     return keep(scores, m, n_clusters=n_clusters)
 
 
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of a run of ``n`` points scored as one tile: EA's.
+
+    Raises:
+      TypeError, ValueError: invalid parameters (``n_clusters`` included, before any work),
+        or fewer than k points.
+    """
+    _validate.check_int(params.get("n_clusters", DEFAULT_N_CLUSTERS), "n_clusters", minimum=1)
+    return ea.tile_params(n, params)
+
+
 def _untiled(params: dict) -> tuple[str, str]:
     return "", "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into tiles"
 
@@ -191,4 +202,5 @@ METHOD = _registry.Method(
     "pca_ac", "knn", largest=True, needs_key=False,
     summary="PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
     citation=_registry.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
-    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select, untiled=_untiled)
+    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select, untiled=_untiled,
+    whole_selection=True, tile_params=tile_params, rows=ea.tile_rows, kernel=ea.tile_kernel)
