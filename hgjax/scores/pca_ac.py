@@ -26,8 +26,9 @@ left-to-right sum, so its sizes, totals and every later cost keep the same bits,
 one round or heap step per value.
 
 A consequence worth knowing: because the clusters are intervals of the variation, the kept
-set equals EA's (the largest variations) except for the order among exactly equal
-variations; the clustering adds the cluster numbers, not a different ranking.
+indices equal EA's (the largest variations, ties by index), in the same order; the clustering
+adds the cluster numbers, not a different ranking. :func:`hgjax.resample` scores both through
+the same one-tile engine; only PCA-AC's selection needs every score at once, so it refuses tiles.
 """
 
 from __future__ import annotations
