@@ -50,6 +50,11 @@ class Method:
       untiled: ``untiled(params) -> (qualifier, reason) | None``: why these parameters need
         the whole cloud at once (the tiled path refuses a tile size, naming the reason);
         None when the method always tiles.
+      whole_selection: the selection ranks every score at once (PCA-AC's Ward clustering):
+        ``untiled`` refuses a tile size, and a run without one scores the cloud as one tile
+        (``tile_params``, ``rows``, ``kernel``) before ``select`` takes all the scores. False
+        for a method whose refused parameters need the whole cloud to score it (GFR's
+        reference radius).
       tile_params: ``tile_params(n, params) -> (build, score)``: the validated build and
         score parameters of a tiled run of ``n`` points, before any whole-cloud decision.
       resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
@@ -88,6 +93,7 @@ class Method:
     select: Callable | None = None
     check_key: Callable | None = None
     untiled: Callable | None = None
+    whole_selection: bool = False
     tile_params: Callable | None = None
     resolve: Callable | None = None
     rows: Callable | None = None

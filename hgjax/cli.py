@@ -187,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="no progress bar (shown only when stderr is a terminal)")
     common.add_argument("-v", "--verbose", action="store_true",
                         help="print the seconds of each stage (read; plan, tiles: every tile's neighbourhoods and"
-                        " scores, keep; write; PCA-AC and GFR's reference: neighbourhoods, score, keep)")
+                        " scores, keep; write; GFR's reference: neighbourhoods, score, keep)")
 
     def with_inputs(p, several):
         if several:

@@ -305,7 +305,7 @@ class _Clock:
 
 
 def _whole(points, ratio, entry: Method, key, params: dict, on_stage=None) -> tuple[np.ndarray, np.ndarray]:
-    """(kept indices, scores) of a scoring method on the whole cloud at once (PCA-AC, GFR's reference).
+    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference).
 
     ``on_stage(name, seconds)``, when given, is called as each stage (``"neighbourhoods"``,
     ``"score"``, ``"keep"``) ends.

@@ -55,6 +55,15 @@ def _refused(entry, params: dict) -> tuple[str, str] | None:
     return None if entry.untiled is None else entry.untiled(params)
 
 
+def _untiled(entry, params: dict, tile, client) -> tuple[str, str] | None:
+    """:func:`_refused`, raising ValueError when a ``tile`` or a ``client`` asks for tiles anyway."""
+    refused = _refused(entry, params)
+    if refused is not None and (tile is not None or client is not None):
+        raise ValueError(f"method {entry.name!r}{refused[0]} cannot run in tiles (tile={tile!r}): {refused[1]};"
+                         " pass tile=None")
+    return refused
+
+
 TILED = tuple(sorted(name for name, entry in pipeline.METHODS.items()  # with their default parameters
                     if _refused(entry, {}) is None))
 HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K) per k-nearest radius reached
@@ -523,13 +532,18 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
     Args:
       points: (N, 3) float32 or float64 array (an ``np.memmap`` streams from disk).
       ratio: fraction kept, in (0, 1].
-      method: a scoring method that tiles (:data:`TILED`, not the samplers).
+      method: a scoring method with a tiled plan (not the samplers); one outside
+        :data:`TILED` (PCA-AC) only as one tile.
       tile: tile edge (> 0) in the points' units, or None for one tile.
       client: a ``dask.distributed.Client`` that computes the sample's nearest distances, or None.
       **params: the method's build and score parameters.
 
     Returns:
       (plan, cloud): the :class:`Plan` and the tiled cloud it was made for.
+
+    Raises:
+      ValueError: a method without a tiled plan, or a ``tile`` or ``client`` for a method
+        refused in tiles; TypeError, ValueError: invalid arguments.
     """
     plan_, cloud = _base(points, ratio, method, tile, params, client)
     return _resolved(plan_, _runner(cloud, client, _reach_k(plan_.build))), cloud
@@ -541,6 +555,7 @@ def _base(points, ratio, method: str, tile, params: dict, client=None) -> tuple[
     if not _planned(entry):
         raise ValueError(f"method {method!r} has no tiled plan; expected one of"
                          f" {sorted(m for m, e in pipeline.METHODS.items() if _planned(e))}")
+    _untiled(entry, params, tile, client)
     if isinstance(points, _Sources):
         n, (bmin, bmax), dtype = points.n, points.bounds(), spatial.working_dtype(np.float64)
     else:
@@ -729,11 +744,12 @@ class _Run:
     Attributes:
       idx: (M,) kept global ids, highest priority first.
       scores: (N,) scores, or None unless asked for (and for the samplers).
-      plan: the :class:`Plan`, or None for the methods that run on the whole cloud at once.
+      plan: the :class:`Plan`, or None for the samplers and GFR's reference (whole cloud at once).
       selection: the global statistics of the selection: LHF's order statistics Gamma_a,
         Gamma_b (Eqs. (15)-(16)), GFR's exact score sum; empty for the others.
       threshold: the last kept (value, global id) pair, the value being the score (GFR's
-        random mode: the Gumbel-perturbed log weight), or None without a plan.
+        random mode: the Gumbel-perturbed log weight), or None without a plan and for a
+        whole selection (PCA-AC's clusters).
     """
 
     idx: np.ndarray
@@ -750,18 +766,16 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     The one composition of every resampling entry point (:func:`hgjax.resample`,
     :func:`resample`, the command line). ``on_stage(name, seconds)``, when given, is called as
     each stage ends: ``"sample"`` for a sampler; ``"neighbourhoods"``, ``"score"``, ``"keep"``
-    on the whole cloud (:func:`hgjax.pipeline._whole`); ``"plan"`` (bounds, grid, resolved
-    parameters), ``"tiles"`` (every tile's neighbourhoods and scores) and ``"keep"`` (the
-    global selection) in tiles.
+    on the whole cloud (GFR's reference: :func:`hgjax.pipeline._whole`); ``"plan"`` (bounds,
+    grid, resolved parameters), ``"tiles"`` (every tile's neighbourhoods and scores) and
+    ``"keep"`` (the global selection; PCA-AC's Ward clustering of every score, in one tile)
+    in tiles.
     """
     clock = pipeline._Clock(on_stage)
     entry = pipeline._entry(method)
     return_scores = _validate.check_bool(return_scores, "return_scores")
     distributed = tile is not None or client is not None
-    refused = _refused(entry, params)
-    if distributed and refused is not None:
-        raise ValueError(f"method {method!r}{refused[0]} cannot run in tiles (tile={tile!r}): {refused[1]};"
-                         " pass tile=None")
+    refused = _untiled(entry, params, tile, client)
     pipeline._check_known(entry, params)
     if isinstance(entry, pipeline.Sampler):
         if (distributed or isinstance(points, _Sources)) and method in _TILED_SAMPLERS:
@@ -770,7 +784,7 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
         return _Run(clock("sample", entry.draw(_validate.check_points(points), ratio, key, **params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
-    if refused is not None:
+    if refused is not None and not entry.whole_selection:
         idx, scores = pipeline._whole(points, ratio, entry, key, params, on_stage)
         return _Run(idx, scores if return_scores else None)
     stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
@@ -781,6 +795,10 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     plan_ = clock("plan", _resolved(plan_, runner))
     parts = _gfr_scores(runner, plan_, stream) if entry.kind == "graph" else runner.tiles(tile_scores, plan_, stream)
     clock("tiles")
+    if entry.whole_selection:
+        scores = _gathered(runner, parts, plan_)
+        return _Run(clock("keep", pipeline.keep(scores, ratio, method=method, key=key, **params)),
+                    scores if return_scores else None, plan_)
     if entry.tiled_select is None:
         keyed, selection, largest = runner.each(select.part_keys, parts, entry.largest), {}, entry.largest
     else:
@@ -788,12 +806,15 @@ def _resample(points, ratio, method: str, tile, client, key, return_scores: bool
     idx, (last_key, last_gid) = select.top_pairs(keyed, plan_.m, run=runner.run(keyed), boundary=True)
     clock("keep")
     threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
-    scores = None
-    if return_scores:
-        scores = np.empty(plan_.n, dtype=plan_.dtype)
-        for gids, values in runner.gather(parts):
-            scores[gids] = values
-    return _Run(idx, scores, plan_, selection, threshold)
+    return _Run(idx, _gathered(runner, parts, plan_) if return_scores else None, plan_, selection, threshold)
+
+
+def _gathered(runner: _Here, parts, plan_: Plan) -> np.ndarray:
+    """(N,) scores of every point, in the working dtype, gathered from the tiles' (gids, scores) parts."""
+    scores = np.empty(plan_.n, dtype=plan_.dtype)
+    for gids, values in runner.gather(parts):
+        scores[gids] = values
+    return scores
 
 
 def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:

@@ -16,7 +16,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 import hgjax
 import naive
 from conftest import TOL
-from fixtures import degenerate_clouds, grid, uniform_cloud
+from fixtures import box_surface, degenerate_clouds, grid, uniform_cloud
 
 ea_module = importlib.import_module("hgjax.scores.ea")
 pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")
@@ -198,7 +198,27 @@ def test_pca_ac_keeps_what_ea_keeps():
     assert set(a.tolist()) == set(b.tolist())
     labels = hgjax.scores.pca_ac.ward_1d(scores_of(p, "pca_ac"), 4)
     assert np.all(np.diff(labels[a]) <= 0)  # highest cluster numbers first
-    np.testing.assert_array_equal(hgjax.scores.pca_ac.keep(scores_of(p, "ea"), 100, n_clusters=4), a)
+    _, scores = hgjax.tiles.resample(p, 0.2, method="ea", return_scores=True)
+    np.testing.assert_array_equal(hgjax.scores.pca_ac.keep(scores, 100, n_clusters=4), a)
+
+
+@pytest.mark.parametrize("n_clusters", [2, 5])
+def test_pca_ac_ranks_the_scores_ea_ranks(dtype, n_clusters):
+    """PCA-AC's clusters are intervals of EA's variation, scored by the same one-tile engine: the
+    same indices in the same order, and the same scores (float32 included)."""
+    p = box_surface(20000, seed=3).astype(dtype)
+    idx, scores = hgjax.tiles.resample(p, 0.2, method="pca_ac", n_clusters=n_clusters, return_scores=True)
+    ea_idx, ea_scores = hgjax.tiles.resample(p, 0.2, method="ea", return_scores=True)
+    assert scores.dtype == dtype
+    np.testing.assert_array_equal(scores, ea_scores)
+    np.testing.assert_array_equal(idx, ea_idx)
+    np.testing.assert_array_equal(idx, hgjax.resample(p, 0.2, method="pca_ac", n_clusters=n_clusters))
+
+
+def test_pca_ac_checks_n_clusters_before_scoring(monkeypatch):
+    monkeypatch.setattr(hgjax.tiles, "tile_scores", lambda *a, **k: pytest.fail("scored before the check"))
+    with pytest.raises(ValueError, match="n_clusters"):
+        hgjax.resample(uniform_cloud(100), 0.2, method="pca_ac", n_clusters=0)
 
 
 # ---------------------------------------------------------------- samplers

@@ -262,9 +262,10 @@ def test_a_bad_file_in_a_batch(tmp_path, scan):
 
 
 def test_verbose_prints_the_seconds_of_each_stage(tmp_path, scan):
-    """The stages of the composition hgjax.resample runs: in tiles, or on the whole cloud (PCA-AC)."""
-    for method, stages in (("hkc", ["plan", "tiles", "keep"]), ("pca_ac", ["neighbourhoods", "score", "keep"])):
-        proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", tmp_path / "k.ply", "--method", method, "-v")
+    """The stages of the composition hgjax.resample runs: in tiles (PCA-AC as one), or on the whole cloud."""
+    for method, stages in ((["hkc"], ["plan", "tiles", "keep"]), (["pca_ac"], ["plan", "tiles", "keep"]),
+                           (["gfr", "--variant", "reference"], ["neighbourhoods", "score", "keep"])):
+        proc = hgjax_cli(tmp_path, "resample", scan / "c.npy", "-o", tmp_path / "k.ply", "--method", *method, "-v")
         assert proc.returncode == 0, proc.stderr
         lines = [line.split(":") for line in proc.stderr.splitlines() if line.startswith("  ")]
         assert [name.split()[0] for name, _ in lines] == ["read", *stages, "write"]

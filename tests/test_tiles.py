@@ -128,9 +128,17 @@ def test_global_methods_are_refused_with_tiles(smooth, method):
     assert len(tiles.resample(smooth, 0.2, method=method, tile=None)) == 600
 
 
+def test_pca_ac_plans_one_tile_only(smooth):
+    with pytest.raises(ValueError, match="method 'pca_ac' cannot run in tiles.*tile=None"):
+        tiles.plan(smooth, 0.2, method="pca_ac", tile=1.0)
+    assert tiles.plan(smooth, 0.2, method="pca_ac")[0].build == tiles.plan(smooth, 0.2, method="ea")[0].build
+
+
 def test_gfr_reference_is_refused_with_tiles(smooth):
     with pytest.raises(ValueError, match="variant='reference' cannot run in tiles"):
         tiles.resample(smooth, 0.2, method="gfr", variant="reference", mode="top", tile=1.0)
+    with pytest.raises(ValueError, match="variant='reference' cannot run in tiles"):
+        tiles.plan(smooth, 0.2, method="gfr", variant="reference", tile=1.0)
 
 
 def test_knn_ties_are_broken_by_global_id():

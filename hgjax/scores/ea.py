@@ -262,10 +262,16 @@ def tile_rows(index, rows, build: dict, dtype):
         yield part, idx, (), reach
 
 
+def tile_kernel(params: dict):
+    """(row kernel, narrow) the tiles stream for EA's scores: :func:`variation` on full-width rows."""
+    del params  # EA's score takes no parameter
+    return variation, False
+
+
 KNN_PARAMS = _registry.stages(build=("capacity", "dedupe", "k"), score=("chunk_size", "progress"))
 
 METHOD = _registry.Method(
     "ea", "knn", largest=True, needs_key=False,
     summary="eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
     citation=_registry.DICTA, build=neighbourhoods, score=score, soft_score=soft_score, params=KNN_PARAMS,
-    tile_params=tile_params, rows=tile_rows, kernel=lambda params: (variation, False))
+    tile_params=tile_params, rows=tile_rows, kernel=tile_kernel)

@@ -26,8 +26,9 @@ left-to-right sum, so its sizes, totals and every later cost keep the same bits,
 one round or heap step per value.
 
 A consequence worth knowing: because the clusters are intervals of the variation, the kept
-set equals EA's (the largest variations) except for the order among exactly equal
-variations; the clustering adds the cluster numbers, not a different ranking.
+indices equal EA's (the largest variations, ties by index), in the same order; the clustering
+adds the cluster numbers, not a different ranking. :func:`hgjax.resample` scores both through
+the same one-tile engine; only PCA-AC's selection needs every score at once, so it refuses tiles.
 """
 
 from __future__ import annotations
@@ -183,6 +184,17 @@ def _select(scores, m: int, *, key=None, n_clusters: int = DEFAULT_N_CLUSTERS) -
     return keep(scores, m, n_clusters=n_clusters)
 
 
+def tile_params(n: int, params: dict) -> tuple[dict, dict]:
+    """Validated (build, score) parameters of a run of ``n`` points scored as one tile: EA's.
+
+    Raises:
+      TypeError, ValueError: invalid parameters (``n_clusters`` included, before any work),
+        or fewer than k points.
+    """
+    _validate.check_int(params.get("n_clusters", DEFAULT_N_CLUSTERS), "n_clusters", minimum=1)
+    return ea.tile_params(n, params)
+
+
 def _untiled(params: dict) -> tuple[str, str]:
     return "", "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into tiles"
 
@@ -191,4 +203,5 @@ METHOD = _registry.Method(
     "pca_ac", "knn", largest=True, needs_key=False,
     summary="PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
     citation=_registry.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
-    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select, untiled=_untiled)
+    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select, untiled=_untiled,
+    whole_selection=True, tile_params=tile_params, rows=ea.tile_rows, kernel=ea.tile_kernel)
