@@ -293,9 +293,10 @@ class NarrowStream:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K), listed first, and ``row_args``."""
         width = np.empty(np.shape(idx)[0], dtype=np.int64)
         for rows, cut in narrow_split(idx, self.n):
-            width[rows] = cut.shape[1]
-            self.streams.setdefault(cut.shape[1], self.new()).push(np.asarray(own)[rows], cut,
-                                                                  tuple(np.asarray(a)[rows] for a in row_args))
+            w = width[rows] = cut.shape[1]
+            if w not in self.streams:
+                self.streams[w] = self.new()
+            self.streams[w].push(np.asarray(own)[rows], cut, tuple(np.asarray(a)[rows] for a in row_args))
         self.widths.append(width)
         if self.bar is not None:
             self.bar.update(width.size)

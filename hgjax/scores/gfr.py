@@ -472,11 +472,14 @@ def _streamed_high_pass(points: np.ndarray, idx: np.ndarray, first: np.ndarray |
     stream = {"chunk_size": chunk_size, "progress": progress}
     tie_ext = np.append(own, n)
     # q from the points cast to wdtype first, as the authors' float32 code computes it.
-    q = [pair_lengths(points.astype(wdtype), own[b], sym[b], wdtype, **stream) for b in _blocks(n)]
+    low = points.astype(wdtype)
+    ext_q = _stream.device_points(low, wdtype)  # every block's kernels read the points sent once
+    ext = ext_q if wdtype == points.dtype else _stream.device_points(points, points.dtype)
+    q = [pair_lengths(low, own[b], sym[b], wdtype, ext=ext_q, **stream) for b in _blocks(n)]
     mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
                                       for q_b, b in zip(q, _blocks(n))]))
     lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, tie_ext, mean_q, two_var,
-                                         points.dtype, wdtype, **stream) for q_b, b in zip(q, _blocks(n))]
+                                         points.dtype, wdtype, ext=ext, **stream) for q_b, b in zip(q, _blocks(n))]
                         or [np.zeros(0)])
     return (lp if first is None else lp[first]).astype(points.dtype)
 
