@@ -327,3 +327,12 @@ def test_row_sums_are_the_sums_in_global_id_order(dtype, with_counts):
     assert np.array_equal(got, expected)
     unordered = np.sum(c[nbr][..., None] * flows, axis=1, dtype=np.float64)
     assert not np.array_equal(unordered, expected)  # the order matters in some rows: the test can fail
+
+
+def test_symmetric_pairs_of_int32_indices_beyond_46341_points():
+    n = 50_000  # n^2 > 2^31: the packed (node, rank) keys need int64 even for int32 indices
+    a = np.array([0, n - 1, 12_345], dtype=np.int32)
+    b = np.array([n - 2, 3, n - 1], dtype=np.int32)
+    sym = gfr_module.symmetric(a, b, n, np.arange(n))
+    partners = {i: sorted(int(j) for j in sym[i] if j < n) for i in (0, 3, 12_345, n - 2, n - 1)}
+    assert partners == {0: [n - 2], 3: [n - 1], 12_345: [n - 1], n - 2: [0], n - 1: [3, 12_345]}

@@ -605,6 +605,7 @@ def symmetric(a: np.ndarray, b: np.ndarray, n: int, tie: np.ndarray) -> np.ndarr
     ids), padded with n: the order in which :func:`laplacian_norms` sums a row, so a point's
     score does not depend on how the graph was cut or padded.
     """
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)  # packed keys reach n^2
     by_tie = np.argsort(tie, kind="stable")
     rank = np.empty(n, dtype=np.int64)
     rank[by_tie] = np.arange(n)
