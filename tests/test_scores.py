@@ -305,7 +305,10 @@ def test_voxel_frame_derivative_is_perturbation_theory_and_finite_where_degenera
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     cov, dcov = q @ np.diag([1.0, 2.0, 4.0]) @ q.T, rng.normal(size=(3, 3))
     dcov = dcov + dcov.T
-    entries = lambda m: tuple(jnp.asarray(m[i, j]) for i, j in _common.PAIRS)  # noqa: E731
+
+    def entries(m):
+        return tuple(jnp.asarray(m[i, j]) for i, j in _common.PAIRS)
+
     v, dv = jax.jit(lambda e, d: jax.jvp(voxel.frame, (e,), (d,)))(entries(cov), entries(dcov))
     eps = 1e-6
     plus, minus = (np.asarray(voxel.frame(entries(cov + s * eps * dcov))) for s in (1, -1))
