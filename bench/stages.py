@@ -121,9 +121,9 @@ def _kernel_split(p, method: str, repeats: int) -> dict:
         return voxel.kernel_signal(o, v, d, 3, "invariant")
 
     def cov_only(o, v, d):
-        return _common.centred_scatter(o / d, v)[2]
+        return _common.centred_entries(o / d, v)[1]
 
-    parts = {"gather (offsets out)": gather_only, "centred scatter (3 x 3 out)": cov_only,
+    parts = {"gather (offsets out)": gather_only, "centred scatter (6 entries out)": cov_only,
              "frame: scatter + Jacobi + turn (offsets out)": frame_only, "frame + voxel counts (27 out)": counts,
              "whole kernel (score out)": full}
     out = {}

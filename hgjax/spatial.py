@@ -444,12 +444,18 @@ class SpatialIndex:
             width = int(count[done].max(initial=1))
             if width > out.shape[1]:
                 out = np.pad(out, ((0, 0), (0, width - out.shape[1])), constant_values=self.n)
-            tied = done & (inside[:, 1:] & (dist[:, 1:] == dist[:, :-1])).any(axis=1)
-            if tied.any():  # equal distances inside: by global id, the point itself first
-                dist, idx = dist.copy(), idx.copy()
-                dist[tied], idx[tied] = self._ranked(row_ids[todo[tied]], np.where(inside[tied], dist[tied], np.inf),
-                                                     idx[tied])
-            out[todo[done], :width] = np.where(inside[done, :width], idx[done, :width], self.n)
+            keep = inside[:, :width] & done[:, None]
+            if todo.size == len(row_ids):  # every row in this round: write in place, no row selection
+                np.copyto(out[:, :width], idx[:, :width], casting="unsafe", where=keep)
+            else:
+                out[todo[done], :width] = np.where(keep[done], idx[done, :width], self.n)
+            # Equal distances inside the cube (rare; first any tie in the row, then inside it) are
+            # ordered by global id, the point itself first.
+            tied = (dist[:, 1:width] == dist[:, :width - 1]).any(axis=1)
+            tied[tied] = (keep[tied, 1:] & (dist[tied, 1:width] == dist[tied, :width - 1])).any(axis=1)
+            if tied.any():
+                ranked = self._ranked(row_ids[todo[tied]], np.where(inside[tied], dist[tied], np.inf), idx[tied])[1]
+                out[todo[tied], :width] = np.where(keep[tied], ranked[:, :width], self.n)
             todo, k = todo[~done], min(2 * k, self.n)
         return out, h
 
@@ -752,9 +758,7 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
     nbrs, reach = chunked_knn(index, k + 1, rows) if query is None else index.knn(k + 1, rows, query=query)
     rk = np.full(index.n, np.nan) if rk is None else rk
     rk[rows] = reach
-    need = np.zeros(index.n, dtype=bool)
-    need[nbrs] = True
-    extra = np.flatnonzero(need & np.isnan(rk))
+    extra = np.unique(nbrs[np.isnan(rk[nbrs])])
     if extra.size:
         rk[extra] = chunked_knn(index, k + 1, extra)[1]
     spacing = np.sqrt(np.pi / k * (rk[nbrs] ** 2).mean(axis=1))

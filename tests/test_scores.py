@@ -300,6 +300,25 @@ def test_centred_entries_are_the_scatter_of_the_valid_rows(dtype):
     assert not np.asarray(mean).any() and not np.asarray(entries).any()
 
 
+def test_voxel_frame_derivative_is_perturbation_theory_and_finite_where_degenerate():
+    rng = np.random.default_rng(22)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    cov, dcov = q @ np.diag([1.0, 2.0, 4.0]) @ q.T, rng.normal(size=(3, 3))
+    dcov = dcov + dcov.T
+
+    def entries(m):
+        return tuple(jnp.asarray(m[i, j]) for i, j in _common.PAIRS)
+
+    v, dv = jax.jit(lambda e, d: jax.jvp(voxel.frame, (e,), (d,)))(entries(cov), entries(dcov))
+    eps = 1e-6
+    plus, minus = (np.asarray(voxel.frame(entries(cov + s * eps * dcov))) for s in (1, -1))
+    np.testing.assert_allclose(np.asarray(dv), (plus - minus) / (2 * eps), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(v).T @ np.asarray(v), np.eye(3), atol=1e-12)
+    for flat in (np.diag([0.0, 1.0, 1.0]), np.eye(3), np.zeros((3, 3))):  # equal eigenvalues: no derivative across
+        _, dv = jax.jvp(voxel.frame, (entries(flat),), (entries(dcov),))
+        assert np.isfinite(np.asarray(dv)).all()
+
+
 def test_lhf_isotropic_signal_has_a_three_dimensional_eigenspace():
     sig = _isotropic_signal(np.random.default_rng(14))
     lam, _, _ = _spectrum(sig)

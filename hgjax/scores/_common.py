@@ -63,6 +63,12 @@ def centred_entries(x: jax.Array, valid: jax.Array | None = None):
     return mean, tuple(jnp.sum(y[i] * y[j]) for i, j in PAIRS)
 
 
+def form(entries, u: jax.Array, w: jax.Array) -> jax.Array:
+    """u^T C w for the symmetric 3 x 3 C given by its six ``entries`` (``PAIRS`` order) and u, w (3,)."""
+    c = dict(zip(PAIRS, entries))
+    return sum(c[i, j] * (u[i] * w[j] if i == j else u[i] * w[j] + u[j] * w[i]) for i, j in PAIRS)
+
+
 def safe_div(num: jax.Array, den: jax.Array, empty) -> jax.Array:
     """num / den, and ``empty`` where den == 0 (no NaN, finite gradients)."""
     ok = den > 0

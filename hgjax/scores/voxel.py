@@ -207,8 +207,8 @@ def low_high(s: jax.Array, kernel_size: int) -> tuple[jax.Array, jax.Array]:
 
 
 @jax.custom_jvp
-def frame(cov: jax.Array) -> jax.Array:
-    """Orthonormal eigenvectors (3, 3), as columns, of a symmetric 3 x 3 ``cov`` (Jacobi).
+def frame(entries) -> jax.Array:
+    """Orthonormal eigenvectors (3, 3), as columns, of a symmetric 3 x 3 given by its six entries (Jacobi).
 
     Their order and signs are whatever :mod:`hgjax.scores.ea` 's Jacobi sweeps give; the
     invariant kernel does not depend on them (:func:`band_energies`). The derivative is
@@ -217,26 +217,27 @@ def frame(cov: jax.Array) -> jax.Array:
     distinct, finite where they are not (there the basis of the eigenspace is arbitrary).
 
     Args:
-      cov: (3, 3) symmetric.
+      entries: six scalars C[0, 0], C[1, 1], C[2, 2], C[0, 1], C[0, 2], C[1, 2]
+        (``_common.PAIRS`` order, as :func:`hgjax.scores._common.centred_entries` gives them).
 
     Returns:
-      (3, 3) orthonormal, in the dtype of ``cov``.
+      (3, 3) orthonormal, in the dtype of ``entries``.
 
     Examples:
       >>> import jax.numpy as jnp
       >>> from hgjax.scores.voxel import frame
-      >>> v = frame(jnp.array([[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 5.0]]))
+      >>> v = frame((2.0, 2.0, 5.0, 1.0, 0.0, 0.0))
       >>> bool(jnp.allclose(v.T @ v, jnp.eye(3), atol=1e-6))
       True
     """
-    return ea._jacobi(cov, vectors=True)[1]
+    return ea._rotations(entries, vectors=True)[1]
 
 
 @frame.defjvp
 def _frame_jvp(primals, tangents):
-    (cov,), (dcov,) = primals, tangents
-    lam, vec = ea._jacobi(cov, vectors=True)
-    tol = FRAME_GAP * jnp.abs(jnp.trace(cov))
+    (entries,), (dc,) = primals, tangents
+    lam, vec = ea._rotations(entries, vectors=True)
+    tol = FRAME_GAP * jnp.abs(entries[0] + entries[1] + entries[2])
     cols = []
     for k in range(3):
         dv = jnp.zeros_like(vec[:, k])
@@ -244,7 +245,7 @@ def _frame_jvp(primals, tangents):
             if j != k:
                 gap = lam[k] - lam[j]
                 far = jnp.abs(gap) > tol
-                dv = dv + jnp.where(far, _common.matmul(vec[:, j], dcov, vec[:, k]) / jnp.where(far, gap, 1), 0) * vec[:, j]
+                dv = dv + jnp.where(far, _common.form(dc, vec[:, j], vec[:, k]) / jnp.where(far, gap, 1), 0) * vec[:, j]
         cols.append(dv)
     return vec, jnp.stack(cols, axis=1)
 
@@ -263,7 +264,7 @@ def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
       d: voxel spacing (scalar), the unit in which the covariance is formed.
 
     Returns:
-      (K, 3) offsets @ V, V from :func:`frame`.
+      (K, 3) offsets @ V, V from :func:`frame` of the scatter of the valid offsets / d.
 
     Examples:
       >>> import jax.numpy as jnp, numpy as np
@@ -275,7 +276,11 @@ def oriented(offsets: jax.Array, valid: jax.Array, d: jax.Array) -> jax.Array:
       >>> bool(np.allclose(spread(a), spread(b), rtol=1e-4))
       True
     """
-    return _common.matmul(offsets, frame(_common.centred_scatter(offsets / d, valid)[2]))
+    v = frame(_common.centred_entries(offsets / d, valid)[1])
+    # offsets @ v with its sums of 3 written out: under vmap XLA CPU runs the (K, 3) x (3, 3)
+    # product as a batched dot, slower than the rest of the kernel.
+    return jnp.stack([offsets[:, 0] * v[0, j] + offsets[:, 1] * v[1, j] + offsets[:, 2] * v[2, j] for j in range(3)],
+                     axis=1)
 
 
 def kernel_signal(offsets: jax.Array, valid: jax.Array, d: jax.Array, kernel_size: int, variant: str,
