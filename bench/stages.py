@@ -6,8 +6,9 @@ Usage:
 One process, float32 box surface (``hgjax.eval.box_surface(n, seed=0)``). Each round times, in
 turn: the floor (``cKDTree(q).query(q, k=16, workers=-1)`` on the Morton-sorted copy
 ``q = p[hgjax.spatial_order(p)]``, tree build included), the bare kNN64 query on the same tree
-(the width the invariant HKC/HKF build queries), and one ``hgjax.resample(p, 0.2, method=m)``
-per method with the library's stage functions wrapped by timers (inclusive times: a stage's
+(the width the invariant HKC/HKF build queries), with gfr the bounded kNN109 query of GFR's
+balls (k = max_nn + 9 within the default radius, on the same tree), and one
+``hgjax.resample(p, 0.2, method=m)`` per method with the library's stage functions wrapped by timers (inclusive times: a stage's
 time contains the stages called inside it, marked by indentation). Times are medians over the
 rounds after a warm-up round (compiles), wall and process CPU time (all threads). The JAX kernel
 rows of HKC/HKF split the kernel on one streamed chunk of real neighbourhoods (padded to the
@@ -53,6 +54,15 @@ STAGES = [
     ("NarrowStream.collect (the last chunks, then waiting for the kernel)", "hgjax._stream.NarrowStream", "collect", 1),
     ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 1),
     ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 1),
+    ("_gfr_graph (GFR graph and exact pair sums)", "hgjax.tiles", "_gfr_graph", 1),
+    ("_balls (bounded kNN ball queries, k = max_nn + 9, and cuts)", "hgjax.scores.gfr", "_balls", 2),
+    ("_in_ball (0 < q < r from the tree's distances)", "hgjax.scores.gfr", "_in_ball", 3),
+    ("pair_lengths (q kernel)", "hgjax.scores.gfr", "pair_lengths", 2),
+    ("pair_sums (exact sums of c, c q, c q^2)", "hgjax.scores.gfr", "pair_sums", 2),
+    ("ExactSum.of", "hgjax.select.ExactSum", "of", 3),
+    ("_gfr_norms (GFR flows and row sums)", "hgjax.tiles", "_gfr_norms", 1),
+    ("laplacian_norms (flow kernel, rows summed on the device)", "hgjax.scores.gfr", "laplacian_norms", 2),
+    ("row_sums (rows summed in global-id order on the host)", "hgjax.scores.gfr", "row_sums", 3),
     ("selection (exact top-k)", "hgjax.select", "top_pairs", 1),
 ]
 
@@ -157,6 +167,10 @@ def main() -> None:
     methods = args.methods.split(",")
     p = _report.box_cloud(args.n, np.float32)
     q = p[hgjax.spatial_order(p)]
+    if "gfr" in methods:  # the default invariant radius (10 resolutions), bounded as gfr._balls bounds it
+        from hgjax.scores import gfr
+        stats = hgjax.spatial.sample_stats(hgjax.spatial.SpatialIndex(q.astype(np.float64), dedupe=True))
+        gfr_bound = np.sqrt(gfr.squared_radius(gfr.RADIUS_FACTOR, stats)) * (1 + 1e-5)
     per = {m: collections.defaultdict(list) for m in methods}
     per_cpu = {m: collections.defaultdict(list) for m in methods}
     yard, yard_cpu = collections.defaultdict(list), collections.defaultdict(list)
@@ -172,7 +186,10 @@ def main() -> None:
 
         for name, fn in (("floor", floor), ("kNN64 query (tree reused)", lambda: tree.query(q, k=64, workers=-1)),
                          ("kNN64 with its tree (as SpatialIndex builds it)",
-                          lambda: cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1))):
+                          lambda: cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1)),
+                         *((("GFR's ball query: kNN109 within the radius (tree reused)",
+                             lambda: tree.query(q, k=109, distance_upper_bound=gfr_bound, workers=-1)),)
+                           if "gfr" in methods else ())):
             t, c = time.perf_counter(), time.process_time()
             fn()
             yard[name].append(time.perf_counter() - t)

@@ -252,9 +252,17 @@ def point_rows(n: int) -> int:
     return max(MIN_POINT_ROWS, 1 << (2 * -(-int(n).bit_length() // 2)))
 
 
-def narrow_widths(count: np.ndarray) -> np.ndarray:
-    """The kernel width of rows holding ``count`` (R,) neighbours: the next power of two, at least MIN_WIDTH."""
-    return np.maximum(MIN_WIDTH, 1 << np.frexp(np.maximum(np.asarray(count), 1) - 1)[1])
+def narrow_widths(count: np.ndarray, *, half_steps: bool = False) -> np.ndarray:
+    """The kernel width of rows holding ``count`` (R,) neighbours: the next power of two, at least MIN_WIDTH.
+
+    ``half_steps``: the next of the powers of two and their multiples by 1.5 (..., 64, 96, 128,
+    192, ...), for wide rows whose padding costs more than the few more compiled widths.
+    """
+    count = np.maximum(np.asarray(count), 1)
+    width = np.maximum(MIN_WIDTH, 1 << np.frexp(count - 1)[1])
+    if half_steps:
+        width = np.where((count <= 3 * width // 4) & (width > MIN_WIDTH), 3 * width // 4, width)
+    return width
 
 
 def narrow_split(idx, n: int):

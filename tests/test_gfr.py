@@ -13,7 +13,7 @@ import pytest
 from jax.test_util import check_grads
 
 import hgjax
-from hgjax import spatial
+from hgjax import _stream, spatial
 
 from conftest import TOL
 from fixtures import box_surface, degenerate_clouds, grid, uniform_cloud
@@ -327,6 +327,36 @@ def test_row_sums_are_the_sums_in_global_id_order(dtype, with_counts):
     assert np.array_equal(got, expected)
     unordered = np.sum(c[nbr][..., None] * flows, axis=1, dtype=np.float64)
     assert not np.array_equal(unordered, expected)  # the order matters in some rows: the test can fail
+
+
+@pytest.mark.parametrize("with_counts", [False, True])
+def test_float32_rows_summed_on_the_device_have_the_bits_of_the_sums_in_global_id_order(with_counts):
+    """laplacian_norms sums float32 flows on the device: each row's norm has the bits of its flows added one by
+    one in global-id order, for rows exact in any order and for rows whose partners span 2^40 in distance."""
+    rng = np.random.default_rng(11)
+    n, rows, k = 400, 300, 20
+    points = rng.standard_normal((n, 3)) * 2.0 ** rng.uniform(-40, 0, (n, 1))
+    points[rng.random(n) < 0.5] *= 2.0**-40  # odd rows: partners of one scale; even rows: of every scale
+    tie_ext = np.append(rng.permutation(n), n)
+    counts_ext = np.append(rng.integers(1, 6, n).astype(np.float64), 0.0) if with_counts else None
+    own = rng.integers(0, n, rows)
+    nbr = np.full((rows, k), n)
+    for i in range(rows):
+        pool = np.flatnonzero(np.abs(points).max(axis=1) < 2.0**-35) if i % 2 else np.arange(n)
+        width = rng.integers(0, k + 1)
+        nbr[i, :width] = rng.choice(pool[pool != own[i]], width, replace=False)
+    args = (np.float32(2.0**-20), np.float32(3.0))
+    got = gfr_module.laplacian_norms(points, own, nbr, None, counts_ext, tie_ext, *args, np.float32, np.float32)
+    flows = _stream.map_rows(gfr_module._own_summed_flow, points, own, nbr, args=args, dtype=np.float32)[0]
+    flows = np.transpose(flows, (0, 2, 1)).astype(np.float64)  # the host path's float32 flows (R, K, 3)
+    c = np.ones(n + 1) if counts_ext is None else counts_ext
+    lp = np.zeros((rows, 3))
+    for i in range(rows):
+        for j in sorted(range(k), key=lambda col: tie_ext[nbr[i, col]]):
+            lp[i] += c[nbr[i, j]] * flows[i, j]
+    assert np.array_equal(got, np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2]))
+    unordered = np.sum(c[nbr][..., None] * flows, axis=1)
+    assert not np.array_equal(unordered, lp)  # the order matters in some rows: the test can fail
 
 
 def test_symmetric_pairs_of_int32_indices_beyond_46341_points():

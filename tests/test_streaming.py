@@ -132,3 +132,10 @@ def test_narrow_stream_gives_each_row_the_wide_kernels_score_in_push_order(metho
     assert len(narrow.streams) >= 2
     assert set(narrow.streams) <= set(_stream.narrow_widths((idx < len(points)).sum(axis=1)).tolist())
     np.testing.assert_array_equal(narrow.collect(), wide.collect()[order])
+
+
+def test_half_step_widths_hold_every_row_in_a_few_widths():
+    count = np.arange(300)
+    width = _stream.narrow_widths(count, half_steps=True)
+    assert (width >= np.maximum(count, 1)).all() and (width <= _stream.narrow_widths(count)).all()
+    assert set(width.tolist()) == {8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256, 384}

@@ -173,9 +173,9 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
 
     Yields:
       (own, sym): own (C,) wanted rows, sym (C, W) int32 their partners (in the order of
-      the ball query), padded with n, W a power of two chosen per group of rows
-      (:func:`hgjax._stream.narrow_split`); the chunks' own together are
-      ``flatnonzero(want)``, each in one chunk.
+      the ball query), padded with n, W a power of two or 1.5 times one, chosen per group
+      of rows (:func:`_by_width`); the chunks' own together are ``flatnonzero(want)``, each
+      in one chunk.
     """
     m = index.n
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
@@ -188,17 +188,33 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         balls[at] = None
         line = np.repeat(np.arange(own.size), counts)
         test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
-        a, b = own[line[test]], cols[test]
-        q = _sq_dist(index.points, a, b)
-        kept = np.ones(cols.size, bool)
-        kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
-                      | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
-        counts = np.bincount(line[kept], minlength=own.size)
-        sym = _dense(counts, cols[kept], m, spatial.bucket(counts.max(initial=0)))  # few compiled widths
-        for group, cut in _stream.narrow_split(sym, m):  # rows as narrow as their contents
-            yield own[group], cut
+        if test.size:
+            a, b = own[line[test]], cols[test]
+            q = _sq_dist(index.points, a, b)
+            kept = np.ones(cols.size, bool)
+            kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
+                          | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
+            counts, cols = np.bincount(line[kept], minlength=own.size), cols[kept]
+        yield from _by_width(own, counts, cols, m)
     if not balls:  # no pair (r = 0): every wanted row alone
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
+
+
+def _by_width(own: np.ndarray, counts: np.ndarray, flat: np.ndarray, n: int):
+    """The rows ``own`` (R,) holding ``counts`` (R,) values each of ``flat``, in order, grouped by kernel width.
+
+    Yields:
+      (own_w (R_w,), (R_w, w) their values padded with n) for each width w of
+      :func:`hgjax._stream.narrow_widths` (half steps): rows as narrow as their contents.
+    """
+    width = _stream.narrow_widths(counts, half_steps=True)
+    starts = np.cumsum(counts) - counts
+    for w in np.unique(width):
+        rows = np.flatnonzero(width == w)
+        c = counts[rows]
+        take = flat if rows.size == own.size else flat[np.repeat(starts[rows] - (np.cumsum(c) - c), c)
+                                                       + np.arange(c.sum())]
+        yield own[rows], _dense(c, take, n, int(w))
 
 
 def _ranks_before(q, g, cut_q, cut_g):
@@ -671,18 +687,63 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
 
     The flows come from one compiled kernel (on ``ext``, the points'
     :func:`hgjax._stream.device_points` when the caller made them once for several calls);
-    each row is then summed in float64 as if its partners were added one by one in the order
+    each row is summed in float64 as if its partners were added one by one in the order
     of their ``tie_ext`` (global ids), so a point's score depends neither on how the graph
-    was cut nor on the order of its columns (:func:`row_sums`). ``counts_ext`` as
-    :func:`pair_sums`.
+    was cut nor on the order of its columns (:func:`row_sums`). float32 flows are summed on
+    the device (in float64, JAX's x64 mode on for the kernel only), where every order gives
+    the exact sum; only the rows where it may not (:func:`row_sums`' bound) come back as
+    flows to be added in order on the host. ``counts_ext`` as :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
-    kernel, row_args = (_summed_flow_kernel(np.dtype(wdtype)), (q,)) if q is not None else (_own_summed_flow, ())
-    flows = _stream.map_rows(kernel, points, own, nbr, row_args=row_args, args=args, dtype=dtype, ext=ext,
-                             chunk_size=chunk_size, progress=progress)
-    lp = row_sums(*flows, nbr, counts_ext, tie_ext)
+    stream = {"args": args, "dtype": dtype, "ext": ext, "chunk_size": chunk_size, "progress": progress}
+    q_arg = () if q is None else (q,)
+    if np.dtype(acc) == np.float32:
+        c = () if counts_ext is None else (counts_ext[nbr],)
+        with jax.enable_x64(True):
+            lp, smallest, largest = _stream.map_rows(_device_sum_kernel(q is None, counts_ext is not None), points, own,
+                                                     nbr, row_args=q_arg + c, **stream)
+        slow = np.flatnonzero(~_exact_in_any_order(smallest, largest, nbr.shape[1]))
+    else:
+        lp, slow = np.zeros((own.size, 3)), np.arange(own.size)
+    if slow.size:
+        kernel = _own_summed_flow if q is None else _summed_flow_kernel(np.dtype(wdtype))
+        flows = _stream.map_rows(kernel, points, own[slow], nbr[slow], row_args=tuple(a[slow] for a in q_arg), **stream)
+        lp[slow] = row_sums(*flows, nbr[slow], counts_ext, tie_ext)
     return np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2])
+
+
+def _exact_in_any_order(smallest: np.ndarray, largest: np.ndarray, width: int) -> np.ndarray:
+    """(R,) whether every order of adding a row's ``width`` terms gives their exact float64 sum.
+
+    Every term is an integer multiple of 2^e, e the exponent of the unit in the last place
+    of the row's smallest non-zero flow ``smallest`` (R, 3) (c_j is an integer), so when
+    ``width`` times the largest |term| ``largest`` (R, 3) is at most 2^(e + 53), every partial
+    sum is a multiple of 2^e of magnitude at most 2^(e + 53): exactly a float64.
+    """
+    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1))[1] - (np.finfo(smallest.dtype).nmant + 1)
+    return (largest * float(width) <= np.ldexp(1.0, unit + 53)).all(axis=1)
+
+
+@functools.lru_cache(maxsize=None)
+def _device_sum_kernel(q_own: bool, counted: bool):
+    """The float32 flow kernel of :func:`laplacian_norms` summed on the device, per row: the sum of
+    c_j f_ij in float64 (3,), the smallest non-zero |f_ij| (3,) and the largest |c_j f_ij| (3,).
+
+    Row arguments: q (K,) unless ``q_own`` (q from the offsets), then c (K,) float64 when ``counted``.
+    """
+    def kernel(offsets, valid, *rest):
+        *row_args, mean_q, two_var = rest
+        q = _sq_length(offsets, valid) if q_own else row_args.pop(0)
+        flow = _flow(offsets, valid, q, mean_q, two_var, offsets.dtype)
+        terms = flow.astype(jnp.float64)
+        if counted:
+            terms = row_args[0][:, None] * terms
+        size = jnp.abs(flow)
+        return (jnp.sum(terms, axis=0), jnp.min(jnp.where(size > 0, size, jnp.inf), axis=0),
+                jnp.max(jnp.abs(terms), axis=0))
+
+    return kernel
 
 
 def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: np.ndarray, counts_ext,
@@ -691,12 +752,8 @@ def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: 
 
     Each sum has the bits of the terms added one by one in float64, in the order of the
     partners' ``tie_ext`` (padding columns, whose terms are 0, last). Most rows need no
-    order: every term is an integer multiple of 2^e, e the exponent of the unit in the last
-    place of the row's smallest non-zero flow (c_j is an integer), so when K max_j c_j
-    max_j |f_ij| is at most 2^(e + 53), every partial sum in any order is a multiple of
-    2^e of magnitude at most 2^(e + 53), exactly a float64, and every order gives the exact
-    sum. Only the other rows are ordered and added one by one (in practice: the rows of
-    float64 flows, and about one float32 row in 1e5).
+    order (:func:`_exact_in_any_order`); only the others are ordered and added one by one
+    (in practice: the rows of float64 flows, and about one float32 row in 1e5).
 
     Args:
       flows: (R, 3, K) f_ij, padding columns 0.
@@ -705,15 +762,13 @@ def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: 
       counts_ext: (n + 1,) c_j, 0 for the padding; None: every c_j = 1.
       tie_ext: (n + 1,) the order of the partners, the padding n last.
     """
-    width = flows.shape[2]
     if counts_ext is None:
-        lp, most = np.sum(flows, axis=2, dtype=np.float64), largest * float(width)
+        lp = np.sum(flows, axis=2, dtype=np.float64)
     else:
         c = counts_ext[nbr][:, None, :]
         flows = c * flows
-        lp, most = np.sum(flows, axis=2), largest * (float(width) * c.max(axis=2, initial=0.0))
-    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1))[1] - (np.finfo(smallest.dtype).nmant + 1)
-    slow = np.flatnonzero(~(most <= np.ldexp(1.0, unit + 53)).all(axis=1))
+        lp, largest = np.sum(flows, axis=2), largest * c.max(axis=2, initial=0.0)
+    slow = np.flatnonzero(~_exact_in_any_order(smallest, largest, flows.shape[2]))
     if slow.size:
         order = np.argsort(tie_ext[nbr[slow]], axis=1, kind="stable")[:, None, :]
         lp[slow] = np.add.accumulate(np.take_along_axis(flows[slow], order, axis=2), axis=2, dtype=np.float64)[..., -1]
@@ -725,7 +780,7 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 
     One chunk of rows at a time (:func:`location_rows`): the partners, their squared lengths
     q in ``dtype`` and the sums of :func:`pair_sums`; only the partners are kept, as
-    (own, counts, flat) per chunk, for :func:`graph_norms`.
+    (own, sym) per chunk, for :func:`graph_norms`.
     """
     want = np.zeros(index.n, bool)
     want[rows] = True
@@ -735,8 +790,7 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
     for own, sym in location_rows(index, r, max_nn, want):
         q = pair_lengths(index.points, own, sym, dtype, ext=ext)
         sums.append(pair_sums(q, own, sym, index.gid, counts_ext))
-        valid = sym < index.n
-        chunks.append((own, valid.sum(axis=1), sym[valid]))
+        chunks.append((own, sym))
     return chunks, summed(sums)
 
 
@@ -745,8 +799,7 @@ def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_va
     """(R,) float64 ||(L P)_i|| of the rows of :func:`graph_sums`' chunks, ascending rows."""
     counts_ext, out, rows = _counts_ext(index), [], []
     ext = _stream.device_points(index.points, dtype)
-    for own, counts, flat in chunks:
-        sym = _dense(counts, flat, index.n, spatial.bucket(counts.max(initial=0)))
+    for own, sym in chunks:
         out.append(laplacian_norms(index.points, own, sym, None, counts_ext, index.gid, mean_q, two_var, dtype, dtype,
                                    ext=ext, chunk_size=chunk_size, progress=progress))
         rows.append(own)
