@@ -276,15 +276,15 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0 else 0.0
     q = ((p - lo) * scale).astype(np.uint64)
     code = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
-    order = np.argsort(code, kind="stable")
-    # Points sharing a Morton cell are rare; sort just those runs by their coordinates.
+    order = np.argsort(code)  # unstable (vectorised); equal codes are ordered below
+    # Points sharing a Morton cell are rare; sort just those runs by their coordinates, then index.
     sorted_code = code[order]
     tied = np.zeros(len(order), dtype=bool)
     tied[1:] = sorted_code[1:] == sorted_code[:-1]
     tied[:-1] |= tied[1:]
     if tied.any():
         sub = order[tied]
-        order[tied] = sub[np.lexsort((p[sub, 2], p[sub, 1], p[sub, 0], code[sub]))]
+        order[tied] = sub[np.lexsort((sub, p[sub, 2], p[sub, 1], p[sub, 0], code[sub]))]
     return order
 
 
@@ -363,28 +363,34 @@ class SpatialIndex:
         r = len(row_ids)
         k_eff = min(k, self.n)
         q = min(k_eff + 1, self.n)
-        dist, idx = self.nearest(row_ids, q) if query is None else (query[0][:, :q], query[1][:, :q].copy())
-        has_self = (idx == row_ids[:, None]).any(axis=1)
-        dist = np.where(idx == row_ids[:, None], -1.0, dist)
-        # Rows whose order needs fixing: equal distances inside the first k_eff, or at the cut.
-        tied = (dist[:, 1:k_eff] == dist[:, :k_eff - 1]).any(axis=1) | (idx[:, 0] != row_ids)
-        cut = ~has_self | ((dist[:, k_eff - 1] == dist[:, k_eff]) if q > k_eff else np.zeros(r, bool))
+        last = k_eff - 1
+        dist, idx = self.nearest(row_ids, q) if query is None else (query[0][:, :q], query[1][:, :q])
+        # Rows whose order needs fixing: equal distances inside the first k_eff, or at the cut. A
+        # row is read as queried where it lists the point itself first (distance 0, ranked -1).
+        odd = np.flatnonzero(idx[:, 0] != row_ids)
+        tied = (dist[:, 2:k_eff] == dist[:, 1:last]).any(axis=1)
+        cut = (dist[:, last] == dist[:, k_eff]) if q > k_eff and last else np.zeros(r, bool)
+        if odd.size:  # another point at distance 0 listed first, or the point itself beyond the query
+            mine = idx[odd] == row_ids[odd, None]
+            d = np.where(mine, -1.0, dist[odd])
+            tied[odd] = True
+            cut[odd] = ~mine.any(axis=1) | ((d[:, last] == d[:, k_eff]) if q > k_eff else False)
+        out, reach = idx[:, :k_eff].astype(np.int32), np.maximum(dist[:, last], 0.0)
         fix = np.flatnonzero(tied & ~cut)
         if fix.size:
-            dist[fix], idx[fix] = self._ranked(row_ids[fix], dist[fix], idx[fix])
+            d, i = self._ranked(row_ids[fix], dist[fix], idx[fix])
+            out[fix], reach[fix] = i[:, :k_eff], np.maximum(d[:, last], 0.0)
         todo, width = np.flatnonzero(cut), q
         while todo.size:
             width = min(2 * width, self.n)
             d, i = self.tree.query(self.points[row_ids[todo]], k=width, workers=-1)
             d, i = self._ranked(row_ids[todo], d.reshape(todo.size, width), i.reshape(todo.size, width))
-            done = (d[:, -1] > d[:, k_eff - 1]) | (width == self.n)
-            dist[todo[done], :k_eff], idx[todo[done], :k_eff] = d[done, :k_eff], i[done, :k_eff]
+            done = (d[:, -1] > d[:, last]) | (width == self.n)
+            out[todo[done]], reach[todo[done]] = i[done, :k_eff], np.maximum(d[done, last], 0.0)
             todo = todo[~done]
-        reach = np.maximum(dist[:, k_eff - 1], 0.0)
-        idx = idx[:, :k_eff]
         if k_eff < k:
-            idx = np.concatenate([idx, np.full((r, k - k_eff), self.n)], axis=1)
-        return idx.astype(np.int32), reach
+            out = np.concatenate([out, np.full((r, k - k_eff), self.n, dtype=np.int32)], axis=1)
+        return out, reach
 
     def nearest(self, rows: slice | np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The raw tree query of ``rows``: (R, k) distances and indices (sorted frame), k <= n.
