@@ -23,9 +23,11 @@ Conventions (shared with every kernel):
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
 import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -316,13 +318,27 @@ class SpatialIndex:
                 sorted_points = sorted_points[first]
         self.n = int(sorted_points.shape[0])
         self.points = sorted_points
+        # The tree builds in a background thread (the build releases the GIL) while the maps
+        # below and the caller's preparations run; :attr:`tree` waits for it.
+        pool = concurrent.futures.ThreadPoolExecutor(1)
+        self._tree = pool.submit(cKDTree, sorted_points, leafsize=16, balanced_tree=False)
+        pool.shutdown(wait=False)
         self.order = order[first]  # sorted row -> caller index of its first copy
         self.row = np.empty(self.n_caller, dtype=np.int64)  # caller index -> sorted row
         self.row[order] = row
         gid = np.arange(self.n_caller, dtype=np.int64) if gid is None else np.asarray(gid, dtype=np.int64)
         # global id of each sorted row (its first copy), and a last entry for the padding n
         self.gid = np.append(gid[self.order], np.iinfo(np.int64).max)
-        self.tree = cKDTree(self.points, leafsize=16, balanced_tree=False)
+
+    @property
+    def tree(self) -> cKDTree:
+        """The k-d tree over :attr:`points` (waits for its build)."""
+        if isinstance(self._tree, concurrent.futures.Future):
+            self._tree = self._tree.result()
+        return self._tree
+
+    def __getstate__(self) -> dict:
+        return dict(self.__dict__, _tree=self.tree)
 
     def to_caller(self, values: np.ndarray) -> np.ndarray:
         """Per-row ``values`` (n, ...) of the sorted frame as (N, ...) in the caller's order."""
@@ -580,7 +596,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) ->
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
     dedupe = _validate.check_bool(dedupe, "dedupe")
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
-    idx = pad_queries(index, lambda part: index.knn(k, part)[0], cap, "k-nearest neighbourhood", index.n)
+    parts = [idx for _, idx, _ in knn_batches(index, k, np.arange(index.n))]
+    idx = pad_parts(index, parts, cap, "k-nearest neighbourhood", index.n)
     return assemble(pts, index, idx, params={"k": k, "dedupe": dedupe})
 
 
@@ -768,9 +785,32 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
     return np.where(spacing > 0, spacing, 1.0), reach
 
 
+def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):
+    """:meth:`SpatialIndex.knn` of sorted-frame ``rows`` (R,), batch by batch (:func:`batches`).
+
+    The tree query of the next batch runs in a background thread (the query releases the
+    GIL) while this one is ranked and consumed, so the cores do not wait for the host work
+    between queries. Results are those of :meth:`SpatialIndex.knn` on each batch.
+
+    Yields:
+      (part, idx, reach): part a slice of ``rows``; idx (r, k) int32 and reach (r,) as
+      :meth:`SpatialIndex.knn`.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    parts = batches(rows.size)
+    width = min(k + 1, index.n)  # the columns knn reads
+    with concurrent.futures.ThreadPoolExecutor(1) as ahead:
+        pending = [ahead.submit(index.nearest, rows[part], width) for part in parts[:1]]
+        for i, part in enumerate(parts):
+            query = pending.pop().result()
+            if i + 1 < len(parts):
+                pending.append(ahead.submit(index.nearest, rows[parts[i + 1]], width))
+            yield (part, *index.knn(k, rows[part], query=query))
+
+
 def chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`SpatialIndex.knn` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
-    parts = [index.knn(k, rows[part]) for part in batches(rows.size)]
+    parts = list(knn_batches(index, k, rows))
     if not parts:
         return np.zeros((0, k), np.int32), np.zeros(0)
-    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    return np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])

@@ -253,8 +253,8 @@ class _Cloud:
     def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(gids (n,) ascending, frame coordinates (n, 3), core mask (n,)) of a tile and its halo."""
         core = self.members[cell]
-        if self.tile is None:
-            return core, self.frame(core), np.ones(core.size, bool)
+        if self.tile is None:  # the whole cloud, read in one pass
+            return core, np.subtract(self.points, self.origin, dtype=np.float64), np.ones(core.size, bool)
         box_lo, box_hi = self.box(cell, halo)
         first, last = self.cells(np.stack([box_lo, box_hi]))
         meets = self.grid[((self.grid >= first) & (self.grid <= last)).all(axis=1)]
@@ -681,9 +681,12 @@ def _covered(cloud: _Cloud, cell, halo: float, dedupe: bool, build):
 
 def _per_point(index: spatial.SpatialIndex, rows: np.ndarray, core: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Per-location ``values`` (R, ...) of ``rows`` as the values of the core points (copies share theirs)."""
+    loc = index.row if core.all() else index.row[core]
+    if rows.size == index.n:  # every location is a core one: ``rows`` is 0..n-1
+        return values[loc]
     at = np.empty(index.n, dtype=np.int64)
     at[rows] = np.arange(rows.size)
-    return values[at[index.row[core]]]
+    return values[at[loc]]
 
 
 def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
