@@ -598,9 +598,10 @@ def _resolved(plan_: Plan, runner: _Here) -> Plan:
 
 
 def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-axis float64 min and max, one chunk at a time (an exact reduction)."""
-    parts = [np.asarray(pts[s:s + PASS_ROWS], dtype=np.float64) for s in range(0, pts.shape[0], PASS_ROWS)]
-    return np.min([p.min(axis=0) for p in parts], axis=0), np.max([p.max(axis=0) for p in parts], axis=0)
+    """Per-axis float64 min and max, one chunk at a time (an exact reduction, in the points' dtype)."""
+    parts = [pts[s:s + PASS_ROWS] for s in range(0, pts.shape[0], PASS_ROWS)]
+    return (np.min([p.min(axis=0) for p in parts], axis=0).astype(np.float64),
+            np.max([p.max(axis=0) for p in parts], axis=0).astype(np.float64))
 
 
 def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
