@@ -105,8 +105,20 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
       ([[-1.0, 0.0, -0.5], [1.0, 0.0, 0.5]], [500001.0, 4000000.0, 0.5])
     """
     p = np.asarray(points, dtype=np.float64)
-    origin = (p.min(axis=0) + p.max(axis=0)) / 2
+    lo, hi = axis_bounds(p)
+    origin = (lo + hi) / 2
     return p - origin, origin
+
+
+def axis_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): the per-axis minimum and maximum (3,) of (N, 3) ``points`` (N >= 1), as float64.
+
+    Reduced one column at a time: NumPy's reduction over the first axis of an (N, 3) array
+    walks it in short strided runs, several times slower.
+    """
+    columns = [points[:, a] for a in range(points.shape[1])]
+    return (np.array([c.min() for c in columns], dtype=np.float64),
+            np.array([c.max() for c in columns], dtype=np.float64))
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first", "count"],
@@ -273,8 +285,8 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
       [1, 2, 0]
     """
     p = np.asarray(points, dtype=np.float64)
-    lo = p.min(axis=0)
-    extent = float((p.max(axis=0) - lo).max())
+    lo, hi = axis_bounds(p)
+    extent = float((hi - lo).max())
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0 else 0.0
     q = ((p - lo) * scale).astype(np.uint64)
     code = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
@@ -305,17 +317,18 @@ class SpatialIndex:
     def __init__(self, points: np.ndarray, *, dedupe: bool = False, gid: np.ndarray | None = None):
         self.n_caller = int(points.shape[0])
         order = spatial_order(points)
-        sorted_points = np.ascontiguousarray(points[order])
+        sorted_points = np.take(points, order, axis=0)  # (np.take: a fancy index of rows is slower)
         row = np.arange(self.n_caller)
         first = row
         if dedupe and self.n_caller > 1:
             # spatial_order puts exact duplicates next to each other, the lowest index first.
             same = np.zeros(self.n_caller, dtype=bool)
-            same[1:] = (sorted_points[1:] == sorted_points[:-1]).all(axis=1)
+            same[1:] = functools.reduce(np.logical_and, (sorted_points[1:, a] == sorted_points[:-1, a]
+                                                         for a in range(3)))
             if same.any():
                 row = np.cumsum(~same) - 1
                 first = np.flatnonzero(~same)
-                sorted_points = sorted_points[first]
+                sorted_points = np.take(sorted_points, first, axis=0)
         self.n = int(sorted_points.shape[0])
         self.points = sorted_points
         # The tree builds in a background thread (the build releases the GIL) while the maps

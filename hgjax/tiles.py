@@ -220,7 +220,7 @@ class _Cloud:
 
     def frame(self, gids: np.ndarray) -> np.ndarray:
         """(R, 3) float64 coordinates of ``gids`` minus the plan's origin."""
-        return np.asarray(self.points[gids], dtype=np.float64) - self.origin
+        return np.asarray(np.take(self.points, gids, axis=0), dtype=np.float64) - self.origin
 
     def cells(self, x: np.ndarray) -> np.ndarray:
         """(R, 3) int64 grid cell owning each point of frame coordinates ``x``."""
@@ -599,9 +599,8 @@ def _resolved(plan_: Plan, runner: _Here) -> Plan:
 
 def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis float64 min and max, one chunk at a time (an exact reduction, in the points' dtype)."""
-    parts = [pts[s:s + PASS_ROWS] for s in range(0, pts.shape[0], PASS_ROWS)]
-    return (np.min([p.min(axis=0) for p in parts], axis=0).astype(np.float64),
-            np.max([p.max(axis=0) for p in parts], axis=0).astype(np.float64))
+    bounds = [spatial.axis_bounds(pts[s:s + PASS_ROWS]) for s in range(0, pts.shape[0], PASS_ROWS)]
+    return np.min([lo for lo, _ in bounds], axis=0), np.max([hi for _, hi in bounds], axis=0)
 
 
 def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
@@ -683,11 +682,11 @@ def _covered(cloud: _Cloud, cell, halo: float, dedupe: bool, build):
 def _per_point(index: spatial.SpatialIndex, rows: np.ndarray, core: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Per-location ``values`` (R, ...) of ``rows`` as the values of the core points (copies share theirs)."""
     loc = index.row if core.all() else index.row[core]
-    if rows.size == index.n:  # every location is a core one: ``rows`` is 0..n-1
-        return values[loc]
-    at = np.empty(index.n, dtype=np.int64)
-    at[rows] = np.arange(rows.size)
-    return values[at[loc]]
+    if rows.size < index.n:  # else every location is a core one: ``rows`` is 0..n-1
+        at = np.empty(index.n, dtype=np.int64)
+        at[rows] = np.arange(rows.size)
+        loc = at[loc]
+    return np.take(values, loc, axis=0)
 
 
 def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
