@@ -691,6 +691,8 @@ def _per_point(index: spatial.SpatialIndex, rows: np.ndarray, core: np.ndarray, 
 
 def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
     """(R,) ascending sorted-frame rows (locations) of the core points."""
+    if core.all():  # one tile: every location
+        return np.arange(index.n)
     mine = np.zeros(index.n, bool)
     mine[index.row[core]] = True
     return np.flatnonzero(mine)
