@@ -5,22 +5,25 @@ Usage:
 
 One process, float32 box surface (``hgjax.eval.box_surface(n, seed=0)``). Each round times, in
 turn: the floor (``cKDTree(q).query(q, k=16, workers=-1)`` on the Morton-sorted copy
-``q = p[hgjax.spatial_order(p)]``, tree build included), the bare kNN64 query on the same tree
-(the width the invariant HKC/HKF build queries), with gfr the bounded kNN109 query of GFR's
-balls (k = max_nn + 9 within the default radius, on the same tree), and one
-``hgjax.resample(p, 0.2, method=m)`` per method with the library's stage functions wrapped by timers (inclusive times: a stage's
-time contains the stages called inside it, marked by indentation). Times are medians over the
-rounds after a warm-up round (compiles), wall and process CPU time (all threads). The JAX kernel
-rows of HKC/HKF split the kernel on one streamed chunk of real neighbourhoods (padded to the
-widest): the gather only, the centred scatter, the local frame, frame + voxel counts, and the
-whole kernel, each a separate jitted program (its outputs written out), least CPU time of the
-rounds, scaled to N rows.
+``q = p[hgjax.spatial_order(p)]``, tree build included), the bare kNN17 query on the same tree
+(what LHF and EA query), with HKC or HKF the bare kNN64 query (the width their invariant build
+queries), with gfr the bounded kNN109 query of GFR's balls (k = max_nn + 9 within the default
+radius, on the same tree), and one ``hgjax.resample(p, 0.2, method=m)`` per method with the library's stage
+functions wrapped by timers (inclusive times: a stage's time contains the stages called inside
+it, marked by indentation; a generator's time is that of its steps; a stage run in a background
+thread, the next batch's tree query, is timed there and overlaps the stages of the main thread).
+Times are medians over the rounds after a warm-up round (compiles), wall and process CPU time
+(all threads). The JAX kernel rows of HKC/HKF split the kernel on one streamed chunk of real
+neighbourhoods (padded to the widest): the gather only, the centred scatter, the local frame,
+frame + voxel counts, and the whole kernel, each a separate jitted program (its outputs written
+out), least CPU time of the rounds, scaled to N rows.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import functools
 import statistics
 import sys
@@ -33,27 +36,33 @@ sys.path.insert(0, str(HERE))
 
 import _report  # noqa: E402
 
-# (label, module path, attribute, depth): the wrapped stage functions, in the order of a call.
+# (label, module path, attribute, depth): the wrapped stage functions, in the order of a call
+# (hgjax.resample is the one-tile case of hgjax.tiles.resample).
 STAGES = [
     ("resample (whole call)", "hgjax.tiles", "resample", 0),
-    ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.spatial.SpatialIndex", "__init__", 1),
+    ("plan (bounds, grid)", "hgjax.tiles", "_base", 1),
     ("sample statistics (d_factor)", "hgjax.spatial", "nearest_distances", 1),
-    ("build_rows (HKC/HKF build)", "hgjax.scores.voxel", "build_rows", 1),
-    ("tree queries (nearest: the batch kNN~64, and kNN18 of outside rows)", "hgjax.spatial.SpatialIndex", "nearest", 2),
-    ("local_spacing", "hgjax.spatial", "local_spacing", 2),
-    ("knn: exact kNN17 + tie ranking", "hgjax.spatial.SpatialIndex", "knn", 3),
-    ("chunked_knn (rows outside the batch)", "hgjax.spatial", "chunked_knn", 3),
-    ("cube: the ball rows", "hgjax.spatial.SpatialIndex", "cube", 2),
-    ("_cube_query (re-queries of wider rows)", "hgjax.spatial.SpatialIndex", "_cube_query", 3),
-    ("_ranked (tie ranking: lexsort)", "hgjax.spatial.SpatialIndex", "_ranked", 2),
-    ("pad_queries (batches + padding)", "hgjax.spatial", "pad_queries", 2),
-    ("chunked_knn (LHF/EA build)", "hgjax.spatial", "chunked_knn", 1),
-    ("covers (halo check)", "hgjax.tiles._Cloud", "covers", 1),
+    ("tile_scores (index, neighbourhoods, kernel)", "hgjax.tiles", "tile_scores", 1),
+    ("gather (tile points in the frame, float64)", "hgjax.tiles._Cloud", "gather", 2),
+    ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.spatial.SpatialIndex", "__init__", 2),
+    ("spatial_order (Morton codes and sort)", "hgjax.spatial", "spatial_order", 3),
+    ("device_points (the tile's points to the device)", "hgjax._stream", "device_points", 2),
+    ("rows: LHF/EA k-nearest batches (generator steps)", "hgjax.scores.ea", "tile_rows", 2),
+    ("rows: HKC/HKF cube batches (generator steps)", "hgjax.scores.voxel", "row_batches", 2),
+    ("knn: exact kNN17 + tie ranking (LHF/EA; HKC/HKF: kNN18 of spacings)", "hgjax.spatial.SpatialIndex", "knn", 3),
+    ("tree queries (nearest: LHF/EA kNN17, in the background thread; HKC/HKF batch kNN~64)",
+     "hgjax.spatial.SpatialIndex", "nearest", 3),
+    ("local_spacing", "hgjax.spatial", "local_spacing", 3),
+    ("chunked_knn (spacing of rows outside the batch)", "hgjax.spatial", "chunked_knn", 4),
+    ("cube: the ball rows", "hgjax.spatial.SpatialIndex", "cube", 3),
+    ("_cube_query (re-queries of wider rows)", "hgjax.spatial.SpatialIndex", "_cube_query", 4),
+    ("_ranked (tie ranking: lexsort)", "hgjax.spatial.SpatialIndex", "_ranked", 3),
+    ("covers (halo check)", "hgjax.tiles._Cloud", "covers", 2),
     ("NarrowStream.push (HKC/HKF rows routed by width, chunks dispatched as built)", "hgjax._stream.NarrowStream",
-     "push", 1),
-    ("NarrowStream.collect (the last chunks, then waiting for the kernel)", "hgjax._stream.NarrowStream", "collect", 1),
-    ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 1),
-    ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 1),
+     "push", 2),
+    ("NarrowStream.collect (the last chunks, then waiting for the kernel)", "hgjax._stream.NarrowStream", "collect", 2),
+    ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 2),
+    ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 2),
     ("_gfr_graph (GFR graph and exact pair sums)", "hgjax.tiles", "_gfr_graph", 1),
     ("_balls (bounded kNN ball queries, k = max_nn + 9, and cuts)", "hgjax.scores.gfr", "_balls", 2),
     ("_in_ball (0 < q < r from the tree's distances)", "hgjax.scores.gfr", "_in_ball", 3),
@@ -63,14 +72,18 @@ STAGES = [
     ("_gfr_norms (GFR flows and row sums)", "hgjax.tiles", "_gfr_norms", 1),
     ("laplacian_norms (flow kernel, rows summed on the device)", "hgjax.scores.gfr", "laplacian_norms", 2),
     ("row_sums (rows summed in global-id order on the host)", "hgjax.scores.gfr", "row_sums", 3),
+    ("_per_point (scores of the core points)", "hgjax.tiles", "_per_point", 2),
+    ("LHF tiled_select (Gamma_a, Gamma_b, mix)", "hgjax.scores.lhf", "tiled_select", 1),
     ("selection (exact top-k)", "hgjax.select", "top_pairs", 1),
 ]
 
 
 def _install(totals: dict, cpu: dict) -> None:
     """Wrap every stage function with timers adding wall and process CPU seconds into ``totals[label]``
-    and ``cpu[label]`` (outermost call only)."""
+    and ``cpu[label]`` (outermost call only). A generator function is timed step by step: the
+    time of each ``next`` (building one batch), not the time its consumer holds it."""
     import importlib
+    import inspect
 
     active = collections.Counter()
     done = set()
@@ -84,21 +97,39 @@ def _install(totals: dict, cpu: dict) -> None:
         if cls:
             owner = getattr(owner, cls)
         fn = getattr(owner, attr)
-        labels = [lab for lab, p, a, _ in STAGES if (p, a) == (path, attr)]
+        labels = tuple(lab for lab, p, a, _ in STAGES if (p, a) == (path, attr))
 
-        def wrapped(*args, _fn=fn, _key=(path, attr), _labels=tuple(labels), **kwargs):
-            active[_key] += 1
+        def timed(call, key, labels_):
+            active[key] += 1
             t, c = time.perf_counter(), time.process_time()
             try:
-                return _fn(*args, **kwargs)
+                return call()
             finally:
-                active[_key] -= 1
-                if not active[_key]:
-                    for lab in _labels:
+                active[key] -= 1
+                if not active[key]:
+                    for lab in labels_:
                         totals[lab] += time.perf_counter() - t
                         cpu[lab] += time.process_time() - c
 
+        if inspect.isgeneratorfunction(fn):
+            def wrapped(*args, _fn=fn, _key=(path, attr), _labels=labels, **kwargs):
+                steps = _fn(*args, **kwargs)
+                while True:
+                    try:
+                        item = timed(lambda: next(steps), _key, _labels)
+                    except StopIteration:
+                        return
+                    yield item
+        else:
+            def wrapped(*args, _fn=fn, _key=(path, attr), _labels=labels, **kwargs):
+                return timed(lambda: _fn(*args, **kwargs), _key, _labels)
+
         setattr(owner, attr, wrapped)
+        methods = importlib.import_module("hgjax.pipeline").METHODS  # entries hold their hooks by reference
+        for name, entry in methods.items():
+            hooks = {f.name: wrapped for f in dataclasses.fields(entry) if getattr(entry, f.name) is fn}
+            if hooks:
+                methods[name] = dataclasses.replace(entry, **hooks)
 
 
 def _kernel_split(p, method: str, repeats: int) -> dict:
@@ -184,12 +215,15 @@ def main() -> None:
             tree = cKDTree(q)
             tree.query(q, k=16, workers=-1)
 
-        for name, fn in (("floor", floor), ("kNN64 query (tree reused)", lambda: tree.query(q, k=64, workers=-1)),
-                         ("kNN64 with its tree (as SpatialIndex builds it)",
-                          lambda: cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1)),
-                         *((("GFR's ball query: kNN109 within the radius (tree reused)",
-                             lambda: tree.query(q, k=109, distance_upper_bound=gfr_bound, workers=-1)),)
-                           if "gfr" in methods else ())):
+        yardsticks = [("floor", floor), ("kNN17 query (tree reused)", lambda: tree.query(q, k=17, workers=-1))]
+        if {"hkc", "hkf"} & set(methods):
+            yardsticks += [("kNN64 query (tree reused)", lambda: tree.query(q, k=64, workers=-1)),
+                           ("kNN64 with its tree (as SpatialIndex builds it)",
+                            lambda: cKDTree(q, leafsize=16, balanced_tree=False).query(q, k=64, workers=-1))]
+        if "gfr" in methods:
+            yardsticks += [("GFR's ball query: kNN109 within the radius (tree reused)",
+                            lambda: tree.query(q, k=109, distance_upper_bound=gfr_bound, workers=-1))]
+        for name, fn in yardsticks:
             t, c = time.perf_counter(), time.process_time()
             fn()
             yard[name].append(time.perf_counter() - t)

@@ -214,7 +214,7 @@ class Stream:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K) and ``row_args`` (R, ...) each;
         send every full chunk."""
         part = (np.asarray(own, dtype=np.int32), np.asarray(idx, dtype=np.int32), tuple(np.asarray(a) for a in row_args))
-        if self.pending is not None:
+        if self.pending is not None and self.pending[0].shape[0]:
             part = jax.tree.map(lambda a, b: np.concatenate([a, b]), self.pending, part)
         r = part[0].shape[0]
         full = r - r % self.chunk
@@ -234,7 +234,8 @@ class Stream:
         own, idx, row_args = part
         r = own.shape[0]
         pad = self.chunk - r
-        fill = lambda x, v=0: np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), constant_values=v)  # noqa: E731
+        fill = lambda x, v=0: x if not pad else np.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1),  # noqa: E731
+                                                       constant_values=v)
         kernel = (_sharded(self.fn, len(row_args), len(self.args)) if len(jax.devices()) > 1
                   else _jitted(self.fn, len(row_args)))
         self.outputs.append(kernel(*self.ext, fill(own), fill(idx, self.n), tuple(fill(a) for a in row_args), self.args))

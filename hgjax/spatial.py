@@ -23,9 +23,11 @@ Conventions (shared with every kernel):
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
 import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -103,8 +105,20 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
       ([[-1.0, 0.0, -0.5], [1.0, 0.0, 0.5]], [500001.0, 4000000.0, 0.5])
     """
     p = np.asarray(points, dtype=np.float64)
-    origin = (p.min(axis=0) + p.max(axis=0)) / 2
+    lo, hi = axis_bounds(p)
+    origin = (lo + hi) / 2
     return p - origin, origin
+
+
+def axis_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): the per-axis minimum and maximum (3,) of (N, 3) ``points`` (N >= 1), as float64.
+
+    Reduced one column at a time: NumPy's reduction over the first axis of an (N, 3) array
+    walks it in short strided runs, several times slower.
+    """
+    columns = [points[:, a] for a in range(points.shape[1])]
+    return (np.array([c.min() for c in columns], dtype=np.float64),
+            np.array([c.max() for c in columns], dtype=np.float64))
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first", "count"],
@@ -271,20 +285,20 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
       [1, 2, 0]
     """
     p = np.asarray(points, dtype=np.float64)
-    lo = p.min(axis=0)
-    extent = float((p.max(axis=0) - lo).max())
+    lo, hi = axis_bounds(p)
+    extent = float((hi - lo).max())
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0 else 0.0
     q = ((p - lo) * scale).astype(np.uint64)
     code = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
-    order = np.argsort(code, kind="stable")
-    # Points sharing a Morton cell are rare; sort just those runs by their coordinates.
+    order = np.argsort(code)  # unstable (vectorised); equal codes are ordered below
+    # Points sharing a Morton cell are rare; sort just those runs by their coordinates, then index.
     sorted_code = code[order]
     tied = np.zeros(len(order), dtype=bool)
     tied[1:] = sorted_code[1:] == sorted_code[:-1]
     tied[:-1] |= tied[1:]
     if tied.any():
         sub = order[tied]
-        order[tied] = sub[np.lexsort((p[sub, 2], p[sub, 1], p[sub, 0], code[sub]))]
+        order[tied] = sub[np.lexsort((sub, p[sub, 2], p[sub, 1], p[sub, 0], code[sub]))]
     return order
 
 
@@ -303,26 +317,41 @@ class SpatialIndex:
     def __init__(self, points: np.ndarray, *, dedupe: bool = False, gid: np.ndarray | None = None):
         self.n_caller = int(points.shape[0])
         order = spatial_order(points)
-        sorted_points = np.ascontiguousarray(points[order])
+        sorted_points = np.take(points, order, axis=0)  # (np.take: a fancy index of rows is slower)
         row = np.arange(self.n_caller)
         first = row
         if dedupe and self.n_caller > 1:
             # spatial_order puts exact duplicates next to each other, the lowest index first.
             same = np.zeros(self.n_caller, dtype=bool)
-            same[1:] = (sorted_points[1:] == sorted_points[:-1]).all(axis=1)
+            same[1:] = functools.reduce(np.logical_and, (sorted_points[1:, a] == sorted_points[:-1, a]
+                                                         for a in range(3)))
             if same.any():
                 row = np.cumsum(~same) - 1
                 first = np.flatnonzero(~same)
-                sorted_points = sorted_points[first]
+                sorted_points = np.take(sorted_points, first, axis=0)
         self.n = int(sorted_points.shape[0])
         self.points = sorted_points
+        # The tree builds in a background thread (the build releases the GIL) while the maps
+        # below and the caller's preparations run; :attr:`tree` waits for it.
+        pool = concurrent.futures.ThreadPoolExecutor(1)
+        self._tree = pool.submit(cKDTree, sorted_points, leafsize=16, balanced_tree=False)
+        pool.shutdown(wait=False)
         self.order = order[first]  # sorted row -> caller index of its first copy
         self.row = np.empty(self.n_caller, dtype=np.int64)  # caller index -> sorted row
         self.row[order] = row
         gid = np.arange(self.n_caller, dtype=np.int64) if gid is None else np.asarray(gid, dtype=np.int64)
         # global id of each sorted row (its first copy), and a last entry for the padding n
         self.gid = np.append(gid[self.order], np.iinfo(np.int64).max)
-        self.tree = cKDTree(self.points, leafsize=16, balanced_tree=False)
+
+    @property
+    def tree(self) -> cKDTree:
+        """The k-d tree over :attr:`points` (waits for its build)."""
+        if isinstance(self._tree, concurrent.futures.Future):
+            self._tree = self._tree.result()
+        return self._tree
+
+    def __getstate__(self) -> dict:
+        return dict(self.__dict__, _tree=self.tree)
 
     def to_caller(self, values: np.ndarray) -> np.ndarray:
         """Per-row ``values`` (n, ...) of the sorted frame as (N, ...) in the caller's order."""
@@ -363,28 +392,34 @@ class SpatialIndex:
         r = len(row_ids)
         k_eff = min(k, self.n)
         q = min(k_eff + 1, self.n)
-        dist, idx = self.nearest(row_ids, q) if query is None else (query[0][:, :q], query[1][:, :q].copy())
-        has_self = (idx == row_ids[:, None]).any(axis=1)
-        dist = np.where(idx == row_ids[:, None], -1.0, dist)
-        # Rows whose order needs fixing: equal distances inside the first k_eff, or at the cut.
-        tied = (dist[:, 1:k_eff] == dist[:, :k_eff - 1]).any(axis=1) | (idx[:, 0] != row_ids)
-        cut = ~has_self | ((dist[:, k_eff - 1] == dist[:, k_eff]) if q > k_eff else np.zeros(r, bool))
+        last = k_eff - 1
+        dist, idx = self.nearest(row_ids, q) if query is None else (query[0][:, :q], query[1][:, :q])
+        # Rows whose order needs fixing: equal distances inside the first k_eff, or at the cut. A
+        # row is read as queried where it lists the point itself first (distance 0, ranked -1).
+        odd = np.flatnonzero(idx[:, 0] != row_ids)
+        tied = (dist[:, 2:k_eff] == dist[:, 1:last]).any(axis=1)
+        cut = (dist[:, last] == dist[:, k_eff]) if q > k_eff and last else np.zeros(r, bool)
+        if odd.size:  # another point at distance 0 listed first, or the point itself beyond the query
+            mine = idx[odd] == row_ids[odd, None]
+            d = np.where(mine, -1.0, dist[odd])
+            tied[odd] = True
+            cut[odd] = ~mine.any(axis=1) | ((d[:, last] == d[:, k_eff]) if q > k_eff else False)
+        out, reach = idx[:, :k_eff].astype(np.int32), np.maximum(dist[:, last], 0.0)
         fix = np.flatnonzero(tied & ~cut)
         if fix.size:
-            dist[fix], idx[fix] = self._ranked(row_ids[fix], dist[fix], idx[fix])
+            d, i = self._ranked(row_ids[fix], dist[fix], idx[fix])
+            out[fix], reach[fix] = i[:, :k_eff], np.maximum(d[:, last], 0.0)
         todo, width = np.flatnonzero(cut), q
         while todo.size:
             width = min(2 * width, self.n)
             d, i = self.tree.query(self.points[row_ids[todo]], k=width, workers=-1)
             d, i = self._ranked(row_ids[todo], d.reshape(todo.size, width), i.reshape(todo.size, width))
-            done = (d[:, -1] > d[:, k_eff - 1]) | (width == self.n)
-            dist[todo[done], :k_eff], idx[todo[done], :k_eff] = d[done, :k_eff], i[done, :k_eff]
+            done = (d[:, -1] > d[:, last]) | (width == self.n)
+            out[todo[done]], reach[todo[done]] = i[done, :k_eff], np.maximum(d[done, last], 0.0)
             todo = todo[~done]
-        reach = np.maximum(dist[:, k_eff - 1], 0.0)
-        idx = idx[:, :k_eff]
         if k_eff < k:
-            idx = np.concatenate([idx, np.full((r, k - k_eff), self.n)], axis=1)
-        return idx.astype(np.int32), reach
+            out = np.concatenate([out, np.full((r, k - k_eff), self.n, dtype=np.int32)], axis=1)
+        return out, reach
 
     def nearest(self, rows: slice | np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The raw tree query of ``rows``: (R, k) distances and indices (sorted frame), k <= n.
@@ -580,7 +615,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) ->
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
     dedupe = _validate.check_bool(dedupe, "dedupe")
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
-    idx = pad_queries(index, lambda part: index.knn(k, part)[0], cap, "k-nearest neighbourhood", index.n)
+    parts = [idx for _, idx, _ in knn_batches(index, k, np.arange(index.n))]
+    idx = pad_parts(index, parts, cap, "k-nearest neighbourhood", index.n)
     return assemble(pts, index, idx, params={"k": k, "dedupe": dedupe})
 
 
@@ -766,9 +802,32 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
     return np.where(spacing > 0, spacing, 1.0), reach
 
 
+def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):
+    """:meth:`SpatialIndex.knn` of sorted-frame ``rows`` (R,), batch by batch (:func:`batches`).
+
+    The tree query of the next batch runs in a background thread (the query releases the
+    GIL) while this one is ranked and consumed, so the cores do not wait for the host work
+    between queries. Results are those of :meth:`SpatialIndex.knn` on each batch.
+
+    Yields:
+      (part, idx, reach): part a slice of ``rows``; idx (r, k) int32 and reach (r,) as
+      :meth:`SpatialIndex.knn`.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    parts = batches(rows.size)
+    width = min(k + 1, index.n)  # the columns knn reads
+    with concurrent.futures.ThreadPoolExecutor(1) as ahead:
+        pending = [ahead.submit(index.nearest, rows[part], width) for part in parts[:1]]
+        for i, part in enumerate(parts):
+            query = pending.pop().result()
+            if i + 1 < len(parts):
+                pending.append(ahead.submit(index.nearest, rows[parts[i + 1]], width))
+            yield (part, *index.knn(k, rows[part], query=query))
+
+
 def chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`SpatialIndex.knn` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
-    parts = [index.knn(k, rows[part]) for part in batches(rows.size)]
+    parts = list(knn_batches(index, k, rows))
     if not parts:
         return np.zeros((0, k), np.int32), np.zeros(0)
-    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    return np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])

@@ -220,7 +220,7 @@ class _Cloud:
 
     def frame(self, gids: np.ndarray) -> np.ndarray:
         """(R, 3) float64 coordinates of ``gids`` minus the plan's origin."""
-        return np.asarray(self.points[gids], dtype=np.float64) - self.origin
+        return np.asarray(np.take(self.points, gids, axis=0), dtype=np.float64) - self.origin
 
     def cells(self, x: np.ndarray) -> np.ndarray:
         """(R, 3) int64 grid cell owning each point of frame coordinates ``x``."""
@@ -253,8 +253,8 @@ class _Cloud:
     def gather(self, cell, halo: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(gids (n,) ascending, frame coordinates (n, 3), core mask (n,)) of a tile and its halo."""
         core = self.members[cell]
-        if self.tile is None:
-            return core, self.frame(core), np.ones(core.size, bool)
+        if self.tile is None:  # the whole cloud, read in one pass
+            return core, np.subtract(self.points, self.origin, dtype=np.float64), np.ones(core.size, bool)
         box_lo, box_hi = self.box(cell, halo)
         first, last = self.cells(np.stack([box_lo, box_hi]))
         meets = self.grid[((self.grid >= first) & (self.grid <= last)).all(axis=1)]
@@ -598,9 +598,9 @@ def _resolved(plan_: Plan, runner: _Here) -> Plan:
 
 
 def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-axis float64 min and max, one chunk at a time (an exact reduction)."""
-    parts = [np.asarray(pts[s:s + PASS_ROWS], dtype=np.float64) for s in range(0, pts.shape[0], PASS_ROWS)]
-    return np.min([p.min(axis=0) for p in parts], axis=0), np.max([p.max(axis=0) for p in parts], axis=0)
+    """Per-axis float64 min and max, one chunk at a time (an exact reduction, in the points' dtype)."""
+    bounds = [spatial.axis_bounds(pts[s:s + PASS_ROWS]) for s in range(0, pts.shape[0], PASS_ROWS)]
+    return np.min([lo for lo, _ in bounds], axis=0), np.max([hi for _, hi in bounds], axis=0)
 
 
 def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
@@ -681,13 +681,18 @@ def _covered(cloud: _Cloud, cell, halo: float, dedupe: bool, build):
 
 def _per_point(index: spatial.SpatialIndex, rows: np.ndarray, core: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Per-location ``values`` (R, ...) of ``rows`` as the values of the core points (copies share theirs)."""
-    at = np.empty(index.n, dtype=np.int64)
-    at[rows] = np.arange(rows.size)
-    return values[at[index.row[core]]]
+    loc = index.row if core.all() else index.row[core]
+    if rows.size < index.n:  # else every location is a core one: ``rows`` is 0..n-1
+        at = np.empty(index.n, dtype=np.int64)
+        at[rows] = np.arange(rows.size)
+        loc = at[loc]
+    return np.take(values, loc, axis=0)
 
 
 def _core_rows(index: spatial.SpatialIndex, core: np.ndarray) -> np.ndarray:
     """(R,) ascending sorted-frame rows (locations) of the core points."""
+    if core.all():  # one tile: every location
+        return np.arange(index.n)
     mine = np.zeros(index.n, bool)
     mine[index.row[core]] = True
     return np.flatnonzero(mine)

@@ -255,10 +255,9 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:meth:`hgjax.spatial.SpatialIndex.knn`)."""
+    """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.spatial.knn_batches`)."""
     del dtype  # no per-row arguments
-    for part in spatial.batches(rows.size):
-        idx, reach = index.knn(build["k"], rows[part])
+    for part, idx, reach in spatial.knn_batches(index, build["k"], rows):
         yield part, idx, (), reach
 
 
