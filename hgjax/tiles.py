@@ -841,6 +841,10 @@ def _gfr_sums(graph: dict) -> tuple:
     return graph["sums"]
 
 
+def _gfr_tile_sums(cloud: _Cloud, cell, plan_: Plan) -> tuple:
+    return _gfr_sums(_gfr_graph(cloud, cell, plan_))
+
+
 def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: dict):
     """(gids, scores) of a tile's core points from its graph and the global weight statistics."""
     index, rows, core = graph["index"], graph["rows"], graph["core"]
@@ -856,14 +860,14 @@ def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
     """GFR scores of every tile's core points: pair sums over all tiles, then the flows (two passes).
 
     Dask workers and small clouds keep each tile's graph between the passes; a large cloud
-    in this process builds it again, so memory stays bounded by a tile.
+    in this process keeps only each tile's pair sums from the first pass and builds the graph
+    again in the second, so memory stays bounded by a tile.
     """
-    graphs = runner.tiles(_gfr_graph, plan_)
-    sums = runner.gather(runner.each(_gfr_sums, graphs))
-    mean_q, two_var = gfr.moments(gfr.summed(sums))
     if isinstance(runner, _Dask) or plan_.n <= KEEP_POINTS:
+        graphs = runner.tiles(_gfr_graph, plan_)
+        mean_q, two_var = gfr.moments(gfr.summed(runner.gather(runner.each(_gfr_sums, graphs))))
         return runner.each(_gfr_norms, graphs, plan_, mean_q, two_var, stream)
-    del graphs
+    mean_q, two_var = gfr.moments(gfr.summed(runner.tiles(_gfr_tile_sums, plan_)))
     return runner.tiles(_gfr_tile, plan_, mean_q, two_var, stream)
 
 

@@ -1,6 +1,7 @@
 """The tiled path: the same indices as one process whatever the tiles, verified halos, exact selection."""
 
 import dataclasses
+import weakref
 
 import jax
 import numpy as np
@@ -98,6 +99,35 @@ def test_each_tile_is_gathered_once_per_halo(smooth, method, params, monkeypatch
                         lambda self, cell, halo: seen.append((cell, halo)) or gather(self, cell, halo))
     tiles.resample(smooth, 0.2, method=method, tile=1.4, **params)
     assert len(seen) == len(set(seen)), sorted(seen)
+
+
+@pytest.mark.parametrize("mode", ["top", "random"])
+def test_gfr_beyond_keep_points_builds_each_graph_per_pass_and_keeps_only_sums(smooth, mode, monkeypatch):
+    """Above KEEP_POINTS the first pass returns each tile's pair sums only (no graph outlives its
+    tile) and the second builds the graphs again: the same indices as one process."""
+    class Graph(dict):
+        pass
+
+    want = hgjax.resample(smooth, 0.2, method="gfr", mode=mode, key=jax.random.key(3))
+    alive, alive_at_build, graph = [0], [], tiles._gfr_graph
+
+    def freed():
+        alive[0] -= 1
+
+    def counted(*args):
+        g = Graph(graph(*args))
+        alive[0] += 1
+        weakref.finalize(g, freed)
+        alive_at_build.append(alive[0])
+        return g
+
+    monkeypatch.setattr(tiles, "KEEP_POINTS", 0)
+    monkeypatch.setattr(tiles, "_gfr_graph", counted)
+    got = tiles.resample(smooth, 0.2, method="gfr", tile=1.4, mode=mode, key=jax.random.key(3))
+    np.testing.assert_array_equal(got, want)
+    cells = tiles.plan(smooth, 0.2, method="gfr", tile=1.4)[1].members
+    assert len(cells) >= 4 and len(alive_at_build) == 2 * len(cells)
+    assert max(alive_at_build) == 1  # no graph outlives its tile
 
 
 @pytest.mark.parametrize("method", ["ea", "hkc"])
