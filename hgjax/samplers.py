@@ -433,19 +433,13 @@ def _kd_row(q: np.ndarray, target: int) -> int:
 def _distinct_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(q, axis=0, return_index=True, return_inverse=True)[1:]`` of (N, 3) float32 ``q``.
 
-    The same rows in the same (lexicographic) order, -0.0 equal to 0.0: one sort of (x, y)
-    packed into order-preserving uint64 keys, then, inside the (rare) runs of equal (x, y),
-    a stable sort of the run's rows in index order by (x, y, z).
+    The same rows in the same (lexicographic) order, -0.0 equal to 0.0: (x, y) packed into
+    order-preserving uint64 keys, sorted, then z and the index inside the (rare) runs of equal
+    (x, y) (:func:`hgjax.spatial.lex_order`).
     """
     bits = ascending_bits(q).astype(np.uint64)
     xy = bits[:, 0] << np.uint64(32) | bits[:, 1]
-    order = np.argsort(xy)
-    tied = np.zeros(order.size, dtype=bool)
-    tied[1:] = xy[order[1:]] == xy[order[:-1]]
-    tied[:-1] |= tied[1:]
-    if tied.any():
-        sub = np.sort(order[tied])
-        order[tied] = sub[np.lexsort((bits[sub, 2], xy[sub]))]
+    order = spatial.lex_order(xy, bits[:, 2])
     new = np.ones(order.size, dtype=bool)
     new[1:] = (xy[order[1:]] != xy[order[:-1]]) | (bits[order[1:], 2] != bits[order[:-1], 2])
     group = np.empty(order.size, dtype=np.int64)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate
+from hgjax import _validate, spatial
 from hgjax.scores import _common
 
 __all__ = ["ExactSum", "key_value", "keyed_top", "kth_pair", "order_keys", "point_bits", "soft_select", "top_k", "top_pairs", "weighted_sample"]
@@ -61,24 +61,7 @@ def top_k(scores, m: int, *, largest: bool = True) -> np.ndarray:
     better = np.flatnonzero(key < kth)
     ties = np.flatnonzero(key == kth)[: m - better.size]
     chosen = np.concatenate([better, ties])
-    return chosen[pair_order(key[chosen], chosen)].astype(np.int64)
-
-
-def pair_order(keys: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """The (R,) permutation that sorts the pairs (keys (R,), ids (R,)) by key, then id (``np.lexsort((ids, keys))``).
-
-    One vectorised (unstable) sort of the keys, then only the runs of equal keys sorted by
-    id: far faster than a stable two-key sort when ties are few.
-    """
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
-    tied = np.zeros(order.size, dtype=bool)
-    tied[1:] = sorted_keys[1:] == sorted_keys[:-1]
-    tied[:-1] |= tied[1:]
-    if tied.any():
-        sub = order[tied]
-        order[tied] = sub[np.lexsort((ids[sub], keys[sub]))]
-    return order
+    return chosen[spatial.lex_order(key[chosen], chosen)].astype(np.int64)
 
 
 def order_keys(scores, *, largest: bool) -> np.ndarray:
@@ -272,7 +255,7 @@ def top_pairs(parts, m: int, *, run=None, boundary: bool = False):
     kept = run(kept_pairs, *last)
     keys = np.concatenate([k for k, _ in kept])
     gids = np.concatenate([g for _, g in kept]).astype(np.int64)
-    ids = gids[pair_order(keys, gids)]
+    ids = gids[spatial.lex_order(keys, gids)]
     return (ids, last) if boundary else ids
 
 

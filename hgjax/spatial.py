@@ -290,15 +290,24 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0 else 0.0
     q = ((p - lo) * scale).astype(np.uint64)
     code = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
-    order = np.argsort(code)  # unstable (vectorised); equal codes are ordered below
-    # Points sharing a Morton cell are rare; sort just those runs by their coordinates, then index.
-    sorted_code = code[order]
-    tied = np.zeros(len(order), dtype=bool)
-    tied[1:] = sorted_code[1:] == sorted_code[:-1]
+    # Points sharing a Morton cell are rare: only those runs are sorted by their coordinates.
+    return lex_order(code, p[:, 0], p[:, 1], p[:, 2])
+
+
+def lex_order(key: np.ndarray, *then: np.ndarray) -> np.ndarray:
+    """The (R,) permutation that sorts by ``key`` (R,), then each of ``then`` (R,), then index.
+
+    Equal to ``np.lexsort((*reversed(then), key))``, but by one vectorised (unstable) sort of
+    ``key`` and a lexsort of only the runs of equal keys: far faster when ties are few.
+    """
+    order = np.argsort(key)
+    sorted_key = key[order]
+    tied = np.zeros(order.size, dtype=bool)
+    tied[1:] = sorted_key[1:] == sorted_key[:-1]
     tied[:-1] |= tied[1:]
     if tied.any():
-        sub = order[tied]
-        order[tied] = sub[np.lexsort((sub, p[sub, 2], p[sub, 1], p[sub, 0], code[sub]))]
+        sub = np.sort(order[tied])  # index order: the stable lexsort then breaks full ties by index
+        order[tied] = sub[np.lexsort(tuple(t[sub] for t in reversed(then)) + (key[sub],))]
     return order
 
 
