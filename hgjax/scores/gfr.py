@@ -528,10 +528,15 @@ def _flow_kernel(wdtype):
     return functools.partial(_flow, wdtype=wdtype)
 
 
+def _smallest_nonzero(size):
+    """The smallest non-zero value of each column of ``size`` (K, 3) >= 0: (3,), inf where a column has none."""
+    return jnp.min(jnp.where(size > 0, size, jnp.inf), axis=0)
+
+
 def _summary(flow):
     """One row's flows (K, 3) as (flows (3, K), smallest non-zero |flow| (3,), inf if none; largest |flow| (3,))."""
     size = jnp.abs(flow)
-    return flow.T, jnp.min(jnp.where(size > 0, size, jnp.inf), axis=0), jnp.max(size, axis=0)
+    return flow.T, _smallest_nonzero(size), jnp.max(size, axis=0)
 
 
 @functools.lru_cache(maxsize=None)
@@ -739,9 +744,7 @@ def _device_sum_kernel(q_own: bool, counted: bool):
         terms = flow.astype(jnp.float64)
         if counted:
             terms = row_args[0][:, None] * terms
-        size = jnp.abs(flow)
-        return (jnp.sum(terms, axis=0), jnp.min(jnp.where(size > 0, size, jnp.inf), axis=0),
-                jnp.max(jnp.abs(terms), axis=0))
+        return jnp.sum(terms, axis=0), _smallest_nonzero(jnp.abs(flow)), jnp.max(jnp.abs(terms), axis=0)
 
     return kernel
 
