@@ -458,7 +458,8 @@ class _Dask(_Here):
     copy of the cloud loses nothing (scattered data has no recipe, and Dask's active memory
     manager drops the extra copies a broadcast made). A task is a function of the cloud, its
     cell and the resolved plan only, so a task retried after a worker died computes the same
-    bits.
+    bits. Smaller tiles run first (a higher Dask priority): a tile that kills the workers it runs
+    on then takes no smaller tile queued behind it down with it, and is the one the error names.
     """
 
     def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
@@ -474,7 +475,8 @@ class _Dask(_Here):
 
     def tiles(self, fn, *args, cells=None) -> list:
         cells = cells or self.cloud.occupied()
-        futures = [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True) for cell in cells]
+        futures = [self.client.submit(_task, self.x64, fn, self.shared, cell, *args, pure=True,
+                                      priority=-self.cloud.core_size(cell)) for cell in cells]
         self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
         if self.cloud.progress:
             tick = _Ticker(fn, len(cells))
@@ -493,12 +495,13 @@ class _Dask(_Here):
         try:
             return self.client.gather(values)
         except KilledWorker as err:
-            raise RuntimeError(self.killed(err.task)) from err
+            raise RuntimeError(self.killed(err.task, err.last_worker.memory_limit)) from err
 
-    def killed(self, task) -> str:
-        """The message of a task whose workers died: its tile, an estimate of the memory it needs, the workers' limit."""
-        limits = sorted({w.get("memory_limit") or 0 for w in self.client.scheduler_info()["workers"].values()})
-        limit = f"; the workers' memory limit: {limits[-1] / 2**20:.0f} MiB" if limits and limits[0] else ""
+    def killed(self, task, memory_limit: int | None) -> str:
+        """The message of a task whose workers died: its tile, an estimate of the memory it needs, and the
+        memory limit of the last worker that died running it (as the scheduler recorded it: the workers
+        being restarted at that moment are not asked)."""
+        limit = f"; the workers' memory limit: {memory_limit / 2**20:.0f} MiB" if memory_limit else ""
         cell = self.cells.get(task)
         if cell is None:
             return f"Dask workers died running task {task!r} (out of memory?){limit}"

@@ -62,7 +62,8 @@ def test_a_tile_beyond_the_workers_memory_names_itself_and_its_memory():
     the cloud) and a tile of 1,000,000 core points (about 490 MiB more, by the message's estimate). The
     nanny kills each worker that runs it, Dask retries it once (``allowed-failures``), then gives up; the
     error names the tile, the estimate and the limit. Pausing and spilling are off, so a worker near its
-    limit cannot leave the cluster waiting."""
+    limit cannot leave the cluster waiting. The three small tiles run before the large one on any worker
+    (tiles.py's priorities), so none dies with it, on a loaded machine too."""
     dask = pytest.importorskip("dask")
     rng = np.random.default_rng(0)
     xy = np.concatenate([rng.uniform(0, 1, (1_000_000, 2)), rng.uniform(0, 2, (4000, 2))])
