@@ -49,11 +49,35 @@ def client():
         yield c
 
 
+# The groups that take longest or hold the longest tests (a quiet run's durations: test_api about
+# 200 s in all, the notebooks 76 s of which one test 63 s, the survey 80 s, ...). pytest-xdist's
+# loadgroup hands groups to whichever worker is free in collection order, so these start first and
+# the run ends on short groups (other test files, then the doctests of hgjax/): neither worker idles
+# while the other finishes a long one. By test count (xdist's default order) the notebooks came last.
+LONGEST_GROUPS = ("tests/test_api.py", "tests/test_notebooks.py", "tests/test_survey.py", "tests/test_mss.py",
+                  "tests/test_eval_edges.py", "tests/test_soft.py", "dask-client", "tests/test_cli.py",
+                  "tests/test_scores.py")
+
+
+def pytest_configure(config):
+    """Groups run in the order of :func:`pytest_collection_modifyitems` (pytest-xdist's
+    ``--no-loadscope-reorder``: by default it reorders groups by their number of tests)."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+def _group(item) -> str:
+    return "dask-client" if "client" in getattr(item, "fixturenames", ()) else item.nodeid.split("::")[0]
+
+
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(items):
     """Groups for pytest-xdist's ``--dist loadgroup`` (the README's test command): the tests of one
     file run in one worker (its module fixtures and compiled kernels are made once), and every test
-    of the Dask ``client`` runs in one worker, so the suite starts one LocalCluster."""
+    of the Dask ``client`` runs in one worker, so the suite starts one LocalCluster. Items are put in
+    group order: :data:`LONGEST_GROUPS`, the other test files, the doctests (each stable)."""
+    rank = {group: i for i, group in enumerate(LONGEST_GROUPS)}
     for item in items:
-        group = "dask-client" if "client" in getattr(item, "fixturenames", ()) else item.nodeid.split("::")[0]
-        item.add_marker(pytest.mark.xdist_group(group))
+        item.add_marker(pytest.mark.xdist_group(_group(item)))
+    doctest = lambda item: not _group(item).startswith(("tests/", "dask-client"))  # noqa: E731
+    items.sort(key=lambda item: (rank.get(_group(item), len(rank)), doctest(item)))
