@@ -557,10 +557,10 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     start = _validate.check_int(start, "start", minimum=0)
     if start >= n:
         raise ValueError(f"start must be < N = {n}; got {start}")
-    local = spatial.local_frame(pts)[0]  # float64 origin removed before any float32 cast
-    extent = np.abs(local).max()
+    local = spatial.local_frame(pts)[0]  # float64 origin removed before any float32 cast; a new array
+    extent = max(local.max(), -local.min())  # max |local| without an (N, 3) temporary
     if extent > 0:  # an exact power of two: squared distances neither under- nor overflow
-        local = np.ldexp(local, -np.frexp(extent)[1])
+        np.ldexp(local, -np.frexp(extent)[1], out=local)
     if fps_backend(backend) == "fpsample":
         return _fps_fpsample(local, m, start)
     p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))
