@@ -411,22 +411,29 @@ def _kd_row(q: np.ndarray, target: int) -> int:
     mean among the node's first ``k`` rows trades places with the i-th point below it
     counted from the node's end, ``k`` the count below), down to single points.
     ``start_idx`` then reads a row of that partitioned array. Only the nodes that hold
-    ``target`` are replayed: about 2 U points in all.
+    ``target`` are replayed: about 2 U points in all, the first node read in place, and
+    ``target``'s place followed through the trades rather than searched for.
     """
-    axes, node, offset = np.ascontiguousarray(q.T), np.arange(q.shape[0]), 0
+    axes = np.ascontiguousarray(q.T)
+    node, at, offset = np.arange(q.shape[0]), int(target), 0  # node[at] == target
+    x = axes  # (3, S): the node's points in their current order
     while node.size > 1:
-        x = axes[:, node]  # (3, S)
         v = x[int(np.argmax(x.max(axis=1) - x.min(axis=1)))]
         right = v >= np.cumsum(v)[-1] / np.float32(node.size)  # cumsum: the sequential float32 sum
-        below = node.size - int(right.sum())
-        head = np.arange(node.size) < below
-        up, down = np.flatnonzero(head & right), np.flatnonzero(~head & ~right)[::-1]
-        node[up], node[down] = node[down], node[up]
+        below = node.size - int(np.count_nonzero(right))
+        up = np.flatnonzero(right[:below])  # ascending
+        down = below + np.flatnonzero(~right[below:])  # ascending; the i-th of up trades with the i-th from the end
+        if at < below and right[at]:
+            at = int(down[down.size - 1 - np.searchsorted(up, at)])
+        elif at >= below and not right[at]:
+            at = int(up[up.size - 1 - np.searchsorted(down, at)])
+        node[up], node[down[::-1]] = node[down[::-1]], node[up]
         n_left = min(max(below, 1), node.size - 1)
-        if np.flatnonzero(node == target)[0] < n_left:
+        if at < n_left:
             node = node[:n_left]
         else:
-            node, offset = node[n_left:], offset + n_left
+            node, offset, at = node[n_left:], offset + n_left, at - n_left
+        x = axes[:, node]
     return offset
 
 
@@ -440,8 +447,9 @@ def _distinct_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     bits = ascending_bits(q).astype(np.uint64)
     xy = bits[:, 0] << np.uint64(32) | bits[:, 1]
     order = spatial.lex_order(xy, bits[:, 2])
+    xy, z = xy[order], bits[order, 2]  # in sorted order: one gather each
     new = np.ones(order.size, dtype=bool)
-    new[1:] = (xy[order[1:]] != xy[order[:-1]]) | (bits[order[1:], 2] != bits[order[:-1], 2])
+    new[1:] = (xy[1:] != xy[:-1]) | (z[1:] != z[:-1])
     group = np.empty(order.size, dtype=np.int64)
     group[order] = np.cumsum(new) - 1
     return order[new], group
@@ -549,10 +557,10 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     start = _validate.check_int(start, "start", minimum=0)
     if start >= n:
         raise ValueError(f"start must be < N = {n}; got {start}")
-    local = spatial.local_frame(pts)[0]  # float64 origin removed before any float32 cast
-    extent = np.abs(local).max()
+    local = spatial.local_frame(pts)[0]  # float64 origin removed before any float32 cast; a new array
+    extent = max(local.max(), -local.min())  # max |local| without an (N, 3) temporary
     if extent > 0:  # an exact power of two: squared distances neither under- nor overflow
-        local = np.ldexp(local, -np.frexp(extent)[1])
+        np.ldexp(local, -np.frexp(extent)[1], out=local)
     if fps_backend(backend) == "fpsample":
         return _fps_fpsample(local, m, start)
     p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))

@@ -23,6 +23,7 @@ Conventions (shared with every kernel):
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import dataclasses
 import functools
@@ -49,6 +50,7 @@ __all__ = [
 ]
 
 _MORTON_BITS = 21  # 3 * 21 = 63 bits fit in uint64
+MORTON_SPLIT = 1 << 16  # points from which spatial_order computes its codes in two threads
 RESOLUTION_SAMPLES = 1000
 CUBE_GROUPS = 8  # cube queries bound each eighth of a batch (by half-width) separately
 
@@ -288,8 +290,20 @@ def spatial_order(points: np.ndarray) -> np.ndarray:
     lo, hi = axis_bounds(p)
     extent = float((hi - lo).max())
     scale = (2**_MORTON_BITS - 1) / extent if extent > 0 else 0.0
-    q = ((p - lo) * scale).astype(np.uint64)
-    code = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
+    code = np.empty(p.shape[0], dtype=np.uint64)
+
+    def codes(part: slice) -> None:
+        q = ((p[part] - lo) * scale).astype(np.uint64)
+        code[part] = _spread_bits(q[:, 0]) << np.uint64(2) | _spread_bits(q[:, 1]) << np.uint64(1) | _spread_bits(q[:, 2])
+
+    if p.shape[0] < MORTON_SPLIT:
+        codes(slice(None))
+    else:  # two threads (NumPy releases the GIL): the sort runs before the tree, on otherwise idle cores
+        half = p.shape[0] // 2
+        with concurrent.futures.ThreadPoolExecutor(1) as other:
+            done = other.submit(codes, slice(half, None))
+            codes(slice(0, half))
+            done.result()
     # Points sharing a Morton cell are rare: only those runs are sorted by their coordinates.
     return lex_order(code, p[:, 0], p[:, 1], p[:, 2])
 
@@ -527,6 +541,7 @@ class SpatialIndex:
 
 
 QUERY_ROWS = 1 << 14  # rows per host query batch: bounds the query's temporary memory
+QUERIES_AHEAD = 2  # batches queried ahead of the one being consumed (each (QUERY_ROWS, k + 1) twice)
 
 
 def bucket(width: int) -> int:
@@ -814,9 +829,10 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
 def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):
     """:meth:`SpatialIndex.knn` of sorted-frame ``rows`` (R,), batch by batch (:func:`batches`).
 
-    The tree query of the next batch runs in a background thread (the query releases the
-    GIL) while this one is ranked and consumed, so the cores do not wait for the host work
-    between queries. Results are those of :meth:`SpatialIndex.knn` on each batch.
+    The tree queries of the next QUERIES_AHEAD batches are queued in a background thread
+    (the query releases the GIL) while this one is ranked and consumed, so each query starts
+    as soon as the one before it ends, whether or not the host work on the earlier batches
+    is done. Results are those of :meth:`SpatialIndex.knn` on each batch.
 
     Yields:
       (part, idx, reach): part a slice of ``rows``; idx (r, k) int32 and reach (r,) as
@@ -826,11 +842,12 @@ def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):
     parts = batches(rows.size)
     width = min(k + 1, index.n)  # the columns knn reads
     with concurrent.futures.ThreadPoolExecutor(1) as ahead:
-        pending = [ahead.submit(index.nearest, rows[part], width) for part in parts[:1]]
+        pending = collections.deque(ahead.submit(index.nearest, rows[part], width)
+                                    for part in parts[:QUERIES_AHEAD])
         for i, part in enumerate(parts):
-            query = pending.pop().result()
-            if i + 1 < len(parts):
-                pending.append(ahead.submit(index.nearest, rows[parts[i + 1]], width))
+            query = pending.popleft().result()
+            if i + QUERIES_AHEAD < len(parts):
+                pending.append(ahead.submit(index.nearest, rows[parts[i + QUERIES_AHEAD]], width))
             yield (part, *index.knn(k, rows[part], query=query))
 
 

@@ -240,6 +240,31 @@ def test_spatial_order_breaks_shared_cells_by_coordinates():
     assert (np.diff(tied[:, 0]) >= 0).all()  # one cell here: sorted by x
 
 
+def test_spatial_order_of_a_large_cloud_is_the_lexicographic_order():
+    # Above MORTON_SPLIT the codes are computed in two halves, in two threads; rounding to a
+    # coarse grid makes many points share a code, so the coordinate tie-break matters too.
+    from hgjax import spatial
+    n = spatial.MORTON_SPLIT + 4321
+    p = np.round(uniform_cloud(n, seed=5) * 40) / 40
+    p[::7] = p[1::7][:len(p[::7])]  # exact duplicates: broken by index
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    q = ((p - lo) * ((2**spatial._MORTON_BITS - 1) / (hi - lo).max())).astype(np.uint64)
+    code = sum(spatial._spread_bits(q[:, a]) << np.uint64(2 - a) for a in range(3))
+    np.testing.assert_array_equal(hgjax.spatial_order(p), np.lexsort((p[:, 2], p[:, 1], p[:, 0], code)))
+
+
+def test_knn_batches_queried_ahead_are_the_whole_query(monkeypatch):
+    from hgjax import spatial
+    monkeypatch.setattr(spatial, "QUERY_ROWS", 64)  # 1000 rows: 16 batches, each queried ahead
+    index = SpatialIndex(np.round(uniform_cloud(1000, seed=6) * 10) / 10, dedupe=True)  # many distance ties
+    rows = np.random.default_rng(7).permutation(index.n)[:900]
+    parts = list(spatial.knn_batches(index, 9, rows))
+    assert [part for part, _, _ in parts] == spatial.batches(rows.size)
+    want_idx, want_reach = index.knn(9, rows)
+    np.testing.assert_array_equal(np.concatenate([idx for _, idx, _ in parts]), want_idx)
+    np.testing.assert_array_equal(np.concatenate([reach for _, _, reach in parts]), want_reach)
+
+
 @pytest.mark.parametrize("jitter", [0.0, 0.01])  # a lattice (distance ties everywhere) and a noisy one
 def test_one_nearest_query_serves_spacing_and_ball_exactly(jitter):
     from hgjax import spatial
