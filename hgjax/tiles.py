@@ -825,8 +825,9 @@ def _gathered(runner: _Here, parts, plan_: Plan) -> np.ndarray:
     return scores
 
 
-def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
-    """GFR's graph around the core locations of one tile, and its exact pair sums (Chen et al. 2018).
+def _gfr_graph(cloud: _Cloud, cell, plan_: Plan, sums: bool = True) -> dict:
+    """GFR's graph around the core locations of one tile, and its exact pair sums unless not ``sums``
+    (Chen et al. 2018).
 
     A core location's stored pairs are those it ranks or that rank it, so every location
     within the radius R of it must see its whole R-ball: the halo is verified to hold 2R
@@ -836,7 +837,10 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan) -> dict:
     reach = 2 * np.sqrt(b["r"]) * (1 + 1e-5)  # the pair query's bound, twice
     gids, core, index, rows, _ = _covered(cloud, cell, plan_.halo, True,
                                           lambda index, rows: (None, np.full(rows.size, reach)))
-    chunks, sums = gfr.graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype)
+    if sums:
+        chunks, sums = gfr.graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype)
+    else:
+        chunks, sums = list(gfr.graph_rows(index, rows, b["r"], b["max_nn"])), None
     return {"gids": gids, "core": core, "index": index, "rows": rows, "chunks": chunks, "sums": sums}
 
 
@@ -856,7 +860,7 @@ def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: 
 
 
 def _gfr_tile(cloud: _Cloud, cell, plan_: Plan, mean_q: float, two_var: float, stream: dict):
-    return _gfr_norms(_gfr_graph(cloud, cell, plan_), plan_, mean_q, two_var, stream)
+    return _gfr_norms(_gfr_graph(cloud, cell, plan_, sums=False), plan_, mean_q, two_var, stream)
 
 
 def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
@@ -864,7 +868,7 @@ def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
 
     Dask workers and small clouds keep each tile's graph between the passes; a large cloud
     in this process keeps only each tile's pair sums from the first pass and builds the graph
-    again in the second, so memory stays bounded by a tile.
+    again in the second (without its pair sums), so memory stays bounded by a tile.
     """
     if isinstance(runner, _Dask) or plan_.n <= KEEP_POINTS:
         graphs = runner.tiles(_gfr_graph, plan_)

@@ -96,6 +96,33 @@ def test_capped_grid_rows_hit_the_cap():
     assert pairs_of(graph(p, variant="reference", max_nn=7)) == gfr_pairs(p, max_nn=7)[0]
 
 
+def test_dense_balls_are_asked_again_once_with_as_many_columns_as_they_hold():
+    """A plane lattice holds about 316 points in a ball of 10 spacings: rows that come back full from the
+    first bounded query (109 columns) ask once more, for 512 (k (R / d_k)^2 x 5/4 rounded up; 256 at the
+    edges), not for 218 then 436; the balls are those of the exact radius graph."""
+    pts = np.column_stack([grid((60, 60)), np.zeros(3600)])
+    index = spatial.SpatialIndex(pts, dedupe=True)
+    r = gfr_module.squared_radius(gfr_module.RADIUS_FACTOR, spatial.sample_stats(index))
+    asked = []
+
+    class Counted:
+        def __init__(self, tree):
+            self.tree = tree
+
+        def query(self, x, k, **kw):
+            asked.append(k)
+            return self.tree.query(x, k=k, **kw)
+
+    index._tree = Counted(index.tree)
+    rows = list(gfr_module.location_rows(index, r, gfr_module.MAX_NN, np.ones(index.n, bool)))
+    # one more query per group of rows (edge rows hold half a disc: 256 columns), none asked a third time
+    assert asked[0] == gfr_module.MAX_NN + 9 and sorted(asked[1:]) == [256, 512]
+    got = {(int(a), int(b)) for own, sym in rows for a, row in zip(own, sym) for b in row[row < index.n]}
+    d2 = ((index.points[:, None] - index.points[None]) ** 2).sum(axis=-1)
+    assert max(len([b for b in range(index.n) if 0 < d2[a, b] < r]) for a in range(0, index.n, 97)) > 300
+    assert (0 < d2[tuple(np.array(sorted(got)).T)]).all() and (d2[tuple(np.array(sorted(got)).T)] < r).all()
+
+
 @pytest.mark.parametrize("cloud", [uniform_cloud(500), box_surface(500, 0)],
                          ids=["cube", "box_surface"])
 def test_reference_scores_few_exact_zeros(cloud):

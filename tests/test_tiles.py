@@ -104,18 +104,20 @@ def test_each_tile_is_gathered_once_per_halo(smooth, method, params, monkeypatch
 @pytest.mark.parametrize("mode", ["top", "random"])
 def test_gfr_beyond_keep_points_builds_each_graph_per_pass_and_keeps_only_sums(smooth, mode, monkeypatch):
     """Above KEEP_POINTS the first pass returns each tile's pair sums only (no graph outlives its
-    tile) and the second builds the graphs again: the same indices as one process."""
+    tile) and the second builds the graphs again, without their pair sums: the same indices as
+    one process."""
     class Graph(dict):
         pass
 
     want = hgjax.resample(smooth, 0.2, method="gfr", mode=mode, key=jax.random.key(3))
-    alive, alive_at_build, graph = [0], [], tiles._gfr_graph
+    alive, alive_at_build, with_sums, graph = [0], [], [], tiles._gfr_graph
 
     def freed():
         alive[0] -= 1
 
-    def counted(*args):
-        g = Graph(graph(*args))
+    def counted(*args, **kwargs):
+        g = Graph(graph(*args, **kwargs))
+        with_sums.append(g["sums"] is not None)
         alive[0] += 1
         weakref.finalize(g, freed)
         alive_at_build.append(alive[0])
@@ -128,6 +130,7 @@ def test_gfr_beyond_keep_points_builds_each_graph_per_pass_and_keeps_only_sums(s
     cells = tiles.plan(smooth, 0.2, method="gfr", tile=1.4)[1].members
     assert len(cells) >= 4 and len(alive_at_build) == 2 * len(cells)
     assert max(alive_at_build) == 1  # no graph outlives its tile
+    assert with_sums == [True] * len(cells) + [False] * len(cells)  # the second pass sums nothing
 
 
 @pytest.mark.parametrize("method", ["ea", "hkc"])

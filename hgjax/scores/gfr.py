@@ -261,9 +261,12 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
            cut_q: np.ndarray, cut_g: np.ndarray):
     """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the balls of the wanted ones.
 
-    A bounded k-nearest query per row, asked again with twice the columns for the rows
-    whose query came back full while more may lie within r: a wanted row until its whole
-    ball is seen, another row until its cut is certain (no tie with it beyond the query).
+    A bounded k-nearest query per row, asked again for the rows whose query came back full
+    while more may lie within r: a wanted row until its whole ball is seen, another row until
+    its cut is certain (no tie with it beyond the query). A row asked again asks for the
+    points its ball would hold on a surface sampled as densely as its first k, k (R / d_k)^2
+    with d_k its k-th distance, times 5/4, rounded up to a power of two (at least 2 k): one
+    more query for most rows of a dense ball, however full (the balls are exact either way).
 
     Args:
       coords: the index's x, y and z (n + 1,) each, NaN at n.
@@ -274,8 +277,9 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
     u, m, gid = index.points, index.n, index.gid
     bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
     own, counts, cols = [], [], []
-    todo, k = np.arange(batch.size), min(max_nn + 9, m)
-    while todo.size:
+    queue = [(np.arange(batch.size), min(max_nn + 9, m))]
+    while queue:
+        todo, k = queue.pop()
         rows = batch[todo]
         dist, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
         dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
@@ -300,7 +304,10 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         own.append(rows[keep])
         counts.append(n_valid[keep])
         cols.append((j[valid] if keep.size == todo.size else j[keep][valid[keep]]).astype(np.int32))
-        todo, k = todo[~seen], min(2 * k, m)
+        if not seen.all():
+            grown = np.minimum(np.ceil(1.25 * k * (bound / dist[~seen, -1]) ** 2), m)
+            grown = np.minimum(np.maximum(2 * k, 1 << np.frexp(grown - 1)[1].astype(np.int64)), m)
+            queue += [(todo[~seen][grown == g], int(g)) for g in np.unique(grown)]
     own, counts, cols = np.concatenate(own), np.concatenate(counts), np.concatenate(cols)
     order = np.argsort(own, kind="stable")
     if (order[1:] < order[:-1]).any():  # rows asked again finished later: back in row order
@@ -778,6 +785,13 @@ def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: 
     return lp
 
 
+def graph_rows(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int):
+    """The stored partners of the ``rows`` (R,) of a deduplicated index, as :func:`location_rows` yields them."""
+    want = np.zeros(index.n, bool)
+    want[rows] = True
+    return location_rows(index, r, max_nn, want)
+
+
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
     """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
 
@@ -785,12 +799,10 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
     q in ``dtype`` and the sums of :func:`pair_sums`; only the partners are kept, as
     (own, sym) per chunk, for :func:`graph_norms`.
     """
-    want = np.zeros(index.n, bool)
-    want[rows] = True
     counts_ext = _counts_ext(index)
     ext = _stream.device_points(index.points, dtype)
     chunks, sums = [], []
-    for own, sym in location_rows(index, r, max_nn, want):
+    for own, sym in graph_rows(index, rows, r, max_nn):
         q = pair_lengths(index.points, own, sym, dtype, ext=ext)
         sums.append(pair_sums(q, own, sym, index.gid, counts_ext))
         chunks.append((own, sym))
