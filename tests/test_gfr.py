@@ -46,6 +46,9 @@ def clouds():
         "jittered_grid": jittered,
         "duplicates": np.concatenate([base, base[:40], base[:5]]),
         "capped_grid": grid((8, 8, 8), 0.0625, seed=2),  # minNN == maxNN, the ball holds every point
+        # a sheet whose density falls 50-fold along x, as on a scan: balls hold many times max_nn points at
+        # the dense end, where rows keep partners beyond their own cut (kept by the sparser end)
+        "graded": np.column_stack([rng.random(800) ** 4, rng.random(800), 1e-3 * rng.random(800)]),
     }
 
 
@@ -103,7 +106,7 @@ def test_reference_scores_few_exact_zeros(cloud):
 
 
 # ------------------------------------------------------------------ invariant default
-@pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid"])
+@pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid", "graded"])
 @pytest.mark.parametrize("max_nn", [100, 4])
 def test_invariant_matches_naive(name, max_nn):
     p = clouds()[name]
