@@ -46,6 +46,9 @@ def clouds():
         "jittered_grid": jittered,
         "duplicates": np.concatenate([base, base[:40], base[:5]]),
         "capped_grid": grid((8, 8, 8), 0.0625, seed=2),  # minNN == maxNN, the ball holds every point
+        # a sheet whose density falls 50-fold along x, as on a scan: balls hold many times max_nn points at
+        # the dense end, where rows keep partners beyond their own cut (kept by the sparser end)
+        "graded": np.column_stack([rng.random(800) ** 4, rng.random(800), 1e-3 * rng.random(800)]),
     }
 
 
@@ -96,10 +99,11 @@ def test_capped_grid_rows_hit_the_cap():
     assert pairs_of(graph(p, variant="reference", max_nn=7)) == gfr_pairs(p, max_nn=7)[0]
 
 
-def test_dense_balls_are_asked_again_once_with_as_many_columns_as_they_hold():
-    """A plane lattice holds about 316 points in a ball of 10 spacings: rows that come back full from the
-    first bounded query (109 columns) ask once more, for 512 (k (R / d_k)^2 x 5/4 rounded up; 256 at the
-    edges), not for 218 then 436; the balls are those of the exact radius graph."""
+def test_dense_balls_are_asked_once_more_only_for_their_partners():
+    """A plane lattice holds about 316 points in a ball of 10 spacings: every row asks a first bounded query
+    (109 columns), which decides its cut; a capped row then asks once more, bounded by its partner bound
+    (the cuts of the cells around it), and no row is asked a third time; the rows returned are those of
+    the exact radius graph."""
     pts = np.column_stack([grid((60, 60)), np.zeros(3600)])
     index = spatial.SpatialIndex(pts, dedupe=True)
     r = gfr_module.squared_radius(gfr_module.RADIUS_FACTOR, spatial.sample_stats(index))
@@ -110,17 +114,19 @@ def test_dense_balls_are_asked_again_once_with_as_many_columns_as_they_hold():
             self.tree = tree
 
         def query(self, x, k, **kw):
-            asked.append(k)
+            asked.append((k, len(x), kw["distance_upper_bound"]))
             return self.tree.query(x, k=k, **kw)
 
     index._tree = Counted(index.tree)
     rows = list(gfr_module.location_rows(index, r, gfr_module.MAX_NN, np.ones(index.n, bool)))
-    # one more query per group of rows (edge rows hold half a disc: 256 columns), none asked a third time
-    assert asked[0] == gfr_module.MAX_NN + 9 and sorted(asked[1:]) == [256, 512]
+    assert asked[0][:2] == (gfr_module.MAX_NN + 9, index.n)
+    assert 0.9 * index.n < sum(n for _, n, _ in asked[1:]) <= index.n  # the capped rows, each once
+    assert min(bound for _, _, bound in asked[1:]) < 0.8 * np.sqrt(r)  # interior rows: well inside the radius
     got = {(int(a), int(b)) for own, sym in rows for a, row in zip(own, sym) for b in row[row < index.n]}
     d2 = ((index.points[:, None] - index.points[None]) ** 2).sum(axis=-1)
     assert max(len([b for b in range(index.n) if 0 < d2[a, b] < r]) for a in range(0, index.n, 97)) > 300
     assert (0 < d2[tuple(np.array(sorted(got)).T)]).all() and (d2[tuple(np.array(sorted(got)).T)] < r).all()
+    assert pairs_of(graph(pts)) == gfr_pairs(pts, gfr_module.MAX_NN, gfr_module.RADIUS_FACTOR)[0]
 
 
 @pytest.mark.parametrize("cloud", [uniform_cloud(500), box_surface(500, 0)],
@@ -130,7 +136,7 @@ def test_reference_scores_few_exact_zeros(cloud):
 
 
 # ------------------------------------------------------------------ invariant default
-@pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid"])
+@pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid", "graded"])
 @pytest.mark.parametrize("max_nn", [100, 4])
 def test_invariant_matches_naive(name, max_nn):
     p = clouds()[name]

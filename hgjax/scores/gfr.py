@@ -45,6 +45,7 @@ the same length) every weight is exp(-inf) = 0, the limit of the formula, and ev
 from __future__ import annotations
 
 import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
@@ -160,10 +161,13 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
 
     Each location a keeps its ``max_nn`` nearest other locations b with 0 < q_ab < r
     (squared distances in float64), ranked by (q_ab, gid_b) (``index.gid``); the pair {a, b}
-    is stored when either end keeps the other. One pass queries every row's ball and keeps
-    only each row's cut, the (q, gid) of its ``max_nn``-th partner (none below the cap),
-    and the balls of the wanted rows; a second pass then keeps, per chunk of wanted rows,
-    the partners b of a with (q_ab, gid_b) <= cut_a or (q_ab, gid_a) <= cut_b.
+    is stored when either end keeps the other. A first pass queries every row's ball and
+    keeps each row's cut, the (q, gid) of its ``max_nn``-th partner (none below the cap),
+    and the balls of the wanted rows it saw whole. Every partner b of a capped row a has
+    q_ab <= max(cut_a, cut_b), so the second pass asks the other wanted rows only for the
+    points within :func:`_partner_bounds` of them, not for their whole balls (on a dense
+    scan, balls hold several times ``max_nn`` points). Then, per chunk of wanted rows, the
+    partners b of a with (q_ab, gid_b) <= cut_a or (q_ab, gid_a) <= cut_b are kept.
 
     Args:
       index: a deduplicated :class:`hgjax.spatial.SpatialIndex`.
@@ -178,14 +182,20 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
       in one chunk.
     """
     m = index.n
+    if r <= 0:  # no pair: every wanted row alone
+        yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
+        return
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
     coords = tuple(np.append(index.points[:, axis], np.nan) for axis in range(3))  # row n: no point
     balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
-             for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))] if r > 0 else []
+             for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))]
     capped = np.isfinite(cut_q)
     for at in range(len(balls)):
-        own, counts, cols = balls[at]
+        whole, later = balls[at]
         balls[at] = None
+        later = np.concatenate(later, dtype=np.int64)
+        near = _near_balls(index, later, _partner_bounds(index.points, cut_q, r, later), cut_q[later], r, max_nn)
+        own, counts, cols = _in_row_order(*(np.concatenate(w + n) for w, n in zip(whole, near)))
         line = np.repeat(np.arange(own.size), counts)
         test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
         if test.size:
@@ -196,8 +206,6 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
                           | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
             counts, cols = np.bincount(line[kept], minlength=own.size), cols[kept]
         yield from _by_width(own, counts, cols, m)
-    if not balls:  # no pair (r = 0): every wanted row alone
-        yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
 
 
 def _by_width(own: np.ndarray, counts: np.ndarray, flat: np.ndarray, n: int):
@@ -259,24 +267,22 @@ def _in_ball(u: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r
 
 def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
            cut_q: np.ndarray, cut_g: np.ndarray):
-    """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the balls of the wanted ones.
+    """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the wanted rows' balls seen whole.
 
     A bounded k-nearest query per row, asked again for the rows whose query came back full
-    while more may lie within r: a wanted row until its whole ball is seen, another row until
-    its cut is certain (no tie with it beyond the query). A row asked again asks for the
-    points its ball would hold on a surface sampled as densely as its first k, k (R / d_k)^2
-    with d_k its k-th distance, times 5/4, rounded up to a power of two (at least 2 k): one
-    more query for most rows of a dense ball, however full (the balls are exact either way).
+    while more may lie within r (:func:`_grown` columns), until the row's cut is certain (no
+    tie with it beyond the query) or its whole ball is seen.
 
     Args:
       coords: the index's x, y and z (n + 1,) each, NaN at n.
 
     Returns:
-      (own (C,) the wanted rows, counts (C,), cols (P,) int32 each one's ball by distance).
+      ((own (C,), counts (C,), cols (P,) int32): the wanted rows whose whole ball was seen,
+      each one's ball by distance; later (L,): the other wanted rows, all capped).
     """
     u, m, gid = index.points, index.n, index.gid
     bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
-    own, counts, cols = [], [], []
+    own, counts, cols, later = [], [], [], [np.zeros(0, np.int64)]
     queue = [(np.arange(batch.size), min(max_nn + 9, m))]
     while queue:
         todo, k = queue.pop()
@@ -285,6 +291,7 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
         valid, n_valid = _in_ball(u, rows, dist, j, r)
         seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
+        done = seen.copy()
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
             q = 0
@@ -299,18 +306,96 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
             # the cut is certain unless a tie with it may lie beyond a full query
             sure = seen[capped] | (cq < qc[line, order[line, n_valid[capped] - 1]])
             cut_q[rows[capped[sure]]], cut_g[rows[capped[sure]]] = cq[sure], cg[sure]
-            seen[capped[sure & ~want[todo[capped]]]] = True
+            done[capped[sure]] = True
+            defer = capped[sure & ~seen[capped]]
+            later.append(rows[defer[want[todo[defer]]]])
         keep = np.flatnonzero(seen & want[todo])
         own.append(rows[keep])
         counts.append(n_valid[keep])
         cols.append((j[valid] if keep.size == todo.size else j[keep][valid[keep]]).astype(np.int32))
-        if not seen.all():
-            grown = np.minimum(np.ceil(1.25 * k * (bound / dist[~seen, -1]) ** 2), m)
-            grown = np.minimum(np.maximum(2 * k, 1 << np.frexp(grown - 1)[1].astype(np.int64)), m)
-            queue += [(todo[~seen][grown == g], int(g)) for g in np.unique(grown)]
-    own, counts, cols = np.concatenate(own), np.concatenate(counts), np.concatenate(cols)
+        queue += _grown(todo[~done], k, bound, dist[~done, -1], m)
+    return (own, counts, cols), later
+
+
+def _grown(todo: np.ndarray, k: int, bound: float, last: np.ndarray, m: int) -> list:
+    """[(rows, columns)]: the ``todo`` rows whose bounded k-nearest query came back full, grouped
+    by the columns to ask next: the points a ball of radius ``bound`` would hold on a surface
+    sampled as densely as their first k, k (bound / last)^2 with ``last`` (R,) their k-th
+    distance, times 5/4, rounded up to a power of two (at least 2 k, at most ``m``): one more
+    query for most rows of a dense ball, however full."""
+    if todo.size == 0:
+        return []
+    grown = np.minimum(np.ceil(1.25 * k * (bound / last) ** 2), m)
+    grown = np.minimum(np.maximum(2 * k, 1 << np.frexp(grown - 1)[1].astype(np.int64)), m)
+    return [(todo[grown == g], int(g)) for g in np.unique(grown)]
+
+
+def _partner_bounds(u: np.ndarray, cut_q: np.ndarray, r: float, rows: np.ndarray) -> np.ndarray:
+    """(R,) a squared distance within which every partner of each of the ``rows`` lies.
+
+    A partner b of a has q_ab <= max(cut_a, cut_b), and b lies in one of the 27 cells of a
+    grid of side sqrt(r) around a's cell: the bound is the largest min(cut, r) over the
+    locations of those cells. r where the grid would not fit int64 cell keys.
+    """
+    if rows.size == 0:
+        return np.zeros(0)
+    side = np.sqrt(r) * (1 + 1e-6)
+    lo = u.min(axis=0)
+    dims = np.floor((u.max(axis=0) - lo) / side) + 3
+    if np.prod(dims) >= 2.0 ** 62:
+        return np.full(rows.size, r)
+    dims = dims.astype(np.int64)
+    cell = np.floor((u - lo) / side).astype(np.int64) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    order = np.argsort(key)
+    sorted_key = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
+    cells, reach = sorted_key[starts], np.maximum.reduceat(np.minimum(cut_q, r)[order], starts)
+    bound = np.zeros(rows.size)
+    for shift in itertools.product((-1, 0, 1), repeat=3):
+        near = key[rows] + (shift[0] * dims[1] + shift[1]) * dims[2] + shift[2]
+        at = np.minimum(np.searchsorted(cells, near), cells.size - 1)
+        bound = np.maximum(bound, np.where(cells[at] == near, reach[at], 0.0))
+    return bound
+
+
+def _near_balls(index: spatial.SpatialIndex, rows: np.ndarray, bound: np.ndarray, cut: np.ndarray, r: float,
+                max_nn: int):
+    """(own, counts, cols) as :func:`_balls`' whole balls, for ``rows``: each row's points with
+    0 < q < r within its squared ``bound`` at least.
+
+    Rows are grouped by bounds within 2^(1/8) and by the number of columns first asked, about
+    ``max_nn`` bound / ``cut`` (the row's cut: points within q grow about like q on a surface),
+    in steps of 2^(1/4); full queries are asked again (:func:`_grown`).
+    """
+    tiny = np.finfo(np.float64).tiny
+    level = np.ceil(8 * np.log2(np.maximum(bound, tiny)))
+    wide = np.ceil(4 * np.log2(1.25 * max_nn * bound / np.maximum(cut, tiny) + 9))
+    u, m = index.points, index.n
+    own, counts, cols = [rows[:0]], [np.zeros(0, np.int64)], [np.zeros(0, np.int32)]
+    groups = np.unique(np.stack([level, wide]), axis=1)
+    for lev, wid in groups.T:
+        group = rows[(level == lev) & (wide == wid)]
+        reach = np.sqrt(min(r, 2.0 ** (lev / 8) * (1 + 1e-9))) * (1 + 1e-5)
+        queue = [(np.arange(group.size), int(min(max(2.0 ** (wid / 4), max_nn + 9), m)))]
+        while queue:
+            todo, k = queue.pop()
+            part = group[todo]
+            dist, j = index.tree.query(u[part], k=k, distance_upper_bound=reach, workers=-1)
+            dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
+            valid, n_valid = _in_ball(u, part, dist, j, r)
+            seen = ~((j[:, -1] < m) & (k < m))
+            own.append(part[seen])
+            counts.append(n_valid[seen])
+            cols.append((j[valid] if seen.all() else j[seen][valid[seen]]).astype(np.int32))
+            queue += _grown(todo[~seen], k, reach, dist[~seen, -1], m)
+    return own, counts, cols
+
+
+def _in_row_order(own: np.ndarray, counts: np.ndarray, cols: np.ndarray):
+    """(own, counts, cols) of rows given in any order, with each row's cols, sorted by row."""
     order = np.argsort(own, kind="stable")
-    if (order[1:] < order[:-1]).any():  # rows asked again finished later: back in row order
+    if (order[1:] < order[:-1]).any():
         starts = np.cumsum(counts) - counts
         cols = cols[np.repeat(starts[order], counts[order]) + np.arange(cols.size)
                     - np.repeat(np.cumsum(counts[order]) - counts[order], counts[order])]
