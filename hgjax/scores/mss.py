@@ -176,7 +176,7 @@ def features(offsets, valid):
     return jnp.stack(out)
 
 
-def noise_of(offsets, valid, real=None):
+def noise_of(offsets, valid, *, real=None):
     """The noise level of a sample of neighbourhoods: sqrt of the median of their surface variation.
 
     On a clean surface sampled finely enough e0 = l0 / (l0 + l1 + l2) of ``NOISE_K`` nearest
@@ -192,6 +192,13 @@ def noise_of(offsets, valid, real=None):
 
     Returns:
       Scalar >= 0 in the dtype of ``offsets``; rotation, translation and scale invariant.
+
+    Examples:
+      >>> import jax.numpy as jnp, numpy as np
+      >>> from hgjax.scores import mss
+      >>> flat = np.random.default_rng(0).random((5, mss.NOISE_K, 3)) * [1, 1, 0]
+      >>> float(mss.noise_of(jnp.asarray(flat), jnp.ones((5, mss.NOISE_K), bool)))
+      0.0
     """
     e0 = jax.vmap(ea.variation)(offsets, valid)
     if real is None:
@@ -201,7 +208,7 @@ def noise_of(offsets, valid, real=None):
     return _common.safe_sqrt((ranked[(count - 1) // 2] + ranked[count // 2]) / 2)
 
 
-def noise_level(points, idx, count=None):
+def noise_level(points, idx, *, count=None):
     """The cloud's noise level (:func:`noise_of`) over the seeded sample of :func:`hgjax.spatial.sample_ids`.
 
     The value the tiled path resolves once per cloud from :class:`hgjax.spatial.SampleStats`
@@ -238,11 +245,27 @@ def noise_level(points, idx, count=None):
     near = idx[rows, :NOISE_K]
     valid = near < n
     offsets = points.at[near].get(mode="fill", fill_value=0) - points[rows, None, :]
-    return noise_of(jnp.where(valid[..., None], offsets, 0), valid, None if count is None else rows < count)
+    return noise_of(jnp.where(valid[..., None], offsets, 0), valid, real=None if count is None else rows < count)
 
 
 def inputs(offsets, valid, noise):
-    """The edge model's inputs (F + 1,): :func:`features` and the cloud's :func:`noise_level`."""
+    """The edge model's inputs (F + 1,) of ONE neighbourhood: :func:`features`, then the cloud's noise level.
+
+    Args:
+      offsets: (K, 3) as :func:`features`.
+      valid: (K,) bool.
+      noise: scalar, the cloud's :func:`noise_level`.
+
+    Returns:
+      (F + 1,) in the dtype of ``offsets``.
+
+    Examples:
+      >>> import jax.numpy as jnp, numpy as np
+      >>> from hgjax.scores import mss
+      >>> x = np.random.default_rng(0).random((32, 3)); x[0] = 0
+      >>> mss.inputs(jnp.asarray(x), jnp.ones(32, bool), 0.25).shape == (len(mss.FEATURES) + 1,)
+      True
+    """
     return jnp.concatenate([features(offsets, valid), jnp.asarray(noise, offsets.dtype)[None]])
 
 
@@ -337,7 +360,7 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) 
 
 
 def _noise(nb, noise):
-    return noise_level(nb.points, nb.idx, nb.count) if noise is None else jnp.asarray(noise, nb.points.dtype)
+    return noise_level(nb.points, nb.idx, count=nb.count) if noise is None else jnp.asarray(noise, nb.points.dtype)
 
 
 def score(nb, *, noise=None, chunk_size: int | None = None, progress: bool = False):
