@@ -183,7 +183,8 @@ def validation_table(metrics) -> str:
     """Markdown rows of :func:`validate`'s means, per noise and overall, and the clouds where the model >= EA."""
     lines = ["| noise (spacings) | clouds | model MCC / AP | EA MCC / AP | model >= EA (MCC and AP) |",
              "|---|---|---|---|---|"]
-    for noise, rows in list(metrics.items()) + [("all", [r for rows in metrics.values() for r in rows])]:
+    every = [r for per_noise in metrics.values() for r in per_noise]
+    for noise, rows in [*metrics.items(), ("all", every)]:
         a = np.asarray(rows)
         wins = int(np.sum((a[:, 0] >= a[:, 2]) & (a[:, 1] >= a[:, 3])))
         lines.append(f"| {noise} | {len(a)} | {a[:, 0].mean():.3f} / {a[:, 1].mean():.3f} | "

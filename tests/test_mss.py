@@ -80,7 +80,7 @@ def test_noise_level_grows_with_the_noise_and_is_invariant():
         nb = hgjax.neighbourhoods(cloud, "mss")
         levels.append(float(mss.noise_level(nb.points, nb.idx)))
         stats = spatial.sample_stats(spatial.SpatialIndex(cloud, dedupe=True))
-        np.testing.assert_allclose(mss.resolve({}, lambda: stats)["noise"], levels[-1], rtol=1e-9)
+        np.testing.assert_allclose(mss.resolve({}, lambda s=stats: s)["noise"], levels[-1], rtol=1e-9)
     assert levels[0] == 0.0 and levels[0] < levels[1] < levels[2] < levels[3], levels
     rot = Rotation.random(random_state=np.random.default_rng(2)).as_matrix()
     moved = (cloud @ rot.T) * 3.7
