@@ -58,8 +58,8 @@ class Method:
       tile_params: ``tile_params(n, params) -> (build, score)``: the validated build and
         score parameters of a tiled run of ``n`` points, before any whole-cloud decision.
       resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
-        whole cloud, ``stats()`` giving the seeded sample's nearest distances
-        (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
+        whole cloud, ``stats()`` giving the seeded sample's nearest distances and
+        neighbourhoods (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
       rows: ``rows(index, rows, build, dtype)``: a tile's neighbourhoods of the sorted-frame
         ``rows``, yielded batch by batch as ``(part, idx, row_args, reach)`` (a slice of
         ``rows``, their neighbour rows, per-row kernel arguments and the radius each

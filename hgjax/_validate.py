@@ -188,6 +188,16 @@ def check_positive(value: Any, name: str) -> float:
     return value
 
 
+def check_nonnegative(value: Any, name: str) -> float:
+    """Return ``value`` as a float after checking it is finite and >= 0."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number >= 0; got {type(value).__name__}")
+    value = float(value)
+    if not (value >= 0.0 and math.isfinite(value)):
+        raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
+    return value
+
+
 def check_choice(value: Any, name: str, choices: Iterable[str]) -> str:
     """Return ``value`` after checking it is one of ``choices``."""
     choices = sorted(choices)

@@ -709,6 +709,9 @@ def intrinsic_resolution(points, *, robust: bool = False) -> float:
     return resolution(SpatialIndex(local_frame(pts)[0], dedupe=robust), robust=robust)
 
 
+SAMPLE_K = 8  # locations (the point first) of each sampled point's neighbourhood in SampleStats
+
+
 def sample_ids(n: int) -> np.ndarray:
     """The global ids whose nearest distances set a cloud's resolution and irregularity.
 
@@ -744,20 +747,40 @@ def nearest_distances(index: SpatialIndex, rows: np.ndarray) -> tuple[np.ndarray
     return distinct, other
 
 
+def sample_offsets(index: SpatialIndex, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``SAMPLE_K`` nearest locations of sorted-frame ``rows`` (R,) minus the row's own (:meth:`SpatialIndex.knn`).
+
+    Returns:
+      (offsets, valid, reach): offsets (R, SAMPLE_K, 3) float64, row 0 the point itself (0),
+      zero where ``valid`` (R, SAMPLE_K) is False (fewer locations in the index); reach (R,)
+      as :meth:`SpatialIndex.knn`.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    idx, reach = index.knn(SAMPLE_K, rows)
+    idx = np.pad(idx, ((0, 0), (0, SAMPLE_K - idx.shape[1])), constant_values=index.n)
+    valid = idx < index.n
+    near = np.take(index.points, np.where(valid, idx, 0), axis=0) - np.take(index.points, rows, axis=0)[:, None, :]
+    return np.where(valid[..., None], near, 0.0), valid, reach
+
+
 @dataclasses.dataclass(frozen=True)
 class SampleStats:
-    """Nearest distances of the sampled points (:func:`sample_ids`), in global-id order.
+    """Nearest distances and neighbourhoods of the sampled points (:func:`sample_ids`), in global-id order.
 
-    The only whole-cloud statistics the neighbourhood builders use: a tiled run gathers them
-    from the tiles that own the sampled points, so every tile resolves the same parameters.
+    The only whole-cloud statistics the methods use: a tiled run gathers them from the tiles
+    that own the sampled points, so every tile resolves the same parameters.
 
     Attributes:
       distinct: (S,) distance to the nearest distinct point (inf where there is none).
       other: (S,) distance to the nearest other point (0 for a duplicated location).
+      offsets: (S, SAMPLE_K, 3) the ``SAMPLE_K`` nearest locations minus the point
+        (:func:`sample_offsets`), masked by ``valid`` (S, SAMPLE_K).
     """
 
     distinct: np.ndarray
     other: np.ndarray
+    offsets: np.ndarray
+    valid: np.ndarray
 
     def resolution(self, *, robust: bool) -> float:
         """Median nearest-distinct distance (``robust``) or mean nearest-other distance; 0.0 if none."""
@@ -777,7 +800,7 @@ class SampleStats:
 def sample_stats(index: SpatialIndex) -> SampleStats:
     """:class:`SampleStats` of a whole cloud whose index rows were built from global ids 0..N-1."""
     rows = index.row[sample_ids(index.n_caller)]
-    return SampleStats(*nearest_distances(index, rows))
+    return SampleStats(*nearest_distances(index, rows), *sample_offsets(index, rows)[:2])
 
 
 def resolution(index: SpatialIndex, *, robust: bool) -> float:

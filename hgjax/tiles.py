@@ -588,7 +588,7 @@ def _planned(entry) -> bool:
 
 
 def _resolved(plan_: Plan, runner: _Here) -> Plan:
-    """The plan with the build parameters that depend on the sample's nearest distances resolved.
+    """The plan with the build parameters that depend on the seeded sample (SampleStats) resolved.
 
     A graph's first halo holds 2.5 times its radius (a core location sees its whole R-ball).
     """
@@ -607,27 +607,29 @@ def _bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _sample_stats(runner: _Here, plan_: Plan) -> spatial.SampleStats:
-    """Nearest distances of the seeded sample (:func:`hgjax.spatial.sample_ids`), from the tiles that own it."""
+    """:class:`hgjax.spatial.SampleStats` of the seeded sample (:func:`hgjax.spatial.sample_ids`), from the tiles that own it."""
     wanted = spatial.sample_ids(plan_.n)
     cells = runner.cloud.owners(wanted)
     found = {}
     for part in runner.gather(runner.tiles(_tile_stats, plan_, wanted, cells=cells)):
         found.update(part)
-    pairs = np.array([found[g] for g in wanted.tolist()], dtype=np.float64).reshape(-1, 2)
-    return spatial.SampleStats(pairs[:, 0], pairs[:, 1])
+    distinct, other, offsets, valid = (np.array([found[g][i] for g in wanted.tolist()]) for i in range(4))
+    return spatial.SampleStats(distinct.astype(np.float64), other.astype(np.float64),
+                               offsets.reshape(-1, spatial.SAMPLE_K, 3), valid.reshape(-1, spatial.SAMPLE_K))
 
 
 def _tile_stats(cloud: _Cloud, cell, plan_: Plan, wanted: np.ndarray) -> dict:
-    """{gid: (distinct, other)} nearest distances of the sampled core points of one tile."""
+    """{gid: (distinct, other, offsets, valid)} of the sampled core points of one tile (:class:`hgjax.spatial.SampleStats`)."""
     halo = plan_.halo
     while True:
         gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])
         mine = gids[core & np.isin(gids, wanted)]
         pos = np.searchsorted(gids, mine)
         distinct, other = spatial.nearest_distances(index, index.row[pos])
-        reach = np.where(np.isfinite(distinct), distinct, np.inf)
+        offsets, valid, near = spatial.sample_offsets(index, index.row[pos])
+        reach = np.maximum(np.where(np.isfinite(distinct), distinct, np.inf), near)
         if cloud.covers(cell, halo, x[pos], reach):
-            return {int(g): (d, o) for g, d, o in zip(mine, distinct, other)}
+            return {int(g): (d, o, f, v) for g, d, o, f, v in zip(mine, distinct, other, offsets, valid)}
         halo *= 2
 
 

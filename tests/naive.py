@@ -259,11 +259,25 @@ def gfr_naive(points, max_nn=100, radius_factor=None):
     return np.linalg.norm(lap @ p, axis=1)
 
 
-def mss(points, weights, scales=(8, 16, 32), low=4):
+def mss_noise(points, rows, noise_k=8, samples=1000):
+    """MSS's cloud noise level: sqrt of the median surface variation of the ``noise_k`` nearest
+    points over the seeded sample of ids (all ids up to ``samples``)."""
+    n = len(points)
+    sample = np.arange(n) if n <= samples else np.sort(np.random.default_rng(0).choice(n, samples, replace=False))
+    e0 = []
+    for i in sample:
+        lam = np.maximum(np.linalg.eigvalsh(np.cov((points[rows[i, :noise_k]] - points[i]).T, bias=True)), 0)
+        e0.append(lam[0] / lam.sum() if lam.sum() > 0 else 0.0)
+    return math.sqrt(np.median(e0))
+
+
+def mss(points, weights, scales=(8, 16, 32), low=4, fine=(6, 12)):
     """MSS edge score (hgjax.scores.mss): softplus of the perceptron ``weights`` over the
-    multi-scale features, from brute-force k-nearest rows and one ``np.linalg.eigh`` per scale."""
+    multi-scale features and the cloud's noise level, from brute-force k-nearest rows and one
+    ``np.linalg.eigh`` per scale."""
     p = np.asarray(points, dtype=np.float64)
     rows = knn_rows(p, max(scales))
+    noise = mss_noise(p, rows)
     w1, b1, w2, b2, w3, b3 = (np.asarray(w, np.float64) for w in weights)
     out = np.empty(len(p))
     for i in range(len(p)):
@@ -283,6 +297,10 @@ def mss(points, weights, scales=(8, 16, 32), low=4):
             radii.append(r)
         f += [abs(normals[0] @ normals[2]), abs(normals[1] @ normals[2])]
         f += [radii[0] / radii[2], radii[1] / radii[2]] if radii[2] > 0 else [0.0, 0.0]
+        for k in fine:
+            lam = np.maximum(np.linalg.eigvalsh(np.cov(x[:k].T, bias=True)), 0)
+            f.append(lam[0] / lam.sum() if lam.sum() > 0 else 0.0)
+        f.append(noise)
         h = np.tanh(np.tanh(np.asarray(f) @ w1 + b1) @ w2 + b2)
         out[i] = np.logaddexp(0.0, (h @ w3 + b3)[0])
     return out

@@ -4,7 +4,7 @@ features of one k-nearest neighbourhood. Beyond the paper (issue 22).
 One k-nearest query of K = max(``SCALES``) points (the point itself first, then by distance)
 serves every prefix k <= K. For each scale k the covariance C_k of the k nearest points has
 eigenvalues l0 <= l1 <= l2 and the eigenvector n_k of l0 (the local normal). The features
-(:data:`FEATURES`, F = 16) are, at every scale of ``SCALES``:
+(:data:`FEATURES`, F = 18) are, at every scale of ``SCALES``:
 
 * the normalised eigenvalues e0_k = l0 / (l0 + l1 + l2) (surface variation: Pauly, Keiser,
   Gross, "Multi-scale feature extraction on point-sampled surfaces", Eurographics 2003; EA's
@@ -19,13 +19,19 @@ eigenvalues l0 <= l1 <= l2 and the eigenvector n_k of l0 (the local normal). The
 * its tangential part t_k = |(I - n_k n_k^T)(m_k - m_low)| / r_k, large at a border or where
   the density changes;
 
-and across scales the normals' agreement |n_8 . n_32|, |n_16 . n_32| and the radius ratios
-r_8 / r_32, r_16 / r_32. The score is
+and across scales the normals' agreement |n_8 . n_32|, |n_16 . n_32|, the radius ratios
+r_8 / r_32, r_16 / r_32, and e0 at the finer scales ``FINE`` = (6, 12) (a sharp small-scale
+signal where the cloud is clean). One more input is the same for every point: the cloud's noise level
+(:func:`noise_of`, the root of the median e0 at ``NOISE_K`` neighbours over the seeded sample of
+:func:`hgjax.spatial.sample_ids`; issue 22's noise-aware scale selection), so that the model can
+trust the fine scales on a clean cloud and the coarse ones on a noisy cloud. A tiled run
+resolves it once from the sample (:func:`resolve`, like HKC's ``d_factor``) and gives it to
+every tile. The model's inputs x (F + 1,) (:func:`inputs`) give the score
 
     S = softplus(f(x)),   f = W3^T tanh(W2^T tanh(W1^T x + b1) + b2) + b3,
 
-a two-hidden-layer perceptron of ``HIDDEN`` = 32 units (16 x 32 + 32 + 32 x 32 + 32 + 32 + 1
-= 1,633 numbers, :mod:`hgjax.scores._mss_weights`) whose logit f estimates the log-odds that the
+a two-hidden-layer perceptron of ``HIDDEN`` = 32 units (19 x 32 + 32 + 32 x 32 + 32 + 32 + 1
+= 1,729 numbers, :mod:`hgjax.scores._mss_weights`) whose logit f estimates the log-odds that the
 point lies within a spacing of a sharp edge; softplus keeps S >= 0 and strictly increasing in
 f without rounding large logits to ties. Higher is sharper; resampling keeps the largest.
 
@@ -38,7 +44,8 @@ clouds, on which nothing was tuned.
 
 Every feature is built from the covariances, means and distances of the neighbourhood, so S
 does not change under rotation, translation, uniform scaling or a permutation of the points
-(up to rounding and the order of tied neighbour distances).
+(up to rounding and the order of tied neighbour distances; a permutation of a cloud of more
+than 1000 points also changes which points the noise level is measured on).
 
 Degenerate neighbourhoods: where all points coincide C_k = 0 and the ratios are 0; collinear
 or coplanar points give finite features. The normal's derivative (:func:`eigen`) is exact
@@ -50,17 +57,20 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from hgjax import _registry, _stream, spatial
+from hgjax import _registry, _stream, _validate, spatial
 from hgjax.scores import _common, _mss_weights, ea
 
-__all__ = ["FEATURES", "HIDDEN", "LOW", "SCALES", "eigen", "features", "mlp", "neighbourhoods", "score", "sharpness",
-           "soft_score", "weights"]
+__all__ = ["FEATURES", "HIDDEN", "LOW", "NOISE_K", "SCALES", "eigen", "features", "inputs", "mlp", "neighbourhoods",
+           "noise_level", "score", "sharpness", "soft_score", "weights"]
 
 SCALES = (8, 16, 32)  # feature scales; K = max(SCALES) neighbours per query
 HIDDEN = 32  # units per hidden layer of the edge model
 LOW = 4  # points averaged into the denoised copy of the point
+FINE = (6, 12)  # scales between SCALES' whose surface variation alone is a feature
 GAP = 1e-6  # relative eigenvalue gap below which the normal's derivative leaves a term out
+NOISE_K = spatial.SAMPLE_K  # neighbours of the sampled points whose surface variation measures the noise
 
 
 def _prefix(offsets, valid, k: int):
@@ -123,7 +133,7 @@ def _eigen_jvp(primals, tangents):
 
 
 FEATURES = tuple(f"{name}{k}" for k in SCALES for name in ("e0_", "e1_", "high", "tangent")) + (
-    "normals8_32", "normals16_32", "radius8_32", "radius16_32")
+    "normals8_32", "normals16_32", "radius8_32", "radius16_32") + tuple(f"e0_{k}" for k in FINE)
 
 
 def features(offsets, valid):
@@ -162,15 +172,109 @@ def features(offsets, valid):
         radii.append(radius)
     out += [jnp.abs(_common.matmul(normals[0], normals[2])), jnp.abs(_common.matmul(normals[1], normals[2])),
             _common.safe_div(radii[0], radii[2], 0.0), _common.safe_div(radii[1], radii[2], 0.0)]
+    out += [ea.variation(offsets[:k], valid[:k]) for k in FINE]
     return jnp.stack(out)
 
 
-def mlp(params, x):
-    """The edge model's logit: a two-hidden-layer tanh perceptron over the features x (F,).
+def noise_of(offsets, valid, *, real=None):
+    """The noise level of a sample of neighbourhoods: sqrt of the median of their surface variation.
+
+    On a clean surface sampled finely enough e0 = l0 / (l0 + l1 + l2) of ``NOISE_K`` nearest
+    points is about 0 away from edges and corners (the median point lies on a face); noise of
+    std sigma adds about sigma^2 to l0, so the square root grows about linearly with sigma over
+    the spacing. One number for the whole cloud, given to every neighbourhood's model
+    (:func:`inputs`) so that it can rank sharply on a clean cloud and smoothly on a noisy one.
 
     Args:
-      params: [W1 (F, H), b1 (H,), W2 (H, H), b2 (H,), W3 (H, 1), b3 (1,)].
-      x: (F,) features (:func:`features`).
+      offsets: (S, NOISE_K, 3) neighbourhoods minus their point, nearest first.
+      valid: (S, NOISE_K) bool.
+      real: (S,) bool, the sampled neighbourhoods (a prefix of the rows), or None for all.
+
+    Returns:
+      Scalar >= 0 in the dtype of ``offsets``; rotation, translation and scale invariant.
+
+    Examples:
+      >>> import jax.numpy as jnp, numpy as np
+      >>> from hgjax.scores import mss
+      >>> flat = np.random.default_rng(0).random((5, mss.NOISE_K, 3)) * [1, 1, 0]
+      >>> float(mss.noise_of(jnp.asarray(flat), jnp.ones((5, mss.NOISE_K), bool)))
+      0.0
+    """
+    e0 = jax.vmap(ea.variation)(offsets, valid)
+    if real is None:
+        return _common.safe_sqrt(jnp.median(e0))
+    count = jnp.maximum(jnp.sum(real), 1)
+    ranked = jnp.sort(jnp.where(real, e0, jnp.inf))
+    return _common.safe_sqrt((ranked[(count - 1) // 2] + ranked[count // 2]) / 2)
+
+
+def noise_level(points, idx, *, count=None):
+    """The cloud's noise level (:func:`noise_of`) over the seeded sample of :func:`hgjax.spatial.sample_ids`.
+
+    The value the tiled path resolves once per cloud from :class:`hgjax.spatial.SampleStats`
+    (:func:`resolve`), measured here on whole-cloud neighbourhoods.
+
+    Args:
+      points: (N, 3) the cloud.
+      idx: (N, K) its neighbourhoods (:func:`neighbourhoods`), the point itself first,
+        padded with N; K >= ``NOISE_K``.
+      count: the number of real rows of a padded cloud (:attr:`hgjax.Neighbourhoods.count`,
+        traced), or None for all N.
+
+    Returns:
+      Scalar >= 0 in the dtype of ``points``.
+
+    Raises:
+      ValueError: ``count`` given with N > 1000 rows (the seeded sample of a traced count
+        cannot be drawn; pass the noise level to the score instead).
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> from hgjax.scores import mss
+      >>> flat = np.random.default_rng(0).random((500, 3)) * [1, 1, 0]
+      >>> nb = hgjax.neighbourhoods(flat, "mss")
+      >>> float(mss.noise_level(nb.points, nb.idx))
+      0.0
+    """
+    points, idx = jnp.asarray(points), jnp.asarray(idx)
+    n = points.shape[0]
+    if count is not None and n > spatial.RESOLUTION_SAMPLES:
+        raise ValueError(f"the noise level of a padded cloud of more than {spatial.RESOLUTION_SAMPLES} rows needs "
+                         f"noise= given; got {n} rows")
+    rows = jnp.asarray(spatial.sample_ids(n))
+    near = idx[rows, :NOISE_K]
+    valid = near < n
+    offsets = points.at[near].get(mode="fill", fill_value=0) - points[rows, None, :]
+    return noise_of(jnp.where(valid[..., None], offsets, 0), valid, real=None if count is None else rows < count)
+
+
+def inputs(offsets, valid, noise):
+    """The edge model's inputs (F + 1,) of ONE neighbourhood: :func:`features`, then the cloud's noise level.
+
+    Args:
+      offsets: (K, 3) as :func:`features`.
+      valid: (K,) bool.
+      noise: scalar, the cloud's :func:`noise_level`.
+
+    Returns:
+      (F + 1,) in the dtype of ``offsets``.
+
+    Examples:
+      >>> import jax.numpy as jnp, numpy as np
+      >>> from hgjax.scores import mss
+      >>> x = np.random.default_rng(0).random((32, 3)); x[0] = 0
+      >>> mss.inputs(jnp.asarray(x), jnp.ones(32, bool), 0.25).shape == (len(mss.FEATURES) + 1,)
+      True
+    """
+    return jnp.concatenate([features(offsets, valid), jnp.asarray(noise, offsets.dtype)[None]])
+
+
+def mlp(params, x):
+    """The edge model's logit: a two-hidden-layer tanh perceptron over the inputs x (F + 1,).
+
+    Args:
+      params: [W1 (F + 1, H), b1 (H,), W2 (H, H), b2 (H,), W3 (H, 1), b3 (1,)].
+      x: (F + 1,) inputs (:func:`inputs`).
 
     Returns:
       Scalar logit.
@@ -179,7 +283,7 @@ def mlp(params, x):
       >>> import jax.numpy as jnp
       >>> from hgjax.scores import mss
       >>> params = mss.weights(jnp.float32)
-      >>> mss.mlp(params, jnp.zeros(len(mss.FEATURES))).shape
+      >>> mss.mlp(params, jnp.zeros(len(mss.FEATURES) + 1)).shape
       ()
     """
     w1, b1, w2, b2, w3, b3 = params
@@ -195,25 +299,26 @@ def weights(dtype) -> list:
       dtype: float dtype of the arrays.
 
     Returns:
-      [W1 (F, H), b1 (H,), W2 (H, H), b2 (H,), W3 (H, 1), b3 (1,)] as JAX arrays.
+      [W1 (F + 1, H), b1 (H,), W2 (H, H), b2 (H,), W3 (H, 1), b3 (1,)] as JAX arrays.
 
     Examples:
       >>> import numpy as np
       >>> from hgjax.scores import mss
       >>> [w.shape for w in mss.weights(np.float32)][:2]
-      [(16, 32), (32,)]
+      [(19, 32), (32,)]
     """
     w = _mss_weights
     return [jnp.asarray(a, dtype) for a in (w.W1, w.B1, w.W2, w.B2, w.W3, w.B3)]
 
 
-def sharpness(offsets, valid):
-    """MSS score of ONE neighbourhood: softplus of the edge model over :func:`features`.
+def sharpness(offsets, valid, noise):
+    """MSS score of ONE neighbourhood: softplus of the edge model over :func:`inputs`.
 
     Args:
       offsets: (K, 3) the k nearest points minus the point, nearest first (row 0 is the
         point itself), K >= max(SCALES); padding rows masked by ``valid`` (K,).
       valid: (K,) bool.
+      noise: scalar, the cloud's :func:`noise_level`.
 
     Returns:
       Scalar S > 0 in the dtype of ``offsets``.
@@ -224,11 +329,11 @@ def sharpness(offsets, valid):
       >>> g = np.stack(np.meshgrid(np.arange(-3, 3), np.arange(-3, 3), [0.0]), -1).reshape(-1, 3)
       >>> g = g[np.argsort((g ** 2).sum(1), kind="stable")]
       >>> bent = g.copy(); bent[:, 2] = np.abs(g[:, 0])  # a 90-degree crease through the point
-      >>> flat, crease = (float(mss.sharpness(jnp.asarray(x), jnp.ones(36, bool))) for x in (g, bent))
+      >>> flat, crease = (float(mss.sharpness(jnp.asarray(x), jnp.ones(36, bool), 0.0)) for x in (g, bent))
       >>> flat < crease
       True
     """
-    return jax.nn.softplus(mlp(weights(offsets.dtype), features(offsets, valid)))
+    return jax.nn.softplus(mlp(weights(offsets.dtype), inputs(offsets, valid, noise)))
 
 
 def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) -> spatial.Neighbourhoods:
@@ -254,11 +359,16 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) 
     return spatial.knn(points, max(SCALES), dedupe=dedupe, capacity=capacity)
 
 
-def score(nb, *, chunk_size: int | None = None, progress: bool = False):
+def _noise(nb, noise):
+    return noise_level(nb.points, nb.idx, count=nb.count) if noise is None else jnp.asarray(noise, nb.points.dtype)
+
+
+def score(nb, *, noise=None, chunk_size: int | None = None, progress: bool = False):
     """MSS sharpness of every neighbourhood; higher is sharper.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      noise: the cloud's :func:`noise_level` (traced); default: measured on ``nb``.
       chunk_size: rows per streamed chunk on eager calls; never changes results.
       progress: progress bar on stderr for long eager runs.
 
@@ -272,14 +382,16 @@ def score(nb, *, chunk_size: int | None = None, progress: bool = False):
       >>> bool(s[cloud.edge_mask].mean() > 2 * s[~cloud.edge_mask].mean())
       True
     """
-    return _stream.map_neighbourhoods(sharpness, nb, chunk_size=chunk_size, progress=progress)
+    return _stream.map_neighbourhoods(sharpness, nb, args=(_noise(nb, noise),), chunk_size=chunk_size,
+                                      progress=progress)
 
 
-def soft_score(nb):
+def soft_score(nb, *, noise=None):
     """MSS sharpness as one pure JAX program (its own smooth twin; finite gradients).
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
+      noise: as :func:`score`.
 
     Returns:
       (N,) sharpness; higher is sharper.
@@ -290,21 +402,40 @@ def soft_score(nb):
       >>> hgjax.scores.mss.soft_score(nb).shape
       (100,)
     """
-    return _stream.pure_map(sharpness, nb.points, nb.idx)
+    return _stream.pure_map(sharpness, nb.points, nb.idx, args=(_noise(nb, noise),))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:
-    """Validated (build, score) parameters of MSS for a tiled run of ``n`` points.
+    """Validated (build, score) parameters of MSS for a tiled run of ``n`` points; a given ``noise`` is kept
+    in the build parameters, else :func:`resolve` measures it.
 
     Raises:
-      TypeError, ValueError: invalid ``dedupe``, or fewer than max(SCALES) points.
+      TypeError, ValueError: invalid ``dedupe`` or ``noise``, or fewer than max(SCALES) points.
     """
-    return ea.knn_params(n, max(SCALES), params), {}
+    build = ea.knn_params(n, max(SCALES), params)
+    if params.get("noise") is not None:
+        build["noise"] = _validate.check_nonnegative(params["noise"], "noise")
+    return build, {}
+
+
+def resolve(build: dict, stats) -> dict:
+    """The build parameters with the cloud's noise level (:func:`noise_of` of the sample's neighbourhoods)."""
+    if "noise" not in build:
+        sample = stats()
+        build["noise"] = float(noise_of(jnp.asarray(sample.offsets), jnp.asarray(sample.valid)))
+    return build
+
+
+def tile_rows(index, rows, build: dict, dtype):
+    """(part, idx, (noise,), reach) per batch: :func:`hgjax.scores.ea.tile_rows` and the resolved noise level per row."""
+    for part, idx, _, reach in ea.tile_rows(index, rows, build, dtype):
+        yield part, idx, (np.full(idx.shape[0], build["noise"], dtype),), reach
 
 
 METHOD = _registry.Method(
     "mss", "knn", largest=True, needs_key=False,
-    summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 8/16/32 neighbours, trained on synthetic shapes",
+    summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 6 to 32 neighbours and the cloud's noise level, trained on synthetic shapes",
     citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
-    soft_score=soft_score, params=_registry.stages(build=("capacity", "dedupe"), score=("chunk_size", "progress")),
-    tile_params=tile_params, rows=ea.tile_rows, kernel=lambda params: (sharpness, False))
+    soft_score=soft_score, params=_registry.stages(build=("capacity", "dedupe"), score=("chunk_size", "noise", "progress"),
+                                                   soft_score=("noise",)),
+    tile_params=tile_params, resolve=resolve, rows=tile_rows, kernel=lambda params: (sharpness, False))
