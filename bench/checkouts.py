@@ -3,12 +3,14 @@
 Usage:
   python bench/checkouts.py --old /work/main --n 1000000 --methods hkc,hkf --rounds 3 \
       --out bench/results/speed_hkc_stream.md
+  python bench/checkouts.py --old /work/main --scan ../shared/data/scans/scan_table_mug.ply --methods gfr \
+      --out bench/results/speed_gfr_mug.md      # a real scan (float32) instead of the box
 
 Each round runs one child process per checkout (old first, then this one, alternating), with
 ``PYTHONPATH`` set to the checkout. A child builds the float32 box surface
-(``_report.box_cloud(n)``), runs every method once to compile, then times the floor
+(``_report.box_cloud(n)``, or the ``--scan`` read by ``hgjax.io``, float32), runs every method once to compile, then times the floor
 (``cKDTree(q).query(q, k=16, workers=-1)`` on the Morton-sorted copy ``q``, tree build included)
-and one ``hgjax.resample(p, 0.2, method=m)`` per method, wall and process CPU time (all threads),
+and one ``hgjax.resample(p, 0.2, method=m, key=jax.random.key(0))`` per method, wall and process CPU time (all threads),
 and reports the kept indices' digest. Ratios are to the floor of the same process; the table gives
 medians over the rounds, and whether both checkouts kept the same points.
 """
@@ -31,21 +33,24 @@ sys.path.insert(0, str(HERE))
 import _report  # noqa: E402
 
 
-def child(n: int, methods: list[str]) -> dict:
+def child(n: int, methods: list[str], scan: Path | None = None) -> dict:
     """Floor and per-method wall and CPU seconds, and kept-index digests, in this process."""
+    import jax
     import numpy as np
     from scipy.spatial import cKDTree
 
     import hgjax
 
-    p = _report.box_cloud(n, np.float32)
+    key = jax.random.key(0)  # the random methods' draws (GFR); the others ignore it
+
+    p = _report.box_cloud(n, np.float32) if scan is None else np.asarray(hgjax.io.read_points(scan).points, np.float32)
     q = p[hgjax.spatial_order(p)]
     for m in methods:
-        hgjax.resample(p, 0.2, method=m)
+        hgjax.resample(p, 0.2, method=m, key=key)
     out = {"hgjax": hgjax.__file__}
     for name in ["floor"] + methods:
         t, c = time.perf_counter(), time.process_time()
-        kept = cKDTree(q).query(q, k=16, workers=-1) if name == "floor" else hgjax.resample(p, 0.2, method=name)
+        kept = cKDTree(q).query(q, k=16, workers=-1) if name == "floor" else hgjax.resample(p, 0.2, method=name, key=key)
         out[name] = (time.perf_counter() - t, time.process_time() - c)
         if name != "floor":
             out[name + " kept"] = hashlib.sha256(np.sort(np.asarray(kept)).tobytes()).hexdigest()[:16]
@@ -58,12 +63,13 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=10**6)
     ap.add_argument("--methods", default="hkc,hkf")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--scan", type=Path, default=None, help="a point file to run on instead of the box surface")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     methods = args.methods.split(",")
     if args.child:
-        print(json.dumps(child(args.n, methods)))
+        print(json.dumps(child(args.n, methods, args.scan)))
         return
     if args.old is None:
         ap.error("--old is required")
@@ -72,7 +78,8 @@ def main() -> None:
     for r in range(args.rounds):
         for name, root in checkouts.items():
             env = {**os.environ, "PYTHONPATH": str(root)}
-            proc = subprocess.run([sys.executable, __file__, "--child", "--n", str(args.n), "--methods", args.methods],
+            cloud = ["--scan", str(args.scan.resolve())] if args.scan else ["--n", str(args.n)]
+            proc = subprocess.run([sys.executable, __file__, "--child", "--methods", args.methods, *cloud],
                                   env=env, capture_output=True, text=True)
             if proc.returncode:
                 sys.exit(f"{name} child failed:\n{proc.stderr}")
@@ -91,10 +98,11 @@ def main() -> None:
             lines.append(f"| {name} ({root}) | {m} | {wall:.3f} | {ratio:.2f} | {cpu:.2f} | {same} |")
     print("\n".join(lines))
     if args.out:
+        cloud = f"{args.scan.name} (float32)" if args.scan else f"N = {args.n:,}, float32 box surface"
         paragraphs = [f"Machine: {_report.machine()}.",
-                      f"N = {args.n:,}, float32 box surface; medians of {args.rounds} rounds, each checkout in its own "
+                      f"{cloud}; medians of {args.rounds} rounds, each checkout in its own "
                       "process per round (alternating), every ratio to the floor of the same process."]
-        _report.write(args.out, "checkouts.py", None, title=f"Two checkouts at N = {args.n:,}",
+        _report.write(args.out, "checkouts.py", None, title=f"Two checkouts on {args.scan.name if args.scan else f'N = {args.n:,}'}",
                       paragraphs=paragraphs, table=lines)
 
 
