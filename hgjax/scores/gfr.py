@@ -265,6 +265,17 @@ def _in_ball(u: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r
     return valid, n_near - np.bincount(unsure[~valid.ravel()[unsure]] // dist.shape[1], minlength=rows.size)
 
 
+def _bounded_query(index: spatial.SpatialIndex, rows: np.ndarray, k: int, reach: float, r: float):
+    """(dist, j (R, k), valid (R, k), n_valid (R,), seen (R,)): the k nearest points within ``reach``
+    of the ``rows``, which of them have 0 < q < r (:func:`_in_ball`), and whether the query holds
+    every point within ``reach`` (it came back short of k, or k is every point)."""
+    m = index.n
+    dist, j = index.tree.query(index.points[rows], k=k, distance_upper_bound=reach, workers=-1)
+    dist, j = dist.reshape(rows.size, k), j.reshape(rows.size, k)
+    valid, n_valid = _in_ball(index.points, rows, dist, j, r)
+    return dist, j, valid, n_valid, ~((j[:, -1] < m) & (k < m))
+
+
 def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
            cut_q: np.ndarray, cut_g: np.ndarray):
     """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the wanted rows' balls seen whole.
@@ -280,17 +291,14 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
       ((own (C,), counts (C,), cols (P,) int32): the wanted rows whose whole ball was seen,
       each one's ball by distance; later (L,): the other wanted rows, all capped).
     """
-    u, m, gid = index.points, index.n, index.gid
+    m, gid = index.n, index.gid
     bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
     own, counts, cols, later = [], [], [], [np.zeros(0, np.int64)]
     queue = [(np.arange(batch.size), min(max_nn + 9, m))]
     while queue:
         todo, k = queue.pop()
         rows = batch[todo]
-        dist, j = index.tree.query(u[rows], k=k, distance_upper_bound=bound, workers=-1)
-        dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
-        valid, n_valid = _in_ball(u, rows, dist, j, r)
-        seen = ~((j[:, -1] < m) & (k < m))  # the whole ball is in the query
+        dist, j, valid, n_valid, seen = _bounded_query(index, rows, k, bound, r)
         done = seen.copy()
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
@@ -371,7 +379,7 @@ def _near_balls(index: spatial.SpatialIndex, rows: np.ndarray, bound: np.ndarray
     tiny = np.finfo(np.float64).tiny
     level = np.ceil(8 * np.log2(np.maximum(bound, tiny)))
     wide = np.ceil(4 * np.log2(1.25 * max_nn * bound / np.maximum(cut, tiny) + 9))
-    u, m = index.points, index.n
+    m = index.n
     own, counts, cols = [rows[:0]], [np.zeros(0, np.int64)], [np.zeros(0, np.int32)]
     groups = np.unique(np.stack([level, wide]), axis=1)
     for lev, wid in groups.T:
@@ -381,10 +389,7 @@ def _near_balls(index: spatial.SpatialIndex, rows: np.ndarray, bound: np.ndarray
         while queue:
             todo, k = queue.pop()
             part = group[todo]
-            dist, j = index.tree.query(u[part], k=k, distance_upper_bound=reach, workers=-1)
-            dist, j = dist.reshape(todo.size, k), j.reshape(todo.size, k)
-            valid, n_valid = _in_ball(u, part, dist, j, r)
-            seen = ~((j[:, -1] < m) & (k < m))
+            dist, j, valid, n_valid, seen = _bounded_query(index, part, k, reach, r)
             own.append(part[seen])
             counts.append(n_valid[seen])
             cols.append((j[valid] if seen.all() else j[seen][valid[seen]]).astype(np.int32))
