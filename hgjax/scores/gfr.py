@@ -190,11 +190,12 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
     balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
              for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))]
     capped = np.isfinite(cut_q)
+    balls = [(whole, np.concatenate(later, dtype=np.int64)) for whole, later in balls]
+    grid = _cut_grid(index.points, cut_q, r) if any(later.size for _, later in balls) else None
     for at in range(len(balls)):
         whole, later = balls[at]
         balls[at] = None
-        later = np.concatenate(later, dtype=np.int64)
-        near = _near_balls(index, later, _partner_bounds(index.points, cut_q, r, later), cut_q[later], r, max_nn)
+        near = _near_balls(index, later, _partner_bounds(grid, r, later), cut_q[later], r, max_nn)
         own, counts, cols = _in_row_order(*(np.concatenate(w + n) for w, n in zip(whole, near)))
         line = np.repeat(np.arange(own.size), counts)
         test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
@@ -338,27 +339,34 @@ def _grown(todo: np.ndarray, k: int, bound: float, last: np.ndarray, m: int) -> 
     return [(todo[grown == g], int(g)) for g in np.unique(grown)]
 
 
-def _partner_bounds(u: np.ndarray, cut_q: np.ndarray, r: float, rows: np.ndarray) -> np.ndarray:
-    """(R,) a squared distance within which every partner of each of the ``rows`` lies.
-
-    A partner b of a has q_ab <= max(cut_a, cut_b), and b lies in one of the 27 cells of a
-    grid of side sqrt(r) around a's cell: the bound is the largest min(cut, r) over the
-    locations of those cells. r where the grid would not fit int64 cell keys.
-    """
-    if rows.size == 0:
-        return np.zeros(0)
+def _cut_grid(u: np.ndarray, cut_q: np.ndarray, r: float):
+    """The locations' cuts on a grid of side sqrt(r), for :func:`_partner_bounds`: (key (n,) each
+    location's cell, dims (3,), cells (C,) the occupied cells ascending, reach (C,) the largest
+    min(cut, r) of each), or None where the grid would not fit int64 cell keys."""
     side = np.sqrt(r) * (1 + 1e-6)
     lo = u.min(axis=0)
     dims = np.floor((u.max(axis=0) - lo) / side) + 3
     if np.prod(dims) >= 2.0 ** 62:
-        return np.full(rows.size, r)
+        return None
     dims = dims.astype(np.int64)
     cell = np.floor((u - lo) / side).astype(np.int64) + 1
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
     order = np.argsort(key)
     sorted_key = key[order]
     starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
-    cells, reach = sorted_key[starts], np.maximum.reduceat(np.minimum(cut_q, r)[order], starts)
+    return key, dims, sorted_key[starts], np.maximum.reduceat(np.minimum(cut_q, r)[order], starts)
+
+
+def _partner_bounds(grid, r: float, rows: np.ndarray) -> np.ndarray:
+    """(R,) a squared distance within which every partner of each of the ``rows`` lies.
+
+    A partner b of a has q_ab <= max(cut_a, cut_b), and b lies in one of the 27 cells of the
+    ``grid`` (:func:`_cut_grid`, side sqrt(r)) around a's cell: the bound is the largest
+    min(cut, r) over the locations of those cells. r where there is no grid.
+    """
+    if grid is None:
+        return np.full(rows.size, r)
+    key, dims, cells, reach = grid
     bound = np.zeros(rows.size)
     for shift in itertools.product((-1, 0, 1), repeat=3):
         near = key[rows] + (shift[0] * dims[1] + shift[1]) * dims[2] + shift[2]
