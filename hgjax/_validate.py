@@ -180,21 +180,22 @@ def check_bool(value: Any, name: str) -> bool:
 
 def check_positive(value: Any, name: str) -> float:
     """Return ``value`` as a float after checking it is finite and > 0."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a positive number; got {type(value).__name__}")
-    value = float(value)
-    if not (value > 0.0 and math.isfinite(value)):
-        raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
-    return value
+    return _check_real(value, name, strict=True)
 
 
 def check_nonnegative(value: Any, name: str) -> float:
     """Return ``value`` as a float after checking it is finite and >= 0."""
+    return _check_real(value, name, strict=False)
+
+
+def _check_real(value: Any, name: str, *, strict: bool) -> float:
+    """``value`` as a float after checking it is a finite real number > 0 (``strict``) or >= 0."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number >= 0; got {type(value).__name__}")
+        kind = "a positive number" if strict else "a number >= 0"
+        raise TypeError(f"{name} must be {kind}; got {type(value).__name__}")
     value = float(value)
-    if not (value >= 0.0 and math.isfinite(value)):
-        raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
+    if not ((value > 0.0 if strict else value >= 0.0) and math.isfinite(value)):
+        raise ValueError(f"{name} must be a finite number {'>' if strict else '>='} 0; got {value!r}")
     return value
 
 
