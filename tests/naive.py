@@ -264,11 +264,14 @@ def mss_noise(points, rows, noise_k=8, samples=1000):
     points over the seeded sample of ids (all ids up to ``samples``)."""
     n = len(points)
     sample = np.arange(n) if n <= samples else np.sort(np.random.default_rng(0).choice(n, samples, replace=False))
-    e0 = []
-    for i in sample:
-        lam = np.maximum(np.linalg.eigvalsh(np.cov((points[rows[i, :noise_k]] - points[i]).T, bias=True)), 0)
-        e0.append(lam[0] / lam.sum() if lam.sum() > 0 else 0.0)
-    return math.sqrt(np.median(e0))
+    return math.sqrt(np.median([_variation(points[rows[i, :noise_k]] - points[i]) for i in sample]))
+
+
+def _variation(x):
+    """Surface variation l0 / (l0 + l1 + l2) of the covariance of the points x (k, 3), eigenvalues
+    clipped at 0; 0 where the points coincide."""
+    lam = np.maximum(np.linalg.eigvalsh(np.cov(x.T, bias=True)), 0)
+    return lam[0] / lam.sum() if lam.sum() > 0 else 0.0
 
 
 def mss(points, weights, scales=(8, 16, 32), low=4, fine=(6, 12)):
@@ -297,9 +300,7 @@ def mss(points, weights, scales=(8, 16, 32), low=4, fine=(6, 12)):
             radii.append(r)
         f += [abs(normals[0] @ normals[2]), abs(normals[1] @ normals[2])]
         f += [radii[0] / radii[2], radii[1] / radii[2]] if radii[2] > 0 else [0.0, 0.0]
-        for k in fine:
-            lam = np.maximum(np.linalg.eigvalsh(np.cov(x[:k].T, bias=True)), 0)
-            f.append(lam[0] / lam.sum() if lam.sum() > 0 else 0.0)
+        f += [_variation(x[:k]) for k in fine]
         f.append(noise)
         h = np.tanh(np.tanh(np.asarray(f) @ w1 + b1) @ w2 + b2)
         out[i] = np.logaddexp(0.0, (h @ w3 + b3)[0])
