@@ -827,9 +827,9 @@ def _gathered(runner: _Here, parts, plan_: Plan) -> np.ndarray:
     return scores
 
 
-def _gfr_graph(cloud: _Cloud, cell, plan_: Plan, sums: bool = True) -> dict:
-    """GFR's graph around the core locations of one tile, and its exact pair sums unless not ``sums``
-    (Chen et al. 2018).
+def _gfr_graph(cloud: _Cloud, cell, plan_: Plan, with_sums: bool = True) -> dict:
+    """GFR's graph around the core locations of one tile, and its exact pair sums if ``with_sums``
+    (else None) (Chen et al. 2018).
 
     A core location's stored pairs are those it ranks or that rank it, so every location
     within the radius R of it must see its whole R-ball: the halo is verified to hold 2R
@@ -839,7 +839,7 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan, sums: bool = True) -> dict:
     reach = 2 * np.sqrt(b["r"]) * (1 + 1e-5)  # the pair query's bound, twice
     gids, core, index, rows, _ = _covered(cloud, cell, plan_.halo, True,
                                           lambda index, rows: (None, np.full(rows.size, reach)))
-    if sums:
+    if with_sums:
         chunks, sums = gfr.graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype)
     else:
         chunks, sums = list(gfr.graph_rows(index, rows, b["r"], b["max_nn"])), None
@@ -862,7 +862,7 @@ def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: 
 
 
 def _gfr_tile(cloud: _Cloud, cell, plan_: Plan, mean_q: float, two_var: float, stream: dict):
-    return _gfr_norms(_gfr_graph(cloud, cell, plan_, sums=False), plan_, mean_q, two_var, stream)
+    return _gfr_norms(_gfr_graph(cloud, cell, plan_, with_sums=False), plan_, mean_q, two_var, stream)
 
 
 def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
