@@ -459,7 +459,7 @@ class _Dask(_Here):
     manager drops the extra copies a broadcast made). A task is a function of the cloud, its
     cell and the resolved plan only, so a task retried after a worker died computes the same
     bits. Smaller tiles run first (a higher Dask priority): a tile that kills the workers it runs
-    on then takes no smaller tile queued behind it down with it, and is the one the error names.
+    on then takes no smaller tile queued behind it down with it.
     """
 
     def __init__(self, cloud: _Cloud, client, k: int = ea.DEFAULT_K):
@@ -500,17 +500,27 @@ class _Dask(_Here):
     def killed(self, task, memory_limit: int | None) -> str:
         """The message of a task whose workers died: its tile, an estimate of the memory it needs, and the
         memory limit of the last worker that died running it (as the scheduler recorded it: the workers
-        being restarted at that moment are not asked)."""
+        being restarted at that moment are not asked).
+
+        A worker can die during a small task when a large tile it ran before left it near its limit (the
+        nanny samples memory, so a short peak can pass unseen and the memory held after it cannot); when
+        the task's tile is not the run's largest, the message names the largest one too.
+        """
         limit = f"; the workers' memory limit: {memory_limit / 2**20:.0f} MiB" if memory_limit else ""
         cell = self.cells.get(task)
         if cell is None:
             return f"Dask workers died running task {task!r} (out of memory?){limit}"
+        largest = max(self.cells.values(), key=self.cloud.core_size)
+        also = (f"; the largest tile {largest} needs about {self.need(largest)}"
+                if self.cloud.core_size(largest) > self.cloud.core_size(cell) else "")
+        return (f"Dask workers died running tile {cell} (task {task!r}): it needs about {self.need(cell)}{also}{limit};"
+                f" give each worker more memory or pass a smaller tile")
+
+    def need(self, cell) -> str:
+        """An estimate of the memory a tile task needs beyond a worker's own footprint, with its terms."""
         r = self.cloud.core_size(cell)
-        need = r * self.k * TASK_BYTES
-        return (f"Dask workers died running tile {cell} (task {task!r}): it needs about {need / 2**20:.1f} MiB"
-                f" beyond a worker's own footprint (an estimate: {r} core points x K={self.k} neighbours x"
-                f" {TASK_BYTES} bytes; its halo's points add to it){limit}; give each worker more memory or pass a"
-                f" smaller tile")
+        return (f"{r * self.k * TASK_BYTES / 2**20:.1f} MiB beyond a worker's own footprint (an estimate: {r} core"
+                f" points x K={self.k} neighbours x {TASK_BYTES} bytes; its halo's points add to it)")
 
 
 def _held(value):

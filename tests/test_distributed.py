@@ -62,8 +62,9 @@ def test_a_tile_beyond_the_workers_memory_names_itself_and_its_memory():
     the cloud) and a tile of 1,000,000 core points (about 490 MiB more, by the message's estimate). The
     nanny kills each worker that runs it, Dask retries it once (``allowed-failures``), then gives up; the
     error names the tile, the estimate and the limit. Pausing and spilling are off, so a worker near its
-    limit cannot leave the cluster waiting. The three small tiles run before the large one on any worker
-    (tiles.py's priorities), so none dies with it, on a loaded machine too."""
+    limit cannot leave the cluster waiting. The large tile can also pass between two of the nanny's memory
+    samples and leave its worker to die during a later small task; the error then names the small tile
+    and the large one with its estimate (the next test), so the match below holds either way."""
     dask = pytest.importorskip("dask")
     rng = np.random.default_rng(0)
     xy = np.concatenate([rng.uniform(0, 1, (1_000_000, 2)), rng.uniform(0, 2, (4000, 2))])
@@ -79,3 +80,19 @@ def test_a_tile_beyond_the_workers_memory_names_itself_and_its_memory():
                                                 r" core points x K=16 .*memory limit: 500 MiB") as err:
             tiles.resample(p, 0.2, method="ea", tile=1.0, client=client)
     assert isinstance(err.value.__cause__, distributed.KilledWorker)
+
+
+def test_a_worker_dead_in_a_small_task_names_the_largest_tile_too():
+    """The message when the blamed task's tile is small: both tiles with their estimates, the limit."""
+    rng = np.random.default_rng(1)
+    p = np.concatenate([rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.01], rng.uniform(0, 2, (400, 3)) * [1, 1, 0.01]])
+    _, cloud = tiles.plan(p, 0.2, method="ea", tile=1.0)
+    small, large = sorted(cloud.occupied(), key=cloud.core_size)[::len(cloud.occupied()) - 1]
+    dask = object.__new__(tiles._Dask)
+    dask.cloud, dask.k, dask.cells = cloud, 16, {"a": small, "b": large}
+    message = dask.killed("a", 2**29)
+    assert message.startswith(f"Dask workers died running tile {small} (task 'a'): it needs about 0.0 MiB")
+    assert f"the largest tile {large} needs about {cloud.core_size(large) * 16 * 32 / 2**20:.1f} MiB" in message
+    assert f"an estimate: {cloud.core_size(large)} core points x K=16" in message
+    assert message.endswith("the workers' memory limit: 512 MiB; give each worker more memory or pass a smaller tile")
+    assert "largest" not in dask.killed("b", None)
