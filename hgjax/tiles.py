@@ -38,6 +38,8 @@ import dataclasses
 import glob
 import json
 import os
+import pickle
+import shutil
 import sys
 import tempfile
 import threading
@@ -722,7 +724,9 @@ def resample(points, ratio: float, *, method: str = "hkc", tile: float | None = 
     and no client it is :func:`hgjax.resample`. Memory is bounded by a tile and its halo,
     not by N (scores aside: 12-16 bytes per point; and up to KEEP_POINTS points, the
     tiles' host indices, kept between the sample-statistics and scoring passes), so an
-    ``np.memmap`` of 1e8 points streams from disk.
+    ``np.memmap`` of 1e8 points streams from disk. Above KEEP_POINTS, GFR writes each
+    tile's graph to a temporary directory between its two passes (``tempfile``'s; about
+    430 bytes per point on a surface) where the disk has room, and builds it again where not.
 
     Args:
       points: (N, 3) float32 or float64 (NumPy, JAX or ``np.memmap``); never modified.
@@ -860,10 +864,6 @@ def _gfr_sums(graph: dict) -> tuple:
     return graph["sums"]
 
 
-def _gfr_tile_sums(cloud: _Cloud, cell, plan_: Plan) -> tuple:
-    return _gfr_sums(_gfr_graph(cloud, cell, plan_))
-
-
 def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: dict):
     """(gids, scores) of a tile's core points from its graph and the global weight statistics."""
     index, rows, core = graph["index"], graph["rows"], graph["core"]
@@ -871,23 +871,51 @@ def _gfr_norms(graph: dict, plan_: Plan, mean_q: float, two_var: float, stream: 
     return graph["gids"][core], _per_point(index, rows, core, lp.astype(plan_.dtype))
 
 
-def _gfr_tile(cloud: _Cloud, cell, plan_: Plan, mean_q: float, two_var: float, stream: dict):
-    return _gfr_norms(_gfr_graph(cloud, cell, plan_, with_sums=False), plan_, mean_q, two_var, stream)
-
-
 def _gfr_scores(runner: _Here, plan_: Plan, stream: dict):
     """GFR scores of every tile's core points: pair sums over all tiles, then the flows (two passes).
 
-    Dask workers and small clouds keep each tile's graph between the passes; a large cloud
-    in this process keeps only each tile's pair sums from the first pass and builds the graph
-    again in the second (without its pair sums), so memory stays bounded by a tile.
+    Dask workers and small clouds keep each tile's graph between the passes. A large cloud in
+    this process keeps only each tile's pair sums in memory and writes its graph to a private
+    temporary directory (``tempfile``'s, e.g. ``TMPDIR``) for the second pass, so memory stays
+    bounded by a tile; a tile whose graph the disk has no room for is built again in the second
+    pass (without its pair sums). The scores are the same either way.
     """
     if isinstance(runner, _Dask) or plan_.n <= KEEP_POINTS:
         graphs = runner.tiles(_gfr_graph, plan_)
         mean_q, two_var = gfr.moments(gfr.summed(runner.gather(runner.each(_gfr_sums, graphs))))
         return runner.each(_gfr_norms, graphs, plan_, mean_q, two_var, stream)
-    mean_q, two_var = gfr.moments(gfr.summed(runner.tiles(_gfr_tile_sums, plan_)))
-    return runner.tiles(_gfr_tile, plan_, mean_q, two_var, stream)
+    with tempfile.TemporaryDirectory(prefix="hgjax-gfr-") as spill:
+        mean_q, two_var = gfr.moments(gfr.summed(runner.tiles(_gfr_spilled_sums, plan_, spill)))
+        return runner.tiles(_gfr_spilled_tile, plan_, mean_q, two_var, stream, spill)
+
+
+def _spill_path(spill: str, cell) -> str:
+    return os.path.join(spill, "_".join(map(str, cell)) + ".pickle")
+
+
+def _gfr_spilled_sums(cloud: _Cloud, cell, plan_: Plan, spill: str) -> tuple:
+    """A tile's pair sums; its graph goes to ``spill`` when the disk has room for twice its arrays."""
+    graph = _gfr_graph(cloud, cell, plan_)
+    index = graph["index"]
+    size = sum(own.nbytes + sym.nbytes for own, sym in graph["chunks"]) + 4 * index.points.nbytes
+    path = _spill_path(spill, cell)
+    if shutil.disk_usage(spill).free > 2 * size:
+        try:
+            with open(path, "wb") as f:
+                pickle.dump(graph, f, protocol=pickle.HIGHEST_PROTOCOL)
+        except OSError:
+            os.remove(path)
+    return graph["sums"]
+
+
+def _gfr_spilled_tile(cloud: _Cloud, cell, plan_: Plan, mean_q: float, two_var: float, stream: dict, spill: str):
+    path = _spill_path(spill, cell)
+    if not os.path.exists(path):
+        return _gfr_norms(_gfr_graph(cloud, cell, plan_, with_sums=False), plan_, mean_q, two_var, stream)
+    with open(path, "rb") as f:
+        graph = pickle.load(f)
+    os.remove(path)
+    return _gfr_norms(graph, plan_, mean_q, two_var, stream)
 
 
 def _voxel(points, ratio, tile, client, *, voxel_size=None) -> np.ndarray:
