@@ -72,10 +72,22 @@ def _edge_weight(q, two_var):
     return jnp.exp(-_common.safe_div(q * q, two_var, jnp.inf))
 
 
-def _sq_dist(p: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """(P,) squared distances ||p_i - p_j||^2 in the dtype of ``p``, summed x, y, z in order."""
-    d = p[i] - p[j]
-    return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+def _columns(p: np.ndarray, pad: bool = False) -> tuple:
+    """The x, y and z columns of ``p`` (N, 3), each contiguous (N,), or (N + 1,) with NaN at N
+    (no point) if ``pad``."""
+    return tuple(np.append(p[:, axis], np.nan) if pad else np.ascontiguousarray(p[:, axis]) for axis in range(3))
+
+
+def _sq_dist(coords: tuple, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Squared distances ||p_i - p_j||^2 in the dtype of the :func:`_columns` ``coords``, summed x, y, z
+    in order, in the shape of ``j`` (``i`` broadcast to it); NaN where a padded column's N is read."""
+    q = None
+    for x in coords:  # one column at a time: a gather of (P,) values, not of (P, 3) rows
+        d = np.take(x, j)
+        d -= np.take(x, i)
+        d *= d
+        q = d if q is None else np.add(q, d, out=q)
+    return q
 
 
 def inclusion(scores, total: float, n: int) -> np.ndarray:
@@ -104,7 +116,7 @@ def _reference_radius(p32: np.ndarray, index: spatial.SpatialIndex) -> float:
     k = min(3, n)
     hits = index.nearest(slice(None), k)[1]
     rows = np.repeat(np.arange(n), k)
-    q = _sq_dist(p32[index.order], rows, hits.ravel()).reshape(n, k)
+    q = _sq_dist(_columns(p32[index.order]), rows, hits.ravel()).reshape(n, k)
     nearest = np.where(hits != np.arange(n)[:, None], q, np.inf).min(axis=1)
     nearest = nearest[np.isfinite(nearest) & (nearest > SKIP_SQ_DIST)].astype(np.float64)
     if nearest.size == 0:
@@ -133,12 +145,12 @@ def _pairs(p: np.ndarray, index: spatial.SpatialIndex, r: float, max_nn: int):
     """
     n = p.shape[0]
     bound = np.sqrt(r) * (1 + 1e-5)  # q is rounded (float32 for the reference); exact test below
-    rows, cols = [], []
+    rows, cols, coords = [], [], _columns(p)
     for part in _chunks(index, bound):
         hits = cKDTree(index.points[part]).sparse_distance_matrix(index.tree, bound, output_type="ndarray")
         i, j = index.gid[part[hits["i"]]], index.gid[hits["j"]]
         i, j = i[i < j], j[i < j]
-        q = _sq_dist(p, i, j)
+        q = _sq_dist(coords, i, j)
         keep = (q > 0) & (q < r)
         i, j, q = i[keep], j[keep], q[keep]
         order = np.lexsort((j, q, i))
@@ -186,7 +198,7 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
         return
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
-    coords = tuple(np.append(index.points[:, axis], np.nan) for axis in range(3))  # row n: no point
+    coords = _columns(index.points, pad=True)  # row n: no point
     balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
              for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))]
     capped = np.isfinite(cut_q)
@@ -195,13 +207,13 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
     for at in range(len(balls)):
         whole, later = balls[at]
         balls[at] = None
-        near = _near_balls(index, later, _partner_bounds(grid, r, later), cut_q[later], r, max_nn)
+        near = _near_balls(index, coords, later, _partner_bounds(grid, r, later), cut_q[later], r, max_nn)
         own, counts, cols = _in_row_order(*(np.concatenate(w + n) for w, n in zip(whole, near)))
         line = np.repeat(np.arange(own.size), counts)
         test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
         if test.size:
             a, b = own[line[test]], cols[test]
-            q = _sq_dist(index.points, a, b)
+            q = _sq_dist(coords, a, b)
             kept = np.ones(cols.size, bool)
             kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
                           | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
@@ -238,10 +250,10 @@ def _dense(counts: np.ndarray, flat: np.ndarray, n: int, width: int) -> np.ndarr
     return out
 
 
-def _in_ball(u: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r: float):
+def _in_ball(coords: tuple, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r: float):
     """(valid (R, k) bool, n_valid (R,)): which of a bounded k-nearest query's hits have 0 < q < r.
 
-    q = ||u_row - u_j||^2 exactly in float64. The tree's distances ``dist`` (R, k), ascending
+    q = ||u_row - u_j||^2 exactly in float64 (``coords``: the index's :func:`_columns`). The tree's distances ``dist`` (R, k), ascending
     in each row (inf after the last hit), are within a few ulps of sqrt(q), so they decide
     every hit except those within SURE_GAP r of q = 0 (the row itself) or of q = r, where
     the exact q does. The hits below sqrt(r (1 + SURE_GAP)) are a prefix of each row; the
@@ -261,19 +273,19 @@ def _in_ball(u: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r
             left = left[(at[left] < n_near[left]) & (at[left] >= 0)]
     unsure = np.unique(np.concatenate(unsure))  # a hit can be near both ends when r is tiny
     valid = np.arange(dist.shape[1]) < n_near[:, None]
-    q = _sq_dist(u, rows[unsure // dist.shape[1]], j.ravel()[unsure])
+    q = _sq_dist(coords, rows[unsure // dist.shape[1]], j.ravel()[unsure])
     valid.ravel()[unsure] = (q > 0) & (q < r)
     return valid, n_near - np.bincount(unsure[~valid.ravel()[unsure]] // dist.shape[1], minlength=rows.size)
 
 
-def _bounded_query(index: spatial.SpatialIndex, rows: np.ndarray, k: int, reach: float, r: float):
+def _bounded_query(index: spatial.SpatialIndex, coords: tuple, rows: np.ndarray, k: int, reach: float, r: float):
     """(dist, j (R, k), valid (R, k), n_valid (R,), seen (R,)): the k nearest points within ``reach``
     of the ``rows``, which of them have 0 < q < r (:func:`_in_ball`), and whether the query holds
     every point within ``reach`` (it came back short of k, or k is every point)."""
     m = index.n
     dist, j = index.tree.query(index.points[rows], k=k, distance_upper_bound=reach, workers=-1)
     dist, j = dist.reshape(rows.size, k), j.reshape(rows.size, k)
-    valid, n_valid = _in_ball(index.points, rows, dist, j, r)
+    valid, n_valid = _in_ball(coords, rows, dist, j, r)
     return dist, j, valid, n_valid, ~((j[:, -1] < m) & (k < m))
 
 
@@ -299,14 +311,11 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
     while queue:
         todo, k = queue.pop()
         rows = batch[todo]
-        dist, j, valid, n_valid, seen = _bounded_query(index, rows, k, bound, r)
+        dist, j, valid, n_valid, seen = _bounded_query(index, coords, rows, k, bound, r)
         done = seen.copy()
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
-            q = 0
-            for x in coords:  # ||u_a - u_b||^2 summed x, y, z in order (NaN where the query found no point)
-                d = x[rows[capped]][:, None] - x[j[capped]]
-                q = q + d * d
+            q = _sq_dist(coords, rows[capped][:, None], j[capped])  # NaN where the query found no point
             qc = np.where(valid[capped], q, np.inf)
             gc = np.where(valid[capped], gid[j[capped]], np.iinfo(np.int64).max)
             order = np.lexsort((gc, qc), axis=1)  # by (q, gid)
@@ -375,8 +384,8 @@ def _partner_bounds(grid, r: float, rows: np.ndarray) -> np.ndarray:
     return bound
 
 
-def _near_balls(index: spatial.SpatialIndex, rows: np.ndarray, bound: np.ndarray, cut: np.ndarray, r: float,
-                max_nn: int):
+def _near_balls(index: spatial.SpatialIndex, coords: tuple, rows: np.ndarray, bound: np.ndarray, cut: np.ndarray,
+                r: float, max_nn: int):
     """(own, counts, cols) as :func:`_balls`' whole balls, for ``rows``: each row's points with
     0 < q < r within its squared ``bound`` at least.
 
@@ -397,7 +406,7 @@ def _near_balls(index: spatial.SpatialIndex, rows: np.ndarray, bound: np.ndarray
         while queue:
             todo, k = queue.pop()
             part = group[todo]
-            dist, j, valid, n_valid, seen = _bounded_query(index, part, k, reach, r)
+            dist, j, valid, n_valid, seen = _bounded_query(index, coords, part, k, reach, r)
             own.append(part[seen])
             counts.append(n_valid[seen])
             cols.append((j[valid] if seen.all() else j[seen][valid[seen]]).astype(np.int32))
