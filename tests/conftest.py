@@ -49,8 +49,9 @@ def client():
         yield c
 
 
-# The groups that take longest or hold the longest tests, longest first (the sums of a run's
-# durations: test_api about 200 s, test_soft and the notebooks about 100 s each, ...). pytest-xdist's
+# The groups that take longest or hold the longest tests, longest first (the summed durations of
+# a run on a loaded machine: test_api 450 s, test_soft 285 s, test_cli and test_ragged 140 s each,
+# the notebooks 80 s of which one test 54 s, ...). pytest-xdist's
 # loadgroup hands groups to whichever worker is free in collection order, so these start first and
 # the run ends on short groups (other test files, then the doctests of hgjax/): neither worker idles
 # while the other finishes a long one. By test count (xdist's default order) the notebooks came last.
