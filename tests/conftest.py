@@ -49,14 +49,15 @@ def client():
         yield c
 
 
-# The groups that take longest or hold the longest tests (a quiet run's durations: test_api about
-# 200 s in all, the notebooks 76 s of which one test 63 s, the survey 80 s, ...). pytest-xdist's
+# The groups that take longest or hold the longest tests, longest first (the summed durations of
+# a run on a loaded machine: test_api 450 s, test_soft 285 s, test_cli and test_ragged 140 s each,
+# the notebooks 80 s of which one test 54 s, ...). pytest-xdist's
 # loadgroup hands groups to whichever worker is free in collection order, so these start first and
 # the run ends on short groups (other test files, then the doctests of hgjax/): neither worker idles
 # while the other finishes a long one. By test count (xdist's default order) the notebooks came last.
-LONGEST_GROUPS = ("tests/test_api.py", "tests/test_notebooks.py", "tests/test_survey.py", "tests/test_mss.py",
-                  "tests/test_eval_edges.py", "tests/test_soft.py", "dask-client", "tests/test_cli.py",
-                  "tests/test_scores.py")
+LONGEST_GROUPS = ("tests/test_api.py", "tests/test_soft.py", "tests/test_notebooks.py", "tests/test_mss.py",
+                  "tests/test_cli.py", "tests/test_ragged.py", "tests/test_eval_edges.py", "tests/test_survey.py",
+                  "tests/test_scores.py", "dask-client", "tests/test_cli_scan.py")
 
 
 def pytest_configure(config):

@@ -83,7 +83,7 @@ def test_survey_equals_the_concatenated_cloud(tmp_path, ext, survey_reference):
 def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
     paths, cloud = _survey(tmp_path, n_files=2, n=1000)
     key = jax.random.key(3) if method == "gfr" else None
-    tile = 200.0 if method == "gfr" else 30.0  # GFR's radius (10 spacings) wants tiles of more than a few points
+    tile = 200.0 if method == "gfr" else TILE  # GFR's radius (10 spacings) wants tiles of more than a few points
     tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=tile, key=key)
     resolved = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())["resolved"]
     plan, cloud_tiles = tiles.plan(cloud, 0.2, method=method, tile=tile)
@@ -110,12 +110,12 @@ def test_survey_on_a_local_cluster(tmp_path, client):
 def test_a_point_on_a_tile_edge_is_owned_once(tmp_path):
     paths, cloud = _survey(tmp_path, n_files=2, n=1500)
     lo = cloud.min(axis=0)
-    edge = lo + 20.0  # exactly on a grid plane of tile=20 in every axis (0.01 and 0.001 steps)
+    edge = lo + TILE  # exactly on a grid plane of the tiles in every axis (0.01 and 0.001 steps)
     las = laspy.read(paths[0])
     las.x[0], las.y[0], las.z[0] = edge
     las.write(paths[0])
     paths, cloud = paths, np.concatenate([io.read_points(p).points for p in paths])
-    result = tiles.resample_files(paths, tmp_path / "kept", 1.0, method="ea", tile=20.0)
+    result = tiles.resample_files(paths, tmp_path / "kept", 1.0, method="ea", tile=TILE)
     assert sum(len(io.read_points(p)) for p in result.written) == cloud.shape[0]
 
 
@@ -124,9 +124,9 @@ def test_a_corrupt_file_is_named_before_any_output(tmp_path):
     with open(paths[1], "r+b") as fh:
         fh.truncate(os.path.getsize(paths[1]) // 2)
     with pytest.raises(io.PointCloudReadError, match="tile1.las"):
-        tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0)
+        tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE)
     assert not os.path.exists(tmp_path / "kept") or os.listdir(tmp_path / "kept") == []
-    result = tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=30.0, keep_going=True)
+    result = tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, keep_going=True)
     assert list(result.failures) == [paths[1]] and len(result.written) == 2
     good = [paths[0], paths[2]]
     cloud = np.concatenate([io.read_points(p).points for p in good])
@@ -136,15 +136,15 @@ def test_a_corrupt_file_is_named_before_any_output(tmp_path):
 def test_skip_existing_resumes(tmp_path):
     paths, _ = _survey(tmp_path, n_files=2, n=1500)
     out = tmp_path / "kept"
-    tiles.resample_files(paths, out, 0.2, method="ea", tile=30.0)
+    tiles.resample_files(paths, out, 0.2, method="ea", tile=TILE)
     first = (out / "tile0.las").read_bytes()
     os.unlink(out / "tile1.las")
-    result = tiles.resample_files(paths, out, 0.2, method="ea", tile=30.0, skip_existing=True)
+    result = tiles.resample_files(paths, out, 0.2, method="ea", tile=TILE, skip_existing=True)
     assert result.skipped == [str(out / "tile0.las")] and result.written == [str(out / "tile1.las")]
     assert (out / "tile0.las").read_bytes() == first
-    again = tiles.resample_files(paths, out, 0.2, method="ea", tile=30.0, skip_existing=True)
+    again = tiles.resample_files(paths, out, 0.2, method="ea", tile=TILE, skip_existing=True)
     assert again.written == [] and len(again.skipped) == 2
-    changed = tiles.resample_files(paths, out, 0.3, method="ea", tile=30.0, skip_existing=True)
+    changed = tiles.resample_files(paths, out, 0.3, method="ea", tile=TILE, skip_existing=True)
     assert len(changed.written) == 2
 
 
@@ -152,7 +152,7 @@ def test_cli_survey_on_two_workers(tmp_path):
     paths, cloud = _survey(tmp_path, n_files=2, n=1500)
     out = tmp_path / "kept"
     run = subprocess.run([sys.executable, "-m", "hgjax", "resample", *paths, "-o", str(out), "--method", "ea",
-                          "--ratio", "0.2", "--tile", "30", "--dtype", "float64", "--workers", "2"],
+                          "--ratio", "0.2", "--tile", f"{TILE:g}", "--dtype", "float64", "--workers", "2"],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     np.testing.assert_array_equal(_kept_ids(paths, out), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
@@ -177,7 +177,7 @@ def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
     paths, _ = _survey(tmp_path, n_files=2, n=1500)
     (tmp_path / "bad.las").write_bytes(b"not a las file")
     code = cli.main(["resample", *paths, str(tmp_path / "bad.las"), "-o", str(tmp_path / "kept"), "--method", "ea",
-                     "--tile", "30", "--keep-going"])
+                     "--tile", f"{TILE:g}", "--keep-going"])
     assert code == 1 and "bad.las" in capsys.readouterr().err
     assert sorted(os.listdir(tmp_path / "kept")) == ["hgjax-manifest.json", "tile0.las", "tile1.las"]
 

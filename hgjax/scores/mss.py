@@ -208,6 +208,9 @@ def noise_of(offsets, valid, *, real=None):
     return _common.safe_sqrt((ranked[(count - 1) // 2] + ranked[count // 2]) / 2)
 
 
+_noise_of = jax.jit(noise_of)  # eager callers (noise_level, resolve) run one program, not one per operation
+
+
 def noise_level(points, idx, *, count=None):
     """The cloud's noise level (:func:`noise_of`) over the seeded sample of :func:`hgjax.spatial.sample_ids`.
 
@@ -236,16 +239,18 @@ def noise_level(points, idx, *, count=None):
       >>> float(mss.noise_level(nb.points, nb.idx))
       0.0
     """
-    points, idx = jnp.asarray(points), jnp.asarray(idx)
-    n = points.shape[0]
+    n = np.shape(points)[0]
     if count is not None and n > spatial.RESOLUTION_SAMPLES:
         raise ValueError(f"the noise level of a padded cloud of more than {spatial.RESOLUTION_SAMPLES} rows needs "
                          f"noise= given; got {n} rows")
-    rows = jnp.asarray(spatial.sample_ids(n))
+    rows = spatial.sample_ids(n)
+    # Gathered on the host when concrete: the compiled program's shapes depend on the sample, not on N.
+    xp = jnp if _stream.is_traced(points, idx, count) else np
+    points, idx = xp.asarray(points), xp.asarray(idx)
     near = idx[rows, :NOISE_K]
     valid = near < n
-    offsets = points.at[near].get(mode="fill", fill_value=0) - points[rows, None, :]
-    return noise_of(jnp.where(valid[..., None], offsets, 0), valid, real=None if count is None else rows < count)
+    offsets = xp.concatenate([points, xp.zeros((1, 3), points.dtype)])[near] - points[rows, None, :]
+    return _noise_of(xp.where(valid[..., None], offsets, 0), valid, real=None if count is None else rows < count)
 
 
 def inputs(offsets, valid, noise):
@@ -422,7 +427,7 @@ def resolve(build: dict, stats) -> dict:
     """The build parameters with the cloud's noise level (:func:`noise_of` of the sample's neighbourhoods)."""
     if "noise" not in build:
         sample = stats()
-        build["noise"] = float(noise_of(jnp.asarray(sample.offsets), jnp.asarray(sample.valid)))
+        build["noise"] = float(_noise_of(sample.offsets, sample.valid))
     return build
 
 
