@@ -173,7 +173,8 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
 
     Each location a keeps its ``max_nn`` nearest other locations b with 0 < q_ab < r
     (squared distances in float64), ranked by (q_ab, gid_b) (``index.gid``); the pair {a, b}
-    is stored when either end keeps the other. A first pass queries every row's ball and
+    is stored when either end keeps the other. A first pass queries the ball of every row that
+    can be a wanted row's partner (those in the wanted rows' bounding box grown by sqrt(r)) and
     keeps each row's cut, the (q, gid) of its ``max_nn``-th partner (none below the cap),
     and the balls of the wanted rows it saw whole. Every partner b of a capped row a has
     q_ab <= max(cut_a, cut_b), so the second pass asks the other wanted rows only for the
@@ -199,11 +200,13 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         return
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
     coords = _columns(index.points, pad=True)  # row n: no point
+    near = _near_box(index.points, want, np.sqrt(r) * (1 + 1e-5))
     balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
-             for batch in np.array_split(np.arange(m), max(1, m * min(max_nn + 9, m) // PAIR_BUDGET))]
+             for batch in np.array_split(np.flatnonzero(near), max(1, near.sum() * min(max_nn + 9, m) // PAIR_BUDGET))]
     capped = np.isfinite(cut_q)
     balls = [(whole, np.concatenate(later, dtype=np.int64)) for whole, later in balls]
-    grid = _cut_grid(index.points, cut_q, r) if any(later.size for _, later in balls) else None
+    # the rows left out are no wanted row's partners: they bound no partner
+    grid = _cut_grid(index.points, np.where(near, cut_q, 0.0), r) if any(later.size for _, later in balls) else None
     for at in range(len(balls)):
         whole, later = balls[at]
         balls[at] = None
@@ -219,6 +222,15 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
                           | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
             counts, cols = np.bincount(line[kept], minlength=own.size), cols[kept]
         yield from _by_width(own, counts, cols, m)
+
+
+def _near_box(u: np.ndarray, want: np.ndarray, reach: float) -> np.ndarray:
+    """(n,) bool: the points of ``u`` (n, 3) in the bounding box of the ``want`` rows grown by ``reach``
+    (every point within ``reach`` of a wanted one; all points when every row is wanted)."""
+    if want.all():
+        return want
+    w = u[want]
+    return ((u >= w.min(axis=0, initial=np.inf) - reach) & (u <= w.max(axis=0, initial=-np.inf) + reach)).all(axis=1)
 
 
 def _by_width(own: np.ndarray, counts: np.ndarray, flat: np.ndarray, n: int):
