@@ -339,10 +339,10 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
             done[capped[sure]] = True
             defer = capped[sure & ~seen[capped]]
             later.append(rows[defer[want[todo[defer]]]])
-        keep = np.flatnonzero(seen & want[todo])
+        keep = seen & want[todo]
         own.append(rows[keep])
         counts.append(n_valid[keep])
-        cols.append((j[valid] if keep.size == todo.size else j[keep][valid[keep]]).astype(np.int32))
+        cols.append(j[valid if keep.all() else valid & keep[:, None]].astype(np.int32))
         queue += _grown(todo[~done], k, bound, dist[~done, -1], m)
     return (own, counts, cols), later
 
