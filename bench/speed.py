@@ -150,14 +150,38 @@ def worker(kind: str, n: int, repeats: int) -> dict:
         t = time.perf_counter()
         _run_method(method, pts)
         times.append(time.perf_counter() - t)
-    peak = _peak_mb()  # before the separate build timing below, which holds its own arrays
+    peak = _peak_mb()  # before the separate build timing and the floor below, which hold their own arrays
     build = []
     for _ in range(max(1, repeats // 2)):
         t = time.perf_counter()
         _build(method, pts)
         build.append(time.perf_counter() - t)
     med = statistics.median(times)
-    return {"median": med, "compile": max(first - med, 0.0), "build": statistics.median(build), "peak_mb": peak}
+    return {"median": med, "compile": max(first - med, 0.0), "build": statistics.median(build), "peak_mb": peak,
+            **_beside_floor(method, pts, repeats)}
+
+
+def _beside_floor(method: str, pts, repeats: int) -> dict:
+    """Rounds of (the floor, then one call of ``method``) in this process: their medians.
+
+    The floor here is the same query as the kNN process's (Morton-sorted copy, tree build
+    included), timed in turn with the method, so both see the same load and the same process.
+    """
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    import hgjax
+
+    q = np.take(pts, hgjax.spatial_order(pts), axis=0)
+    floor, paired = [], []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        cKDTree(q).query(q, k=16, workers=-1)
+        floor.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        _run_method(method, pts)
+        paired.append(time.perf_counter() - t)
+    return {"floor_here": statistics.median(floor), "paired": statistics.median(paired)}
 
 
 def _scale_worker(method: str, pts, repeats: int) -> dict:
@@ -404,36 +428,40 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
         "bare kNN = `cKDTree(p).query(p, k=16, workers=-1)` in random order; floor = the same on the Morton-sorted",
         "copy `p[hgjax.spatial_order(p)]` (tree build included, sort not), both timed in turn in one process;",
         "/ kNN and / floor = time / that yardstick of the same N in the same run;",
+        "/ floor here = in the method's own process, rounds of (the floor, then one call of the method): median of",
+        "those calls / median of those floors (side by side: the same process and load; the targets are read here);",
         f"clouds {args.dtype}{' (x64 on)' * (args.dtype == 'float64')} below {args.scale_n:.0e}, float32 at {args.scale_n:.0e};",
         "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
         "peak = peak RSS of the process that ran the method (MB; the kNN process holds both orders).",
         "",
-        "| N | method | median s | / kNN | / floor | build s | JAX part / build | points/s | compile s | peak MB |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| N | method | median s | / kNN | / floor | floor here s | / floor here | build s | JAX part / build | points/s "
+        "| compile s | peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
         knn = results[("knn", n)]
         if "error" in knn:
-            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | |")
+            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | | | |")
         base, floor = knn.get("median", math.nan), knn.get("floor", math.nan)
-        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} | | | {n / base:,.0f} | | "
+        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} | | | | | {n / base:,.0f} | | "
                      f"{knn.get('peak_mb', math.nan):.0f} |")
-        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | "
+        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | | | "
                      f"{n / floor:,.0f} | | |")
         for m in methods:
             r = results.get((m, n))
             if r is None:
                 continue
             if "error" in r:
-                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | |")
+                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | | | |")
                 continue
             if isinstance(hgjax.METHODS[m.partition(":")[0]], hgjax.Sampler):  # samplers: no neighbourhood build
                 build, jax_part = "", ""
             else:
                 ratio = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7
                 build, jax_part = (f"{r['build']:.3f}", f"{ratio:.2f}") if not math.isnan(ratio) else ("", "")
+            here = (f"{r['floor_here']:.3f} | {r['paired'] / r['floor_here']:.2f}" if "floor_here" in r else " | ")
             lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | "
-                         f"{r['median'] / floor:.2f} | {build} | {jax_part} | {n / r['median']:,.0f} | "
+                         f"{r['median'] / floor:.2f} | {here} | {build} | {jax_part} | {n / r['median']:,.0f} | "
                          f"{r['compile']:.2f} | {r['peak_mb']:.0f} |")
     big = max(sizes)
     scale_rows = [(m, results[(m, big)]) for m in methods if "us_per_point" in results.get((m, big), {})]
