@@ -602,13 +602,13 @@ def _planned(entry) -> bool:
 def _resolved(plan_: Plan, runner: _Here) -> Plan:
     """The plan with the build parameters that depend on the seeded sample (SampleStats) resolved.
 
-    A graph's first halo holds 2.5 times its radius (a core location sees its whole R-ball).
+    A graph's first halo is just wider than the reach its tiles verify (:func:`_graph_reach`).
     """
     entry = pipeline.METHODS[plan_.method]
     if entry.resolve is None:
         return plan_
     build = entry.resolve(dict(plan_.build), lambda: _sample_stats(runner, plan_))
-    halo = max(plan_.halo, 2.5 * np.sqrt(build["r"])) if entry.kind == "graph" else plan_.halo
+    halo = max(plan_.halo, _graph_reach(build["r"]) * (1 + 1e-3)) if entry.kind == "graph" else plan_.halo
     return dataclasses.replace(plan_, build=build, halo=halo)
 
 
@@ -850,7 +850,7 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan, with_sums: bool = True) -> dict
     around every core location.
     """
     b = plan_.build
-    reach = 2 * np.sqrt(b["r"]) * (1 + 1e-5)  # the pair query's bound, twice
+    reach = _graph_reach(b["r"])
     gids, core, index, rows, _ = _covered(cloud, cell, plan_.halo, True,
                                           lambda index, rows: (None, np.full(rows.size, reach)))
     if with_sums:
@@ -858,6 +858,12 @@ def _gfr_graph(cloud: _Cloud, cell, plan_: Plan, with_sums: bool = True) -> dict
     else:
         chunks, sums = list(gfr.graph_rows(index, rows, b["r"], b["max_nn"])), None
     return {"gids": gids, "core": core, "index": index, "rows": rows, "chunks": chunks, "sums": sums}
+
+
+def _graph_reach(r: float) -> float:
+    """How far around a core location GFR's tile must hold every point: twice the pair query's bound
+    (its partners' partners), for the squared radius ``r``."""
+    return 2 * np.sqrt(r) * (1 + 1e-5)
 
 
 def _gfr_sums(graph: dict) -> tuple:
