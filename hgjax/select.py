@@ -165,8 +165,8 @@ def key_value(key: int, *, largest: bool) -> float:
 
 
 def _local(parts):
-    """Run ``fn(part, *args)`` on every part, here: the default of :func:`kth_pair`'s ``run``."""
-    return lambda fn, *args: [fn(part, *args) for part in parts]
+    """Run ``fn(part, *args)`` on every part, here, one part at a time: the default of :func:`kth_pair`'s ``run``."""
+    return lambda fn, *args: (fn(part, *args) for part in parts)
 
 
 def digit_histogram(part, level: int, prefix: int) -> np.ndarray:
@@ -202,8 +202,9 @@ def kth_pair(parts, m: int, *, run=None) -> tuple[int, int]:
     Args:
       parts: sequence of (keys (n_i,) uint64, gids (n_i,) int64).
       m: rank, 1 <= m <= sum n_i.
-      run: ``run(fn, *args)`` returns ``[fn(part, *args) for part in parts]``, computed
-        wherever the parts live (a Dask client's workers); default here.
+      run: ``run(fn, *args)`` yields ``fn(part, *args)`` for each part, computed wherever
+        the parts live (a Dask client's workers); default here. Each result is read once, as
+        it comes: the histograms are summed one part at a time, never held all at once.
 
     Returns:
       (key, gid) of the m-th smallest pair in (key, gid) order.
@@ -222,7 +223,7 @@ def kth_pair(parts, m: int, *, run=None) -> tuple[int, int]:
         digit = int(np.searchsorted(cum, need))
         need -= int(cum[digit - 1]) if digit else 0
         prefix = (prefix << RADIX_BITS) | digit
-    ids = np.sort(np.concatenate(run(ids_with_key, prefix)))
+    ids = np.sort(np.concatenate(list(run(ids_with_key, prefix))))
     return prefix, int(ids[need - 1])
 
 
@@ -252,7 +253,7 @@ def top_pairs(parts, m: int, *, run=None, boundary: bool = False):
     """
     run = run or _local(parts)
     last = kth_pair(parts, m, run=run)
-    kept = run(kept_pairs, *last)
+    kept = list(run(kept_pairs, *last))
     keys = np.concatenate([k for k, _ in kept])
     gids = np.concatenate([g for _, g in kept]).astype(np.int64)
     ids = gids[spatial.lex_order(keys, gids)]

@@ -73,6 +73,7 @@ KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's
 SUB = 16  # a tile's members are grouped in SUB^3 sub-cells, so that a halo reads slabs of its neighbours
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
 MANIFEST = "hgjax-manifest.json"
+GATHER_BATCH = 64  # per-tile summaries (65,536-bin histograms) a Dask client holds at once in a selection
 TASK_BYTES = 32  # per neighbour of a core point in a tile task: an int64 index and three float64 offsets
 
 
@@ -449,7 +450,8 @@ class _Here:
         return values
 
     def run(self, parts):
-        return lambda fn, *args: self.gather(self.each(fn, parts, *args))
+        """``run`` of :func:`hgjax.select.kth_pair`: each part's result as it is computed."""
+        return lambda fn, *args: (fn(part, *args) for part in parts)
 
 
 class _Dask(_Here):
@@ -490,6 +492,16 @@ class _Dask(_Here):
         futures = [self.client.submit(_task, self.x64, fn, part, *args, pure=True) for part in parts]
         self.cells.update((f.key, self.cells[p.key]) for f, p in zip(futures, parts) if p.key in self.cells)
         return futures
+
+    def run(self, parts):
+        """``run`` of :func:`hgjax.select.kth_pair`: every part's task submitted at once, the results
+        gathered GATHER_BATCH at a time, so the client holds one batch of summaries, not every tile's."""
+        def results(fn, *args):
+            futures = self.each(fn, parts, *args)
+            for start in range(0, len(futures), GATHER_BATCH):
+                yield from self.gather(futures[start:start + GATHER_BATCH])
+
+        return results
 
     def gather(self, values) -> list:
         from distributed import KilledWorker

@@ -222,3 +222,36 @@ def test_one_far_outlier_changes_nothing(smooth, method):
     b = b[b < len(p)]
     overlap = len(np.intersect1d(a, b)) / len(a)
     assert overlap >= 0.99, overlap
+
+
+def _streamed_peak(path, tile) -> int:
+    """Peak bytes NumPy and Python allocate (tracemalloc) during one EA run of the ``.npy`` at ``path``, memory-mapped."""
+    import tracemalloc
+
+    points = np.load(path, mmap_mode="r")
+    tracemalloc.start()
+    try:
+        tiles.resample(points, 0.2, method="ea", tile=tile)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_a_streamed_run_holds_a_tile_and_a_few_bytes_per_point(monkeypatch, tmp_path):
+    """Memory of a streamed run is bounded by the tile: a memory-mapped cloud in tiles of about
+    3,700 points holds about a quarter of what one tile of the whole cloud holds, and at four
+    times the points (the same points per tile) it grows by at most 64 bytes per added point: the
+    selection's per-point state (order keys, global ids, scores) and the tiled cloud's member ids,
+    where one process grows by about 150. Above KEEP_POINTS no tile's index outlives it; the
+    planning pass reads PASS_ROWS points at a time (both lowered to this size, as at 1e8). NumPy's
+    and Python's allocations are counted (XLA's buffers and the k-d tree's nodes are not)."""
+    monkeypatch.setattr(tiles, "KEEP_POINTS", 0)
+    monkeypatch.setattr(tiles, "PASS_ROWS", 1 << 16)
+    small, large = tmp_path / "small.npy", tmp_path / "large.npy"
+    np.save(small, hgjax.eval.box_surface(200_000, seed=0).astype(np.float32))
+    np.save(large, hgjax.eval.box_surface(800_000, seed=0).astype(np.float32))
+    _streamed_peak(small, None)  # compiles the kernel, outside the counts
+    whole, tiled = _streamed_peak(small, None), _streamed_peak(small, 0.25)
+    bigger = _streamed_peak(large, 0.125)
+    assert tiled < 0.4 * whole
+    assert bigger - tiled < 64 * (800_000 - 200_000)
