@@ -164,7 +164,7 @@ def key_value(key: int, *, largest: bool) -> float:
     return float(np.array([bits], dtype=np.uint64).view(np.float64)[0])
 
 
-def _local(parts):
+def run_here(parts):
     """Run ``fn(part, *args)`` on every part, here, one part at a time: the default of :func:`kth_pair`'s ``run``."""
     return lambda fn, *args: (fn(part, *args) for part in parts)
 
@@ -216,7 +216,7 @@ def kth_pair(parts, m: int, *, run=None) -> tuple[int, int]:
       >>> kth_pair(parts, 2)
       (1, 2)
     """
-    run = run or _local(parts)
+    run = run or run_here(parts)
     prefix, need = 0, m
     for level in range(64 // RADIX_BITS):
         cum = np.cumsum(sum(run(digit_histogram, level, prefix)))
@@ -251,7 +251,7 @@ def top_pairs(parts, m: int, *, run=None, boundary: bool = False):
       >>> ids.tolist(), last
       ([1, 2, 0], (5, 0))
     """
-    run = run or _local(parts)
+    run = run or run_here(parts)
     last = kth_pair(parts, m, run=run)
     kept = list(run(kept_pairs, *last))
     keys = np.concatenate([k for k, _ in kept])

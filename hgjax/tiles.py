@@ -451,7 +451,7 @@ class _Here:
 
     def run(self, parts):
         """``run`` of :func:`hgjax.select.kth_pair`: each part's result as it is computed."""
-        return lambda fn, *args: (fn(part, *args) for part in parts)
+        return select.run_here(parts)
 
 
 class _Dask(_Here):
