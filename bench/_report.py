@@ -77,6 +77,27 @@ def spawn(script: Path, args, timeout: float | None = None) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def morton_copy(points):
+    """The floor's cloud: ``points[hgjax.spatial_order(points)]``."""
+    import numpy as np
+
+    import hgjax
+
+    pts = np.asarray(points)
+    return pts[hgjax.spatial_order(pts)]
+
+
+def knn16_seconds(p) -> float:
+    """Seconds of ``cKDTree(p).query(p, k=16, workers=-1)``, the tree build included."""
+    import time
+
+    from scipy.spatial import cKDTree
+
+    t = time.perf_counter()
+    cKDTree(p).query(p, k=16, workers=-1)
+    return time.perf_counter() - t
+
+
 def knn_times(points, repeats: int) -> dict:
     """Medians of the kNN16 yardsticks of ``points``, timed in turn (one call of each per round).
 
@@ -85,22 +106,16 @@ def knn_times(points, repeats: int) -> dict:
     include the tree build; neither includes the permutation or the sort.
     """
     import statistics
-    import time
 
     import numpy as np
-    from scipy.spatial import cKDTree
-
-    import hgjax
 
     pts = np.asarray(points)
     bare = pts[np.random.default_rng(0).permutation(pts.shape[0])]
-    floor = pts[hgjax.spatial_order(pts)]
+    floor = morton_copy(pts)
     times = {"bare": [], "floor": []}
     for _ in range(repeats):
         for name, p in (("bare", bare), ("floor", floor)):
-            t = time.perf_counter()
-            cKDTree(p).query(p, k=16, workers=-1)
-            times[name].append(time.perf_counter() - t)
+            times[name].append(knn16_seconds(p))
     return {name: statistics.median(v) for name, v in times.items()}
 
 

@@ -167,17 +167,10 @@ def _beside_floor(method: str, pts, repeats: int) -> dict:
     The floor here is the same query as the kNN process's (Morton-sorted copy, tree build
     included), timed in turn with the method, so both see the same load and the same process.
     """
-    import numpy as np
-    from scipy.spatial import cKDTree
-
-    import hgjax
-
-    q = np.take(pts, hgjax.spatial_order(pts), axis=0)
+    q = _report.morton_copy(pts)
     floor, paired = [], []
     for _ in range(repeats):
-        t = time.perf_counter()
-        cKDTree(q).query(q, k=16, workers=-1)
-        floor.append(time.perf_counter() - t)
+        floor.append(_report.knn16_seconds(q))
         t = time.perf_counter()
         _run_method(method, pts)
         paired.append(time.perf_counter() - t)
