@@ -1,6 +1,8 @@
 """Strict settings for the whole suite: x64 available, no implicit rank promotion; one persistent
 compilation cache for the session and the one Dask cluster."""
 
+import os
+
 import jax
 import numpy as np
 import pytest
@@ -21,16 +23,25 @@ def dtype(request):
 def compilation_cache(tmp_path_factory):
     """JAX's persistent compilation cache in a temporary folder for the session, for this process
     and (JAX_COMPILATION_CACHE_DIR) every process it starts: CLI runs, notebook kernels, Dask
-    workers load the streamed kernels (whose shapes do not depend on N) that another compiled."""
-    directory = str(tmp_path_factory.getbasetemp() / "jax-cache")
-    before = jax.config.jax_compilation_cache_dir
+    workers load the streamed kernels (whose shapes do not depend on N) that another compiled.
+
+    Every program is cached, however fast it compiled (as the CLI does), and the pytest-xdist
+    workers of one run share the folder, so a program compiled by one worker or one test file
+    is loaded, not compiled again, by the others."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's folder, above gw0, gw1
+    directory = str(shared / "jax-cache")
+    before = jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("JAX_COMPILATION_CACHE_DIR", directory)
+        mp.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
         jax.config.update("jax_compilation_cache_dir", directory)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
         try:
             yield directory
         finally:
-            jax.config.update("jax_compilation_cache_dir", before)
+            jax.config.update("jax_compilation_cache_dir", before[0])
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
 
 
 @pytest.fixture
