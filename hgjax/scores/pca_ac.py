@@ -37,7 +37,7 @@ import heapq
 
 import numpy as np
 
-from hgjax import _registry, _validate
+from hgjax import _registry, _validate, select
 from hgjax.scores import ea
 
 __all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
@@ -146,7 +146,8 @@ def ward_1d(values, n_clusters: int) -> np.ndarray:
     rest = _merge_rounds(*_equal_runs(v[order]), heights)
     _merge_heap(*rest, heights)
     cut = np.zeros(heights.size, dtype=np.int64)
-    cut[np.argsort(-heights, kind="stable")[: n_clusters - 1]] = 1
+    if n_clusters > 1:
+        cut[select.top_k(heights, n_clusters - 1)] = 1
     labels = np.empty(v.size, dtype=np.int64)
     labels[order] = np.concatenate([[0], np.cumsum(cut)])
     return labels
@@ -175,7 +176,10 @@ def keep(variation, m: int, *, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarr
     v = np.asarray(variation)
     m = _validate.check_int(m, "m", minimum=1)
     labels = ward_1d(v, _validate.check_int(n_clusters, "n_clusters", minimum=1))
-    order = np.lexsort((np.arange(v.shape[0]), -v, -labels))
+    order = np.argsort(-v, kind="stable")  # largest variation first, then the lowest index
+    # then the highest cluster number first: a stable sort of few distinct labels, already
+    # in order unless equal values were cut apart (more clusters than distinct values)
+    order = order[np.argsort(-labels[order], kind="stable")]
     return order[:m].astype(np.int64)
 
 
