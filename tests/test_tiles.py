@@ -184,9 +184,10 @@ def test_gfr_reference_is_refused_with_tiles(smooth):
         tiles.plan(smooth, 0.2, method="gfr", variant="reference", tile=1.0)
 
 
-def test_knn_ties_are_broken_by_global_id():
+@pytest.mark.parametrize("offset", [1000, 2**59], ids=["ids", "ids-beyond-one-key"])  # one int64 key, or lexsort
+def test_knn_ties_are_broken_by_global_id(offset):
     p = grid((6, 6, 6))  # a lattice: ties everywhere
-    gid = np.random.default_rng(0).permutation(len(p)) + 1000
+    gid = np.random.default_rng(0).permutation(len(p)) + offset
     index = spatial.SpatialIndex(p, gid=gid)
     idx, reach = index.knn(9, np.arange(index.n))
     dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
