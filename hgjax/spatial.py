@@ -529,8 +529,9 @@ class SpatialIndex:
             tied = (dist[:, 1:width] == dist[:, :width - 1]).any(axis=1)
             tied[tied] = (keep[tied, 1:] & (dist[tied, 1:width] == dist[tied, :width - 1])).any(axis=1)
             if tied.any():
-                ranked = self._ranked(row_ids[todo[tied]], np.where(inside[tied], dist[tied], np.inf), idx[tied])[1]
-                out[todo[tied], :width] = np.where(keep[tied], ranked[:, :width], self.n)
+                d, i = dist[tied, :width], idx[tied, :width]  # the cube's points are a prefix of the row
+                ranked = self._ranked(row_ids[todo[tied]], np.where(inside[tied, :width], d, np.inf), i)[1]
+                out[todo[tied], :width] = np.where(keep[tied], ranked, self.n)
             todo, k = todo[~done], min(2 * k, self.n)
         return out, h
 
