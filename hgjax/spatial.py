@@ -408,6 +408,11 @@ class SpatialIndex:
             order[unsorted] = np.lexsort((gid[unsorted], dist[unsorted]), axis=1)
         return np.take_along_axis(dist, order, axis=1), np.take_along_axis(idx, order, axis=1)
 
+    def _unordered(self, dist: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """(R,) whether a row of hits (R, q) sorted by distance has equal distances not in global-id order."""
+        gid = self.gid[np.minimum(idx, self.n)]
+        return ((dist[:, 1:] == dist[:, :-1]) & (gid[:, 1:] < gid[:, :-1])).any(axis=1)
+
     def knn(self, k: int, rows: slice | np.ndarray = slice(None), *,
             query: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The point itself and its k - 1 nearest neighbours by (distance, global id), sorted frame.
@@ -438,6 +443,7 @@ class SpatialIndex:
         # row is read as queried where it lists the point itself first (distance 0, ranked -1).
         odd = np.flatnonzero(idx[:, 0] != row_ids)
         tied = (dist[:, 2:k_eff] == dist[:, 1:last]).any(axis=1)
+        tied[tied] = self._unordered(dist[tied, 1:k_eff], idx[tied, 1:k_eff])  # ties not yet by global id
         cut = (dist[:, last] == dist[:, k_eff]) if q > k_eff and last else np.zeros(r, bool)
         if odd.size:  # another point at distance 0 listed first, or the point itself beyond the query
             mine = idx[odd] == row_ids[odd, None]
@@ -528,6 +534,8 @@ class SpatialIndex:
             # ordered by global id, the point itself first.
             tied = (dist[:, 1:width] == dist[:, :width - 1]).any(axis=1)
             tied[tied] = (keep[tied, 1:] & (dist[tied, 1:width] == dist[tied, :width - 1])).any(axis=1)
+            tied[tied] = (self._unordered(np.where(keep[tied], dist[tied, :width], np.nan), idx[tied, :width])
+                          | (idx[tied, 0] != row_ids[todo[tied]]))  # ties not yet by global id, or not itself first
             if tied.any():
                 d, i = dist[tied, :width], idx[tied, :width]  # the cube's points are a prefix of the row
                 ranked = self._ranked(row_ids[todo[tied]], np.where(inside[tied, :width], d, np.inf), i)[1]
