@@ -328,13 +328,9 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
             q = _sq_dist(coords, rows[capped][:, None], j[capped])  # NaN where the query found no point
-            qc = np.where(valid[capped], q, np.inf)
-            gc = np.where(valid[capped], gid[j[capped]], np.iinfo(np.int64).max)
-            order = np.lexsort((gc, qc), axis=1)  # by (q, gid)
-            line = np.arange(capped.size)
-            cq, cg = qc[line, order[:, max_nn - 1]], gc[line, order[:, max_nn - 1]]
+            cq, cg = _cut(np.where(valid[capped], q, np.inf), gid[j[capped]], max_nn)
             # the cut is certain unless a tie with it may lie beyond a full query
-            sure = seen[capped] | (cq < qc[line, order[line, n_valid[capped] - 1]])
+            sure = seen[capped] | (cq < np.where(valid[capped], q, -np.inf).max(axis=1))
             cut_q[rows[capped[sure]]], cut_g[rows[capped[sure]]] = cq[sure], cg[sure]
             done[capped[sure]] = True
             defer = capped[sure & ~seen[capped]]
@@ -345,6 +341,24 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         cols.append(j[valid if keep.all() else valid & keep[:, None]].astype(np.int32))
         queue += _grown(todo[~done], k, bound, dist[~done, -1], m)
     return (own, counts, cols), later
+
+
+def _cut(q: np.ndarray, g: np.ndarray, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
+    """(cut_q, cut_g) (R,): each row's ``max_nn``-th (q, g) pair in (q, g) order.
+
+    ``q`` (R, k) squared distances, inf where no hit, at least ``max_nn`` finite per row;
+    ``g`` (R, k) the hits' global ids. A partition finds the max_nn-th q; only rows where
+    it is tied and more than one of its ties ranks before the cut sort their tied ids.
+    """
+    cut_q = np.partition(q, max_nn - 1, axis=1)[:, max_nn - 1]
+    at = q == cut_q[:, None]
+    need = max_nn - np.count_nonzero(q < cut_q[:, None], axis=1)  # the cut is the need-th tie by id
+    tied = np.where(at, g, np.iinfo(np.int64).max)
+    cut_g = tied.min(axis=1)
+    deep = np.flatnonzero(need > 1)
+    if deep.size:
+        cut_g[deep] = np.sort(tied[deep], axis=1)[np.arange(deep.size), need[deep] - 1]
+    return cut_q, cut_g
 
 
 def _grown(todo: np.ndarray, k: int, bound: float, last: np.ndarray, m: int) -> list:
