@@ -530,12 +530,11 @@ class SpatialIndex:
                 np.copyto(out[:, :width], idx[:, :width], casting="unsafe", where=keep)
             else:
                 out[todo[done], :width] = np.where(keep[done], idx[done, :width], self.n)
-            # Equal distances inside the cube (rare; first any tie in the row, then inside it) are
-            # ordered by global id, the point itself first.
+            # Equal distances inside the cube (first any tie in the row, then kept ties out of
+            # global-id order) are ordered by global id, the point itself first.
             tied = (dist[:, 1:width] == dist[:, :width - 1]).any(axis=1)
-            tied[tied] = (keep[tied, 1:] & (dist[tied, 1:width] == dist[tied, :width - 1])).any(axis=1)
             tied[tied] = (self._unordered(np.where(keep[tied], dist[tied, :width], np.nan), idx[tied, :width])
-                          | (idx[tied, 0] != row_ids[todo[tied]]))  # ties not yet by global id, or not itself first
+                          | (idx[tied, 0] != row_ids[todo[tied]]))  # kept ties not yet by global id, or not itself first
             if tied.any():
                 d, i = dist[tied, :width], idx[tied, :width]  # the cube's points are a prefix of the row
                 ranked = self._ranked(row_ids[todo[tied]], np.where(inside[tied, :width], d, np.inf), i)[1]
