@@ -50,19 +50,24 @@ _RUN_MIN = 64  # runs of at least this many equal values enter as one cluster
 def _merge_rounds(size, total, end, heights):
     """Merge reciprocal-nearest adjacent pairs in vectorised rounds; return what is left."""
     while size.size > 1:
-        mean = total / size
-        cost = size[:-1] * size[1:] / (size[:-1] + size[1:]) * (mean[1:] - mean[:-1]) ** 2
-        merge = np.ones(cost.size, dtype=bool)
-        merge[1:] &= cost[1:] < cost[:-1]
-        merge[:-1] &= cost[:-1] <= cost[1:]
-        if merge.sum() * _ROUND_MIN_SHARE < size.size:
+        gap = np.diff(total / size)
+        joined = size[:-1] + size[1:]
+        cost = size[:-1] * size[1:]
+        cost /= joined
+        cost *= gap * gap
+        rising = cost[1:] < cost[:-1]
+        merge = np.ones(cost.size, dtype=bool)  # cost[a] < cost[a - 1] and cost[a] <= cost[a + 1]
+        merge[1:] = rising
+        merge[:-1] &= ~rising
+        at = np.flatnonzero(merge)
+        if at.size * _ROUND_MIN_SHARE < size.size:
             break
-        heights[end[:-1][merge]] = cost[merge]
-        size[:-1][merge] += size[1:][merge]
-        total[:-1][merge] += total[1:][merge]
-        end[:-1][merge] = end[1:][merge]
+        heights[end[at]] = cost[at]
+        size[at] = joined[at]
+        total[at] += total[at + 1]
+        end[at] = end[at + 1]
         keep = np.ones(size.size, dtype=bool)
-        keep[1:] = ~merge
+        keep[at + 1] = False
         size, total, end = size[keep], total[keep], end[keep]
     return size, total, end
 
@@ -116,6 +121,27 @@ def _equal_runs(x):
     return size.astype(np.float64), total, heads + size - 1
 
 
+def _checked(values, n_clusters) -> tuple[np.ndarray, int]:
+    """(values as float64 (N,), n_clusters capped at N), or ValueError / TypeError naming the bad one."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 1 or v.size == 0 or not np.isfinite(v).all():
+        raise ValueError(f"values must be a non-empty finite array of shape (N,); got shape {v.shape}")
+    return v, min(_validate.check_int(n_clusters, "n_clusters", minimum=1), v.size)
+
+
+def _ward_sorted(v: np.ndarray, n_clusters: int) -> tuple[np.ndarray, np.ndarray]:
+    """(order, labels): the stable ascending order (N,) of ``v`` and the cluster number (N,) of each
+    sorted value (non-decreasing: every cluster is an interval of the sorted values)."""
+    order = np.argsort(v, kind="stable")
+    heights = np.zeros(max(v.size - 1, 0))  # heights[j]: cost of the merge across j | j + 1
+    rest = _merge_rounds(*_equal_runs(v[order]), heights)
+    _merge_heap(*rest, heights)
+    cut = np.zeros(heights.size, dtype=np.int64)
+    if n_clusters > 1:
+        cut[select.top_k(heights, n_clusters - 1)] = 1
+    return order, np.concatenate([[0], np.cumsum(cut)])
+
+
 def ward_1d(values, n_clusters: int) -> np.ndarray:
     """Ward agglomerative clustering of one-dimensional values, O(N log N).
 
@@ -137,19 +163,9 @@ def ward_1d(values, n_clusters: int) -> np.ndarray:
       >>> ward_1d(np.array([0.0, 5.0, 0.1, 5.2, 9.0]), 3).tolist()
       [0, 1, 0, 1, 2]
     """
-    v = np.asarray(values, dtype=np.float64)
-    if v.ndim != 1 or v.size == 0 or not np.isfinite(v).all():
-        raise ValueError(f"values must be a non-empty finite array of shape (N,); got shape {v.shape}")
-    n_clusters = min(_validate.check_int(n_clusters, "n_clusters", minimum=1), v.size)
-    order = np.argsort(v, kind="stable")
-    heights = np.zeros(max(v.size - 1, 0))  # heights[j]: cost of the merge across j | j + 1
-    rest = _merge_rounds(*_equal_runs(v[order]), heights)
-    _merge_heap(*rest, heights)
-    cut = np.zeros(heights.size, dtype=np.int64)
-    if n_clusters > 1:
-        cut[select.top_k(heights, n_clusters - 1)] = 1
-    labels = np.empty(v.size, dtype=np.int64)
-    labels[order] = np.concatenate([[0], np.cumsum(cut)])
+    order, sorted_labels = _ward_sorted(*_checked(values, n_clusters))
+    labels = np.empty(order.size, dtype=np.int64)
+    labels[order] = sorted_labels
     return labels
 
 
@@ -173,14 +189,21 @@ def keep(variation, m: int, *, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarr
       >>> hgjax.scores.pca_ac.keep(np.array([0.0, 0.3, 0.01, 0.29]), 1).tolist()
       [1]
     """
-    v = np.asarray(variation)
     m = _validate.check_int(m, "m", minimum=1)
-    labels = ward_1d(v, _validate.check_int(n_clusters, "n_clusters", minimum=1))
-    order = np.argsort(-v, kind="stable")  # largest variation first, then the lowest index
-    # then the highest cluster number first: a stable sort of few distinct labels, already
-    # in order unless equal values were cut apart (more clusters than distinct values)
-    order = order[np.argsort(-labels[order], kind="stable")]
-    return order[:m].astype(np.int64)
+    v, n_clusters = _checked(variation, n_clusters)
+    order, labels = _ward_sorted(v, n_clusters)
+    # Blocks of equal (cluster number, variation) are contiguous in the ascending order, each in
+    # index order: the blocks from the last to the first, each kept in index order, are the
+    # points by highest cluster number, then largest variation, then lowest index.
+    new = np.ones(v.size, dtype=bool)
+    new[1:] = (labels[1:] != labels[:-1]) | (v[order[1:]] != v[order[:-1]])
+    block = np.cumsum(new) - 1
+    starts = np.flatnonzero(new)
+    ends = np.append(starts[1:], v.size) - 1
+    at = np.arange(v.size)
+    out = np.empty(v.size, dtype=np.int64)
+    out[(v.size - 1 - ends[block]) + (at - starts[block])] = order
+    return out[:m]
 
 
 def _select(scores, m: int, *, key=None, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarray:
