@@ -71,11 +71,12 @@ def folded_sheet(rng: np.random.Generator) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2], [0, 5, 1], [0, 4, 5]]), process=False)
 
 
-def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, graded=False):
+def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, graded=False, band_factor=1.0):
     """Training cloud ``i`` of the set of ``seed``: (points, edge, ignore, name, target); ``noise`` (spacings)
     drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or with ``graded`` the mean of the
     edge labels of the bands ``GRADED`` times the default band (1 nearest the crease, falling to 0 at 1.5
-    bands): a target that orders the points by their distance to the crease."""
+    bands): a target that orders the points by their distance to the crease. ``band_factor`` scales the band
+    of ``edge`` (1: the generators' default)."""
     rng = np.random.default_rng([seed, i])
     family = families[i % len(families)]
     regime = hgjax.eval.REGIMES[(i // len(families)) % 2]
@@ -100,6 +101,7 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
                                   delta=delta)
             return c.points, c.edge_mask, c.ignore
         name = f"{'grid-' if regime == 'grid' else ''}{family}{shape_seed} p={noise} {kind}"
+    band *= band_factor
     points, edge, ignore = make(band)
     target = edge.astype(np.float64)
     if graded:
@@ -205,29 +207,44 @@ def mcc_at_e(scores, labels) -> float:
     return float((tp * tn - fp * fn) / den) if den > 0 else 0.0
 
 
-def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES):
-    """Held-out synthetic metrics: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}.
+def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,)):
+    """Held-out synthetic metrics: {band: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}}, or a list of
+    those for a list of models (``weights`` a list of weight lists, the features computed once).
 
     The clouds are those of ``cloud`` for the seed ``seed + HELD_OUT`` (shapes never trained
     on), ``per_noise`` of them (every family, both regimes) at each noise of
-    ``VALIDATION_NOISES``; points near creases of 10 to 20 degrees are left out.
+    ``VALIDATION_NOISES``; points near creases of 10 to 20 degrees are left out. ``bands``: the
+    edge labels' band widths in units of the default band (1: the training labels; 0.5: the points
+    nearest the crease, which only a ranking by distance to the crease finds).
     """
-    params = [jnp.asarray(a) for a in weights]
+    many = isinstance(weights[0], (list, tuple))
+    models = [[jnp.asarray(a) for a in w] for w in (weights if many else [weights])]
     logits = jax.jit(jax.vmap(mss.mlp, in_axes=(None, 0)))
-    out = {}
+    out = [{b: {} for b in bands} for _ in models]
     for noise in VALIDATION_NOISES:
-        rows = []
+        rows = [{b: [] for b in bands} for _ in models]
         for i in range(per_noise):
             points, edge, ignore, _, _ = cloud(i, seed + HELD_OUT, noise, families)
             if not edge[~ignore].any():
                 continue
-            model = np.asarray(logits(params, jnp.asarray(cloud_features(points))))[~ignore]
-            ea = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "ea"), "ea"))[~ignore]
-            y = edge[~ignore]
-            rows.append((mcc_at_e(model, y), hgjax.eval.average_precision(model, y), mcc_at_e(ea, y),
-                         hgjax.eval.average_precision(ea, y)))
-        out[noise] = rows
-    return out
+            x = jnp.asarray(cloud_features(points))
+            scores = [np.asarray(logits(p, x)) for p in models]
+            ea = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "ea"), "ea"))
+            for b in bands:
+                e, ig = (edge, ignore) if b == 1.0 else cloud(i, seed + HELD_OUT, noise, families, band_factor=b)[1:3]
+                keep = ~(ignore | ig)
+                y = e[keep]
+                if not y.any():
+                    continue
+                ea_m = (mcc_at_e(ea[keep], y), hgjax.eval.average_precision(ea[keep], y))
+                for r, s in zip(rows, scores):
+                    r[b].append((mcc_at_e(s[keep], y), hgjax.eval.average_precision(s[keep], y)) + ea_m)
+        for o, r in zip(out, rows):
+            for b in bands:
+                o[b][noise] = r[b]
+    if many:
+        return out
+    return out[0] if len(bands) > 1 else out[0][bands[0]]
 
 
 def validation_table(metrics) -> str:
@@ -276,14 +293,25 @@ def main(argv=None):
                         "held-out clouds)")
     parser.add_argument("--near", type=float, default=0.0,
                         help="fraction of the non-edge rows drawn within two bands of an edge (default 0)")
-    parser.add_argument("--weights", type=pathlib.Path, default=None,
-                        help="with --validate-only: the folder of a _mss_weights.py to report instead of the shipped")
+    parser.add_argument("--weights", type=pathlib.Path, nargs="+", default=None,
+                        help="with --validate-only: folders of a _mss_weights.py to report instead of the shipped "
+                             "('shipped' for the shipped weights)")
+    parser.add_argument("--bands", type=float, nargs="+", default=[1.0],
+                        help="with --validate-only: held-out label bands, in units of the default band (default 1)")
     args = parser.parse_args(argv)
     families = SHEET_FAMILIES if args.sheets else FAMILIES
     jax.config.update("jax_enable_x64", True)
     t0 = time.time()
     if args.validate_only:
-        weights = mss.weights(np.float64) if args.weights is None else load_weights(args.weights)
+        folders = args.weights or ["shipped"]
+        weights = [mss.weights(np.float64) if str(f) == "shipped" else load_weights(pathlib.Path(f)) for f in folders]
+        results = validate(weights, args.seed, families=families, bands=tuple(args.bands))
+        for folder, per_band in zip(folders, results):
+            for band, metrics in per_band.items():
+                print(f"held-out synthetic clouds{' with sheets' if args.sheets else ''}, band x{band}: {folder}")
+                print(validation_table(metrics), flush=True)
+        print(f"{time.time() - t0:.0f} s")
+        return
     else:
         weights, losses, rows = train(args.clouds, args.steps, args.seed, verbose=True, families=families,
                                       graded=args.target == "graded", near=args.near)
