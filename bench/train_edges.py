@@ -23,6 +23,16 @@ Usage (from the repository root):
                                                 # prints the held-out table
   python bench/train_edges.py --clouds 14 --steps 300 --out /tmp/x   # a small run
   python bench/train_edges.py --validate-only    # the shipped model on the held-out clouds
+  python bench/train_edges.py --validate-only --weights shipped /tmp/a /tmp/b --bands 1.0 0.5
+                                                # several models on the same held-out clouds, labels
+                                                # at the training band and at half of it
+
+Options of the candidates of bench/results/mss_candidates3.md (none adopted; the defaults are the
+shipped recipe): ``--target graded`` (the target is the mean of the labels of the bands ``GRADED`` x
+the default one, so that the logit falls with the distance to the crease), ``--sheets`` (folded sheets,
+two rectangles at one crease of 30 to 170 degrees with an open non-edge border, as one more family, in
+training and held-out clouds), ``--near F`` (a fraction F of each cloud's non-edge rows drawn within two
+spacings of an edge).
 """
 
 from __future__ import annotations
