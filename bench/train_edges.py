@@ -23,6 +23,16 @@ Usage (from the repository root):
                                                 # prints the held-out table
   python bench/train_edges.py --clouds 14 --steps 300 --out /tmp/x   # a small run
   python bench/train_edges.py --validate-only    # the shipped model on the held-out clouds
+  python bench/train_edges.py --validate-only --weights shipped /tmp/a /tmp/b --bands 1.0 0.5
+                                                # several models on the same held-out clouds, labels
+                                                # at the training band and at half of it
+
+Options of the candidates of bench/results/mss_candidates3.md (none adopted; the defaults are the
+shipped recipe): ``--target graded`` (the target is the mean of the labels of the bands ``GRADED`` x
+the default one, so that the logit falls with the distance to the crease), ``--sheets`` (folded sheets,
+two rectangles at one crease of 30 to 170 degrees with an open non-edge border, as one more family, in
+training and held-out clouds), ``--near F`` (a fraction F of each cloud's non-edge rows drawn within two
+spacings of an edge).
 """
 
 from __future__ import annotations
@@ -35,6 +45,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+import trimesh
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -45,6 +56,8 @@ from hgjax.eval import solids  # noqa: E402
 from hgjax.scores import mss  # noqa: E402
 
 FAMILIES = solids.FAMILIES + ("boxes",)
+SHEET_FAMILIES = FAMILIES + ("sheet",)  # with --sheets: folded sheets (two rectangles at one crease) too
+GRADED = (0.5, 1.0, 1.5)  # --target graded: the mean of the labels of bands this many times the default one
 NOISES = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
 L2 = 1e-4
 LEARNING_RATE = 1e-2
@@ -56,22 +69,54 @@ HELD_OUT = 10_000  # the validation clouds are those of the seed ``seed + HELD_O
 VALIDATION_NOISES = (0.0, 0.25, 0.5, 1.0)
 
 
-def cloud(i: int, seed: int, noise: float | None = None):
-    """Training cloud ``i`` of the set of ``seed``: (points, edge, ignore, name); ``noise`` (spacings) drawn
-    from ``NOISES`` unless given."""
+def folded_sheet(rng: np.random.Generator) -> trimesh.Trimesh:
+    """An open mesh of two rectangles (widths 0.5 to 1, length 1 to 2) sharing one edge at a dihedral angle
+    drawn uniformly from 30 to 170 degrees: one straight crease of any sharpness and an open border, which is
+    no sharp edge (its points are non-edge)."""
+    a, b = rng.uniform(0.5, 1.0, 2)
+    length = rng.uniform(1.0, 2.0)
+    t = np.deg2rad(rng.uniform(30.0, 170.0))
+    v = np.array([[0, 0, 0], [length, 0, 0], [0, a, 0], [length, a, 0],
+                  [0, b * np.cos(t), b * np.sin(t)], [length, b * np.cos(t), b * np.sin(t)]], float)
+    return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2], [0, 5, 1], [0, 4, 5]]), process=False)
+
+
+def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, graded=False, band_factor=1.0):
+    """Training cloud ``i`` of the set of ``seed``: (points, edge, ignore, name, target); ``noise`` (spacings)
+    drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or with ``graded`` the mean of the
+    edge labels of the bands ``GRADED`` times the default band (1 nearest the crease, falling to 0 at 1.5
+    bands): a target that orders the points by their distance to the crease. ``band_factor`` scales the band
+    of ``edge`` (1: the generators' default)."""
     rng = np.random.default_rng([seed, i])
-    family = FAMILIES[i % len(FAMILIES)]
-    regime = hgjax.eval.REGIMES[(i // len(FAMILIES)) % 2]
+    family = families[i % len(families)]
+    regime = hgjax.eval.REGIMES[(i // len(families)) % 2]
     drawn = float(NOISES[int(rng.integers(len(NOISES)))])
     noise = drawn if noise is None else noise
     kind = solids.NOISE_KINDS[int(rng.integers(2))]
     n = int(rng.integers(*N_POINTS))
     shape_seed = int(rng.integers(1 << 30))
+    band = hgjax.eval.synthetic.DEFAULT_DELTA if regime == "random" else hgjax.eval.synthetic.GRID_DELTA
     if family == "boxes":
-        c = hgjax.eval.box_union_cloud(seed=shape_seed, n_points=n, rotate=True, noise=noise, regime=regime)
-        return c.points, c.edge_mask, np.zeros(len(c.points), bool), f"{c.name} p={noise} iso"
-    c = solids.solid_cloud(seed=shape_seed, family=family, n_points=n, regime=regime, noise=noise, noise_kind=kind)
-    return c.points, c.edge_mask, c.ignore, f"{c.name} p={noise} {kind}"
+        def make(delta):
+            c = hgjax.eval.box_union_cloud(seed=shape_seed, n_points=n, rotate=True, noise=noise, regime=regime,
+                                           delta=delta)
+            return c.points, c.edge_mask, np.zeros(len(c.points), bool)
+        name = f"boxes{shape_seed} {regime} p={noise} iso"
+    else:
+        mesh = (folded_sheet(np.random.default_rng([shape_seed, 5])) if family == "sheet"
+                else solids.random_solid(shape_seed, family))
+
+        def make(delta):
+            c = solids.mesh_cloud(mesh, n_points=n, seed=shape_seed, regime=regime, noise=noise, noise_kind=kind,
+                                  delta=delta)
+            return c.points, c.edge_mask, c.ignore
+        name = f"{'grid-' if regime == 'grid' else ''}{family}{shape_seed} p={noise} {kind}"
+    band *= band_factor
+    points, edge, ignore = make(band)
+    target = edge.astype(np.float64)
+    if graded:
+        target = np.mean([make(f * band)[1] if f != 1.0 else edge for f in GRADED], axis=0)
+    return points, edge, ignore, name, target
 
 
 def cloud_features(points):
@@ -81,19 +126,36 @@ def cloud_features(points):
     return np.asarray(_stream.map_neighbourhoods(mss.inputs, nb, args=(noise,)))
 
 
-def dataset(n_clouds: int, seed: int):
-    """(X (R, F), y (R,), w (R,), names) over the clouds 0 .. n_clouds - 1."""
+def dataset(n_clouds: int, seed: int, families=FAMILIES, graded=False, near=0.0):
+    """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
+
+    ``near``: the fraction of a cloud's non-edge rows drawn among its points within two bands of an edge
+    (the negatives that decide the ranking about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
-        points, edge, ignore, name = cloud(i, seed)
+        points, edge, ignore, name, target = cloud(i, seed, families=families, graded=graded)
         rows = np.random.default_rng([seed, i, 1]).permutation(np.flatnonzero(~ignore))
-        rows = np.sort(np.concatenate([rows[edge[rows]][:ROWS // 2], rows[~edge[rows]][:ROWS // 2]]))
-        x, y = cloud_features(points)[rows], edge[rows]
+        negatives = rows[~edge[rows]]
+        if near > 0 and edge.any():
+            close = target_near(points, edge, negatives)
+            first = negatives[close][:int(near * ROWS // 2)]
+            negatives = np.concatenate([first, negatives[~np.isin(negatives, first)]])
+        rows = np.sort(np.concatenate([rows[edge[rows]][:ROWS // 2], negatives[:ROWS // 2]]))
+        x, y, t = cloud_features(points)[rows], edge[rows], target[rows]
         pos, neg = int(y.sum()), int((~y).sum())
         w = np.where(y, 0.5 / max(pos, 1), (0.5 if pos else 1.0) / max(neg, 1))
-        xs.append(x), ys.append(y), ws.append(w), names.append(name)
+        xs.append(x), ys.append(t), ws.append(w), names.append(name)
     w = np.concatenate(ws)
     return np.concatenate(xs), np.concatenate(ys).astype(np.float64), w / w.sum(), names
+
+
+def target_near(points, edge, candidates):
+    """(len(candidates),) bool: the candidates within two bands of an edge point (the band's width measured
+    as the largest distance from an edge point to its nearest non-edge point, at least the spacing)."""
+    from scipy.spatial import cKDTree
+    d, _ = cKDTree(points[edge]).query(points[candidates])
+    spacing = hgjax.spatial.intrinsic_resolution(points)
+    return d <= 2.0 * spacing
 
 
 def init(n_features: int, seed: int):
@@ -132,9 +194,10 @@ def adam(params, x, y, w, steps: int, verbose: bool = False):
     return params, losses
 
 
-def train(n_clouds: int, steps: int, seed: int, verbose: bool = False):
+def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, graded=False,
+          near=0.0):
     """Fit the model; returns (weights as float64 NumPy arrays, losses, the training set's size)."""
-    x, y, w, _ = dataset(n_clouds, seed)
+    x, y, w, _ = dataset(n_clouds, seed, families, graded, near)
     mean, std = x.mean(0), x.std(0) + 1e-12
     params = init(x.shape[1], seed)
     params, losses = adam(params, jnp.asarray((x - mean) / std), jnp.asarray(y), jnp.asarray(w), steps, verbose)
@@ -154,29 +217,44 @@ def mcc_at_e(scores, labels) -> float:
     return float((tp * tn - fp * fn) / den) if den > 0 else 0.0
 
 
-def validate(weights, seed: int, per_noise: int = 28):
-    """Held-out synthetic metrics: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}.
+def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,)):
+    """Held-out synthetic metrics: {band: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}}, or a list of
+    those for a list of models (``weights`` a list of weight lists, the features computed once).
 
     The clouds are those of ``cloud`` for the seed ``seed + HELD_OUT`` (shapes never trained
     on), ``per_noise`` of them (every family, both regimes) at each noise of
-    ``VALIDATION_NOISES``; points near creases of 10 to 20 degrees are left out.
+    ``VALIDATION_NOISES``; points near creases of 10 to 20 degrees are left out. ``bands``: the
+    edge labels' band widths in units of the default band (1: the training labels; 0.5: the points
+    nearest the crease, which only a ranking by distance to the crease finds).
     """
-    params = [jnp.asarray(a) for a in weights]
+    many = isinstance(weights[0], (list, tuple))
+    models = [[jnp.asarray(a) for a in w] for w in (weights if many else [weights])]
     logits = jax.jit(jax.vmap(mss.mlp, in_axes=(None, 0)))
-    out = {}
+    out = [{b: {} for b in bands} for _ in models]
     for noise in VALIDATION_NOISES:
-        rows = []
+        rows = [{b: [] for b in bands} for _ in models]
         for i in range(per_noise):
-            points, edge, ignore, _ = cloud(i, seed + HELD_OUT, noise)
+            points, edge, ignore, _, _ = cloud(i, seed + HELD_OUT, noise, families)
             if not edge[~ignore].any():
                 continue
-            model = np.asarray(logits(params, jnp.asarray(cloud_features(points))))[~ignore]
-            ea = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "ea"), "ea"))[~ignore]
-            y = edge[~ignore]
-            rows.append((mcc_at_e(model, y), hgjax.eval.average_precision(model, y), mcc_at_e(ea, y),
-                         hgjax.eval.average_precision(ea, y)))
-        out[noise] = rows
-    return out
+            x = jnp.asarray(cloud_features(points))
+            scores = [np.asarray(logits(p, x)) for p in models]
+            ea = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "ea"), "ea"))
+            for b in bands:
+                e, ig = (edge, ignore) if b == 1.0 else cloud(i, seed + HELD_OUT, noise, families, band_factor=b)[1:3]
+                keep = ~(ignore | ig)
+                y = e[keep]
+                if not y.any():
+                    continue
+                ea_m = (mcc_at_e(ea[keep], y), hgjax.eval.average_precision(ea[keep], y))
+                for r, s in zip(rows, scores):
+                    r[b].append((mcc_at_e(s[keep], y), hgjax.eval.average_precision(s[keep], y)) + ea_m)
+        for o, r in zip(out, rows):
+            for b in bands:
+                o[b][noise] = r[b]
+    if many:
+        return out
+    return out[0] if len(bands) > 1 else out[0][bands[0]]
 
 
 def validation_table(metrics) -> str:
@@ -201,6 +279,15 @@ def write_weights(weights, path: pathlib.Path, argv):
     path.write_text("\n".join(lines) + "\n")
 
 
+def load_weights(folder: pathlib.Path):
+    """The six arrays of ``folder/_mss_weights.py`` as float64 NumPy arrays."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("_candidate_weights", folder / "_mss_weights.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return [np.asarray(getattr(module, k), np.float64) for k in ("W1", "B1", "W2", "B2", "W3", "B3")]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--clouds", type=int, default=210, help="training clouds (default 210)")
@@ -210,18 +297,39 @@ def main(argv=None):
                         help="folder for the weights module (default: hgjax/scores/_mss_weights.py)")
     parser.add_argument("--validate-only", action="store_true",
                         help="no training: report the shipped weights on the held-out clouds")
+    parser.add_argument("--target", choices=("band", "graded"), default="band",
+                        help="band: 1 within the edge band, else 0 (default); graded: see GRADED")
+    parser.add_argument("--sheets", action="store_true", help="folded sheets as one more family (training and "
+                        "held-out clouds)")
+    parser.add_argument("--near", type=float, default=0.0,
+                        help="fraction of the non-edge rows drawn within two bands of an edge (default 0)")
+    parser.add_argument("--weights", type=pathlib.Path, nargs="+", default=None,
+                        help="with --validate-only: folders of a _mss_weights.py to report instead of the shipped "
+                             "('shipped' for the shipped weights)")
+    parser.add_argument("--bands", type=float, nargs="+", default=[1.0],
+                        help="with --validate-only: held-out label bands, in units of the default band (default 1)")
     args = parser.parse_args(argv)
+    families = SHEET_FAMILIES if args.sheets else FAMILIES
     jax.config.update("jax_enable_x64", True)
     t0 = time.time()
     if args.validate_only:
-        weights = mss.weights(np.float64)
+        folders = args.weights or ["shipped"]
+        weights = [mss.weights(np.float64) if str(f) == "shipped" else load_weights(pathlib.Path(f)) for f in folders]
+        results = validate(weights, args.seed, families=families, bands=tuple(args.bands))
+        for folder, per_band in zip(folders, results):
+            for band, metrics in per_band.items():
+                print(f"held-out synthetic clouds{' with sheets' if args.sheets else ''}, band x{band}: {folder}")
+                print(validation_table(metrics), flush=True)
+        print(f"{time.time() - t0:.0f} s")
+        return
     else:
-        weights, losses, rows = train(args.clouds, args.steps, args.seed, verbose=True)
+        weights, losses, rows = train(args.clouds, args.steps, args.seed, verbose=True, families=families,
+                                      graded=args.target == "graded", near=args.near)
         path = (args.out / "_mss_weights.py") if args.out else ROOT / "hgjax" / "scores" / "_mss_weights.py"
         write_weights(weights, path, sys.argv[1:] if argv is None else argv)
         print(f"{rows} rows, loss {losses[0]:.4f} -> {losses[-1]:.4f}, {time.time() - t0:.0f} s -> {path}")
     print("held-out synthetic clouds:")
-    print(validation_table(validate(weights, args.seed)), flush=True)
+    print(validation_table(validate(weights, args.seed, families=families)), flush=True)
     print(f"{time.time() - t0:.0f} s")
 
 
