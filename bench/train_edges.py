@@ -38,6 +38,7 @@ spacings of an edge).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import pathlib
 import sys
 import time
@@ -46,6 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -129,7 +131,7 @@ def cloud_features(points):
 def dataset(n_clouds: int, seed: int, families=FAMILIES, graded=False, near=0.0):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
-    ``near``: the fraction of a cloud's non-edge rows drawn among its points within two bands of an edge
+    ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
     (the negatives that decide the ranking about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
@@ -137,7 +139,7 @@ def dataset(n_clouds: int, seed: int, families=FAMILIES, graded=False, near=0.0)
         rows = np.random.default_rng([seed, i, 1]).permutation(np.flatnonzero(~ignore))
         negatives = rows[~edge[rows]]
         if near > 0 and edge.any():
-            close = target_near(points, edge, negatives)
+            close = near_edges(points, edge, negatives)
             first = negatives[close][:int(near * ROWS // 2)]
             negatives = np.concatenate([first, negatives[~np.isin(negatives, first)]])
         rows = np.sort(np.concatenate([rows[edge[rows]][:ROWS // 2], negatives[:ROWS // 2]]))
@@ -149,10 +151,9 @@ def dataset(n_clouds: int, seed: int, families=FAMILIES, graded=False, near=0.0)
     return np.concatenate(xs), np.concatenate(ys).astype(np.float64), w / w.sum(), names
 
 
-def target_near(points, edge, candidates):
-    """(len(candidates),) bool: the candidates within two bands of an edge point (the band's width measured
-    as the largest distance from an edge point to its nearest non-edge point, at least the spacing)."""
-    from scipy.spatial import cKDTree
+def near_edges(points, edge, candidates):
+    """(len(candidates),) bool: the ``candidates`` within two spacings (the cloud's intrinsic resolution)
+    of an edge point."""
     d, _ = cKDTree(points[edge]).query(points[candidates])
     spacing = hgjax.spatial.intrinsic_resolution(points)
     return d <= 2.0 * spacing
@@ -281,7 +282,6 @@ def write_weights(weights, path: pathlib.Path, argv):
 
 def load_weights(folder: pathlib.Path):
     """The six arrays of ``folder/_mss_weights.py`` as float64 NumPy arrays."""
-    import importlib.util
     spec = importlib.util.spec_from_file_location("_candidate_weights", folder / "_mss_weights.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -302,7 +302,7 @@ def main(argv=None):
     parser.add_argument("--sheets", action="store_true", help="folded sheets as one more family (training and "
                         "held-out clouds)")
     parser.add_argument("--near", type=float, default=0.0,
-                        help="fraction of the non-edge rows drawn within two bands of an edge (default 0)")
+                        help="fraction of the non-edge rows drawn within two spacings of an edge (default 0)")
     parser.add_argument("--weights", type=pathlib.Path, nargs="+", default=None,
                         help="with --validate-only: folders of a _mss_weights.py to report instead of the shipped "
                              "('shipped' for the shipped weights)")
