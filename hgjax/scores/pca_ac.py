@@ -195,8 +195,9 @@ def keep(variation, m: int, *, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarr
     # Blocks of equal (cluster number, variation) are contiguous in the ascending order, each in
     # index order: the blocks from the last to the first, each kept in index order, are the
     # points by highest cluster number, then largest variation, then lowest index.
+    ascending = v[order]
     new = np.ones(v.size, dtype=bool)
-    new[1:] = (labels[1:] != labels[:-1]) | (v[order[1:]] != v[order[:-1]])
+    new[1:] = (labels[1:] != labels[:-1]) | (ascending[1:] != ascending[:-1])
     block = np.cumsum(new) - 1
     starts = np.flatnonzero(new)
     ends = np.append(starts[1:], v.size) - 1
