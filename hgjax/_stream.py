@@ -108,6 +108,12 @@ def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
     return jax.tree.map(lambda x: x[:n], out)
 
 
+def as_arg(value, dtype):
+    """A broadcast argument of :func:`map_neighbourhoods`: a concrete number as a ``dtype`` array
+    (a Python number enters a ``dtype`` kernel so under jit), a traced one unchanged."""
+    return value if is_traced(value) else np.asarray(value, dtype)
+
+
 def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: int | None = None,
                        progress: bool = False, narrow: bool = False):
     """Apply ``fn`` to every neighbourhood of ``nb`` (traced: pure JAX; concrete: streamed).

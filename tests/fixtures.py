@@ -100,8 +100,18 @@ def _eager(fn, nbs):
     return [fn(nb) for nb in nbs]
 
 
+def _one_name(fn):
+    """``fn`` under one name whatever the case. A compiled module is named after its function and
+    the persistent compilation cache keys on that name, so identical programs of two cases (a
+    method's score and its soft twin that is the same computation, as MSS's and EA's) compile
+    once in a run."""
+    def variant(*args):
+        return fn(*args)
+    return variant
+
+
 def _jit_argument(fn, nbs):
-    f = jax.jit(fn)
+    f = jax.jit(_one_name(fn))
     return [f(nb) for nb in nbs]
 
 
@@ -109,20 +119,20 @@ def _jit_closed_over(fn, nbs):
     """jit of a function of no argument that closes over concrete neighbourhoods (the first cloud;
     each closed-over cloud is a new compilation)."""
     nb = nbs[0]
-    return [jax.jit(lambda: fn(nb))()]
+    return [jax.jit(_one_name(lambda: fn(nb)))()]
 
 
 def _vmap(fn, nbs):
     """jit(vmap) over the leading clouds that share the first cloud's shapes (plain stacking)."""
     n = next((i for i, nb in enumerate(nbs) if nb.idx.shape != nbs[0].idx.shape), len(nbs))
-    out = jax.jit(jax.vmap(fn))(stack(nbs[:n]))
+    out = jax.jit(jax.vmap(_one_name(fn)))(stack(nbs[:n]))
     return [out[i] for i in range(n)]
 
 
 def _ragged(fn, nbs):
     """jit(vmap) over :func:`hgjax.stack_neighbourhoods` of every cloud (any N and K), each cloud's
     result cut to its own rows."""
-    out = jax.jit(jax.vmap(fn))(hgjax.stack_neighbourhoods(nbs))
+    out = jax.jit(jax.vmap(_one_name(fn)))(hgjax.stack_neighbourhoods(nbs))
     return [out[i, :nb.points.shape[0]] for i, nb in enumerate(nbs)]
 
 

@@ -214,7 +214,8 @@ def score(nb, *, chunk_size: int | None = None, progress: bool = False):
 
 
 def soft_score(nb):
-    """EA surface variation as one pure JAX program (its own smooth twin).
+    """EA surface variation, pure JAX (its own smooth twin: :func:`score`'s kernel, streamed when
+    called eagerly).
 
     An eigenvalue (not an eigenvector) has a finite derivative even where it is degenerate,
     and the division is guarded, so gradients are finite on every cloud.
@@ -231,7 +232,7 @@ def soft_score(nb):
       >>> hgjax.scores.ea.soft_score(nb).shape
       (100,)
     """
-    return _stream.pure_map(variation, nb.points, nb.idx)
+    return _stream.map_neighbourhoods(variation, nb)
 
 
 def knn_params(n: int, k: int, params: dict) -> dict:

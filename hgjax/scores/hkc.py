@@ -92,6 +92,11 @@ def _kernel(kernel_size: int, variant: str):
     return functools.partial(beta, kernel_size=kernel_size, variant=variant)
 
 
+@functools.lru_cache(maxsize=None)
+def _soft_kernel(kernel_size: int, variant: str):
+    return functools.partial(soft_beta, kernel_size=kernel_size, variant=variant)
+
+
 def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: int | None = None,
           progress: bool = False):
     """HKC beta (Eq. (11)) of every neighbourhood; lower is sharper.
@@ -123,6 +128,8 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
 def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3):
     """Smooth HKC score of every neighbourhood (:func:`soft_beta`), pure JAX and differentiable.
 
+    Called eagerly it streams fixed-size chunks through one compiled kernel, as :func:`score`.
+
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`.
       tau: softness of the voxel membership, relative to d (traced).
@@ -143,8 +150,8 @@ def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3)
     kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     tau = _validate.check_traced_positive(tau, "tau")
-    fn = functools.partial(soft_beta, kernel_size=kernel_size, variant=variant)
-    return _stream.pure_map(fn, nb.points, nb.idx, row_args=(nb.scale,), args=(tau,))
+    return _stream.map_neighbourhoods(_soft_kernel(kernel_size, variant), nb, row_args=(nb.scale,),
+                                      args=(_stream.as_arg(tau, nb.points.dtype),))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:

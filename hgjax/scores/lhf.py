@@ -412,7 +412,8 @@ def soft_score(nb, *, tau=0.1, lengths=DEFAULT_LENGTHS):
     """Smooth twin of :func:`score` (:func:`soft_gamma`), pure JAX and differentiable.
 
     Ratio-free like :func:`score`; :func:`hgjax.soft_weights` combines the two columns
-    (:func:`combine`, Eqs. (15)-(16)) at its ratio.
+    (:func:`combine`, Eqs. (15)-(16)) at its ratio. Called eagerly it streams fixed-size chunks
+    through one compiled kernel, as :func:`score`.
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
@@ -431,7 +432,12 @@ def soft_score(nb, *, tau=0.1, lengths=DEFAULT_LENGTHS):
     lengths = _validate.check_lengths(lengths)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
     tau = _validate.check_traced_positive(tau, "tau")
-    return _stream.pure_map(functools.partial(soft_gamma, lengths=lengths), nb.points, nb.idx, args=(tau,))
+    return _stream.map_neighbourhoods(_soft_kernel(lengths), nb, args=(_stream.as_arg(tau, nb.points.dtype),))
+
+
+@functools.lru_cache(maxsize=None)
+def _soft_kernel(lengths):
+    return functools.partial(soft_gamma, lengths=lengths)
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:

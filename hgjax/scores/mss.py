@@ -392,7 +392,8 @@ def score(nb, *, noise=None, chunk_size: int | None = None, progress: bool = Fal
 
 
 def soft_score(nb, *, noise=None):
-    """MSS sharpness as one pure JAX program (its own smooth twin; finite gradients).
+    """MSS sharpness, pure JAX (its own smooth twin: :func:`score`'s kernel, streamed when called
+    eagerly; finite gradients).
 
     Args:
       nb: :class:`hgjax.Neighbourhoods` from :func:`neighbourhoods`.
@@ -407,7 +408,7 @@ def soft_score(nb, *, noise=None):
       >>> hgjax.scores.mss.soft_score(nb).shape
       (100,)
     """
-    return _stream.pure_map(sharpness, nb.points, nb.idx, args=(_noise(nb, noise),))
+    return _stream.map_neighbourhoods(sharpness, nb, args=(_noise(nb, noise),))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:
