@@ -253,21 +253,21 @@ def real_worker(methods, repeats: int) -> dict:
         fn()
         return time.perf_counter() - t
 
-    morton = {id(p): _report.morton_copy(p) for _, _, p in clouds}
+    morton = {name: _report.morton_copy(p) for name, _, p in clouds}
     for m in ["knn", "floor"] + list(methods):
         if m == "knn":
-            call = _report.knn16_seconds
+            call = lambda name, p: _report.knn16_seconds(p)
         elif m == "floor":
-            call = lambda p: _report.knn16_seconds(morton[id(p)])
+            call = lambda name, p: _report.knn16_seconds(morton[name])
         else:
             params = {"mode": "top"} if m == "gfr" else {}
-            call = lambda p, m=m, params=params: hgjax.resample(p, 0.2, method=m, **params)
+            call = lambda name, p, m=m, params=params: hgjax.resample(p, 0.2, method=m, **params)
         times = {name: [] for name, _, _ in clouds}
         for name, _, p in clouds:
-            call(p)  # warm-up
+            call(name, p)  # warm-up
         for _ in range(repeats):
             for name, _, p in clouds:
-                times[name].append(timed(lambda p=p, call=call: call(p)))
+                times[name].append(timed(lambda name=name, p=p, call=call: call(name, p)))
         out["times"][m] = times
         print(f"{m}: " + ", ".join(f"{k} {statistics.median(v):.3f}" for k, v in times.items()),
               file=sys.stderr, flush=True)
