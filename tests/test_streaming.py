@@ -87,6 +87,26 @@ def test_compilations_are_bounded_by_the_chunk_sizes_whatever_the_cloud_size():
         assert events == [], (method, events)
 
 
+@pytest.mark.parametrize("method", ["hkc", "lhf", "ea", "mss", "gfr"])
+def test_eager_soft_scores_of_a_new_cloud_size_compile_nothing(method):
+    """Called eagerly, a soft score streams through its compiled kernel as hgjax.score does: once it
+    has run on a cloud, another cloud of another size in the same chunk (two blocks) and a new tau
+    compile nothing; GFR's runs as one program per size. The values are the jitted soft score's."""
+    capacity = 256 if method == "hkc" else None  # one K for every cloud (the cube never holds 256 points)
+    params = {"tau": 0.2} if method in ("hkc", "lhf") else {}
+    hgjax.soft_score(hgjax.neighbourhoods(box_surface(2000, seed=10), method, capacity=capacity), method)
+    with backend_compiles() as events:
+        for n, seed in ((1500, 11), (1900, 12)):
+            nb = hgjax.neighbourhoods(box_surface(n, seed=seed), method, capacity=capacity)
+            eager = hgjax.soft_score(nb, method, **params)
+    if method == "gfr":  # one program over the whole cloud: one compilation of it per size
+        assert events.count("jit(_soft)") == 2, events
+    else:
+        assert events == [], (method, events)
+    jitted = jax.jit(lambda nb: hgjax.soft_score(nb, method, **params))(nb)
+    np.testing.assert_allclose(eager, jitted, rtol=1e-12)
+
+
 def test_float_parameter_sweeps_do_not_recompile():
     nb = hgjax.neighbourhoods(box_surface(2000, seed=7), "lhf")
     weights = jax.jit(lambda nb, ratio, temperature, tau: hgjax.soft_weights(
