@@ -328,9 +328,10 @@ def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: flo
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
             q = _sq_dist(coords, rows[capped][:, None], j[capped])  # NaN where the query found no point
-            cq, cg = _cut(np.where(valid[capped], q, np.inf), gid[j[capped]], max_nn)
+            inside = valid[capped]
+            cq, cg = _cut(np.where(inside, q, np.inf), gid[j[capped]], max_nn)
             # the cut is certain unless a tie with it may lie beyond a full query
-            sure = seen[capped] | (cq < np.where(valid[capped], q, -np.inf).max(axis=1))
+            sure = seen[capped] | (cq < np.max(q, axis=1, where=inside, initial=-np.inf))
             cut_q[rows[capped[sure]]], cut_g[rows[capped[sure]]] = cq[sure], cg[sure]
             done[capped[sure]] = True
             defer = capped[sure & ~seen[capped]]
