@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _validate, spatial
+from hgjax import _validate, spatial
 from hgjax.scores import _common
 
 __all__ = ["ExactSum", "key_value", "keyed_top", "kth_pair", "order_keys", "point_bits", "soft_select", "top_k", "top_pairs", "weighted_sample"]
@@ -446,10 +446,10 @@ def soft_select(scores, ratio, *, temperature=0.05, largest: bool = True, valid=
             raise ValueError(f"valid must be None or a bool array of the scores' shape {scores.shape};"
                              f" got {valid.dtype} {valid.shape}")
         n = jnp.sum(valid).astype(scores.dtype)
-    run = _weights if _stream.is_traced(scores, ratio, temperature, valid) else _weights_compiled
-    return run(scores, ratio, temperature, valid, n, largest=largest)
+    return _weights(scores, ratio, temperature, valid, n, largest=largest)
 
 
+@functools.partial(jax.jit, static_argnames="largest")  # eager callers: one program, not one per operation
 def _weights(scores, ratio, temperature, valid, n, *, largest: bool):
     """:func:`soft_select`'s weights of validated inputs."""
     if not largest:
@@ -458,6 +458,3 @@ def _weights(scores, ratio, temperature, valid, n, *, largest: bool):
     target = jnp.asarray(ratio, scores.dtype) * n
     theta = _threshold(scores, valid, temperature, target)
     return jnp.where(valid, jax.nn.sigmoid((scores - theta) / temperature), 0)
-
-
-_weights_compiled = jax.jit(_weights, static_argnames="largest")  # eager callers: one program, not one per operation

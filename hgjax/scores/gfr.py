@@ -986,10 +986,10 @@ def soft_score(nb, *, variant: str = "invariant"):
     variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
     points, idx = jnp.asarray(nb.points), jnp.asarray(nb.idx)
     _validate.check_graph(points, idx, nb.first, _weights_dtype(variant))
-    run = _soft if _stream.is_traced(points, idx, nb.first) else _soft_compiled
-    return run(points, idx, nb.first, weights_dtype=_weights_dtype(variant))
+    return _soft(points, idx, nb.first, weights_dtype=_weights_dtype(variant))
 
 
+@functools.partial(jax.jit, static_argnames="weights_dtype")  # eager callers: one program, not one per operation
 def _soft(points, idx, first, *, weights_dtype):
     """:func:`soft_score` of validated arrays."""
     own, partner = _multiplicities(first, idx, points.shape[0], points.dtype)
@@ -997,9 +997,6 @@ def _soft(points, idx, first, *, weights_dtype):
     mean_q = _common.safe_div(jnp.sum(pair * _stream.pure_map(_sq_length, points, idx)), jnp.sum(pair), 0.0)
     unit = _common.safe_sqrt(mean_q)  # the RMS pair length
     return _common.safe_div(_pure_high_pass(points, idx, first, weights_dtype), unit, 0.0)
-
-
-_soft_compiled = jax.jit(_soft, static_argnames="weights_dtype")  # eager callers: one program, not one per operation
 
 
 def _select(scores, m: int, *, key=None, mode: str = "random") -> np.ndarray:
