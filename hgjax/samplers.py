@@ -459,24 +459,26 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
     """Exact FPS by fpsample's bucket kd-tree (QuickFPS) on the distinct float32 points.
 
     Duplicates are resolved first: each distinct position is represented by its lowest
-    index (``start`` for its own), and once all M' <= M distinct positions are taken the
-    other points follow in index order, as on the JAX path. ``start_idx`` is the row that
-    the tree build moves ``start`` to (``_kd_row``). Should the start not come back
-    first (a future fpsample building differently), fpsample's plain O(N M) FPS, which
-    takes ``start_idx`` as given, serves instead.
+    index (``start`` for its own), in index order (without duplicates, fpsample sees the
+    points as given), and once all M' <= M distinct positions are taken the other points
+    follow in index order, as on the JAX path. ``start_idx`` is the row that the tree build
+    moves ``start`` to (``_kd_row``). Should the start not come back first (a future
+    fpsample building differently), fpsample's plain O(N M) FPS, which takes ``start_idx``
+    as given, serves instead.
     """
     import fpsample
 
     q = np.ascontiguousarray(p, dtype=np.float32)
     first, group = _distinct_rows(q)
-    rep = first.copy()
-    rep[group[start]] = start
+    unique = first.size == q.shape[0]
+    rep = np.arange(q.shape[0]) if unique else np.sort(first)
+    at = int(np.searchsorted(rep, first[group[start]]))
+    rep[at] = start
     k = min(m, rep.size)
-    distinct = q[rep]
-    row = _kd_row(distinct, int(group[start]))
-    picked = fpsample.bucket_fps_kdtree_sampling(distinct, k, start_idx=row).astype(np.int64)
-    if picked[0] != group[start]:
-        picked = fpsample.fps_sampling(distinct, k, start_idx=int(group[start])).astype(np.int64)
+    distinct = q if unique else q[rep]
+    picked = fpsample.bucket_fps_kdtree_sampling(distinct, k, start_idx=_kd_row(distinct, at)).astype(np.int64)
+    if picked[0] != at:
+        picked = fpsample.fps_sampling(distinct, k, start_idx=at).astype(np.int64)
     chosen = rep[picked]
     if m == k:
         return chosen
