@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import Counter
+from fractions import Fraction
 
 import jax
 import jax.numpy as jnp
@@ -397,6 +398,43 @@ def test_float32_rows_summed_on_the_device_have_the_bits_of_the_sums_in_global_i
     assert np.array_equal(got, np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2]))
     unordered = np.sum(c[nbr][..., None] * flows, axis=1)
     assert not np.array_equal(unordered, lp)  # the order matters in some rows: the test can fail
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("with_counts", [False, True])
+def test_pair_sums_are_the_exact_sums_of_every_pair(dtype, with_counts):
+    """pair_sums of a symmetric graph: the exact (Fraction) sums of c_i c_j, c_i c_j q and c_i c_j q^2 over
+    its pairs, q the kernel's; float32 counts each pair from both ends (the device's row sums, and the
+    host's for rows with partners 2^40 apart, subnormal q included), float64 once."""
+    rng = np.random.default_rng(13)
+    n, k = 300, 12
+    points = rng.standard_normal((n, 3)) * 2.0 ** rng.uniform(-40, 0, (n, 1))
+    points[:4] *= 2.0**-30  # q below float32's smallest normal number
+    a = rng.integers(0, n, 1500)
+    a, b = np.unique(np.sort([a, (a + rng.integers(1, n, a.size)) % n], axis=0), axis=1)  # distinct pairs
+    sym = gfr_module.symmetric(a, b, n, np.arange(n))
+    own, tie_ext = np.arange(n), np.arange(n + 1)
+    counts_ext = np.append(rng.integers(1, 6, n).astype(np.float64), 0.0) if with_counts else None
+    got = [s.value() for s in gfr_module.pair_sums(points, own, sym, dtype, counts_ext, tie_ext, chunk_size=64)]
+    q = gfr_module.pair_lengths(points, own, sym, dtype)
+    c = np.ones(n + 1) if counts_ext is None else counts_ext
+    rows, cols = np.nonzero(sym < n)
+    ends = 2 if dtype == np.float32 else 1
+    pairs = {}
+    for i, j in zip(rows.tolist(), cols.tolist()):
+        pairs[min(i, sym[i, j]), max(i, sym[i, j])] = Fraction(float(q[i, j]))
+    w = {key: Fraction(float(c[key[0]] * c[key[1]])) for key in pairs}
+    want = [float(ends * sum(w[key] * v**power for key, v in pairs.items())) for power in (0, 1, 2)]
+    if dtype == np.float64:  # the host's terms: c q and (c q) q, each rounded as before
+        want[2] = hgjax.select.ExactSum.of([float(w[key]) * float(v) * float(v) for key, v in pairs.items()]).value()
+    assert got == want
+    assert k < sym.shape[1] and len(pairs) > 1000
+    if dtype == np.float32:  # both summations ran: rows exact in any order, and rows that are not
+        sums, qmin, qmax, cmax = _stream.map_rows(gfr_module._moment_kernel(with_counts), points, own, sym,
+                                                  row_args=() if counts_ext is None else
+                                                  (counts_ext[own][:, None] * counts_ext[sym],), dtype=dtype)
+        fast = gfr_module._exact_moments(qmin, qmax, cmax, sym.shape[1])
+        assert 0 < fast.sum() < n
 
 
 def test_symmetric_pairs_of_int32_indices_beyond_46341_points():

@@ -632,9 +632,10 @@ def _streamed_high_pass(points: np.ndarray, idx: np.ndarray, first: np.ndarray |
     low = points.astype(wdtype)
     ext_q = _stream.device_points(low, wdtype)  # every block's kernels read the points sent once
     ext = ext_q if wdtype == points.dtype else _stream.device_points(points, points.dtype)
-    q = [pair_lengths(low, own[b], sym[b], wdtype, ext=ext_q, **stream) for b in _blocks(n)]
-    mean_q, two_var = moments(summed([pair_sums(q_b, own[b], sym[b], tie_ext, counts_ext)
-                                      for q_b, b in zip(q, _blocks(n))]))
+    mean_q, two_var = moments(summed([pair_sums(low, own[b], sym[b], wdtype, counts_ext, tie_ext, ext=ext_q, **stream)
+                                      for b in _blocks(n)]))
+    q = [pair_lengths(low, own[b], sym[b], wdtype, ext=ext_q, **stream) if wdtype != points.dtype else None
+         for b in _blocks(n)]
     lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, tie_ext, mean_q, two_var,
                                          points.dtype, wdtype, ext=ext, **stream) for q_b, b in zip(q, _blocks(n))]
                         or [np.zeros(0)])
@@ -793,21 +794,90 @@ def pair_lengths(points, own, nbr, wdtype, *, ext=None, chunk_size=None, progres
                             progress=progress)
 
 
-def pair_sums(q, own, nbr, tie_ext, counts_ext) -> tuple:
-    """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the pairs (i, j) of rows ``own`` with tie_j > tie_i.
+def pair_sums(points, own, nbr, wdtype, counts_ext, tie_ext, *, ext=None, chunk_size=None, progress=False) -> tuple:
+    """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the stored pairs (i, j) of the rows ``own``.
 
-    ``nbr`` (R, K) holds the partners of the rows ``own`` (R,), padded with n = len(tie_ext) - 1,
-    and ``q`` (R, K) their squared lengths; ``counts_ext`` (n + 1,) the c of each row and 0 for
-    the padding, or None for one point per row. Each undirected pair is counted once, from its
-    end with the smaller global id; sums of chunks of rows add up exactly.
+    ``nbr`` (R, K) holds the partners of the rows ``own`` (R,), padded with n = len(tie_ext) - 1;
+    q = ||p_i - p_j||^2 in ``wdtype`` as :func:`pair_lengths` computes it (``ext`` as there);
+    ``counts_ext`` (n + 1,) the c of each row and 0 for the padding, or None for one point per
+    row. Sums of chunks of rows add up exactly.
+
+    float32 q: every (row, partner) entry counts, so over a graph whose rows are each summed
+    once every undirected pair counts twice, which leaves the ratios of :func:`moments`
+    exactly as they are. Each row's terms (:func:`_moment_terms`, exact in float64) are
+    summed on the device; where every order of adding them may not give their exact sum
+    (:func:`_exact_moments`), the row's terms come back and are summed on the host.
+    float64 q: the terms on the host, each undirected pair once, from its end with the
+    smaller ``tie_ext``.
     """
-    counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
-    qq = q[counted].astype(np.float64)
-    if counts_ext is None:  # c_i c_j = 1: the same sums
-        return select.ExactSum.of([qq.size]), select.ExactSum.of(qq), select.ExactSum.of(qq * qq)
-    w = (counts_ext[own][:, None] * counts_ext[nbr])[counted]
-    wq = w * qq
-    return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
+    stream = {"ext": ext, "chunk_size": chunk_size, "progress": progress}
+    c = () if counts_ext is None else (counts_ext[own][:, None] * counts_ext[nbr],)
+    if np.dtype(wdtype) != np.float32:
+        q = pair_lengths(points, own, nbr, wdtype, **stream)
+        counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
+        qq = q[counted].astype(np.float64)
+        w = c[0][counted] if c else np.ones(qq.size)
+        wq = w * qq
+        return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
+    with jax.enable_x64(True):
+        sums, qmin, qmax, cmax = _stream.map_rows(_moment_kernel(bool(c)), points, own, nbr, row_args=c,
+                                                  dtype=wdtype, **stream)
+        slow = np.flatnonzero(~_exact_moments(qmin, qmax, cmax, nbr.shape[1]))
+        terms = _stream.map_rows(_moment_terms, points, own[slow], nbr[slow], row_args=tuple(x[slow] for x in c),
+                                 dtype=wdtype, **stream) if slow.size else np.zeros((0, 5, 1))
+    fast = np.ones(own.size, bool)
+    fast[slow] = False
+    count, sum_q, *sum_q2 = (np.concatenate([sums[fast, t], terms[:, t].ravel()]) for t in range(5))
+    return select.ExactSum.of(count), select.ExactSum.of(sum_q), select.ExactSum.of(np.concatenate(sum_q2))
+
+
+def _moment_terms(offsets, valid, *c):
+    """(5, K) float64 terms of one row's pairs, each exact: 1, q, a^2, 2 a b and b^2, times
+    c_i c_j (``c`` (K,), a row argument) when given; 0 for the padding.
+
+    q (float32) = a + b, a the float32 q with the 12 low bits of its mantissa cleared, so that
+    a^2, a b and b^2 hold at most 24 significant bits each and q^2 = a^2 + 2 a b + b^2.
+    """
+    q = _sq_length(offsets, valid)
+    a = jax.lax.bitcast_convert_type(jax.lax.bitcast_convert_type(q, jnp.uint32) & jnp.uint32(0xFFFFF000),
+                                     jnp.float32)
+    b = (q - a).astype(jnp.float64)
+    a = a.astype(jnp.float64)
+    terms = jnp.stack([valid.astype(jnp.float64), q.astype(jnp.float64), a * a, 2 * a * b, b * b])
+    return terms * c[0][None, :] if c else terms
+
+
+@functools.lru_cache(maxsize=None)
+def _moment_kernel(counted: bool):
+    """Per row: the sums of :func:`_moment_terms` (5,) in float64, the smallest non-zero q (inf
+    if none), the largest q and the largest c_i c_j (1 unless ``counted``)."""
+    def kernel(offsets, valid, *c):
+        q = _sq_length(offsets, valid)
+        largest_c = jnp.max(c[0]) if counted else jnp.ones((), jnp.float64)
+        return (jnp.sum(_moment_terms(offsets, valid, *c), axis=1), jnp.min(jnp.where(q > 0, q, jnp.inf)),
+                jnp.max(q), largest_c)
+
+    return kernel
+
+
+def _exact_moments(qmin: np.ndarray, qmax: np.ndarray, cmax: np.ndarray, width: int) -> np.ndarray:
+    """(R,) whether every order of adding each row's ``width`` terms of :func:`_moment_terms`
+    gives their exact float64 sum, from the row's smallest non-zero q ``qmin`` (float32), largest
+    q ``qmax`` and largest c_i c_j ``cmax`` (R,) each.
+
+    Every q of the row is a multiple of 2^e, the unit in the last place of ``qmin`` (a normal
+    float32), so the five columns are multiples of 2^0, 2^e, 2^(2 e + 24), 2^(2 e + 12) and
+    2^(2 e) and at most cmax times 1, qmax, qmax^2, 2^-10 qmax^2 and 2^-22 qmax^2 (|b| <
+    2^-11 q): :func:`_exact_in_any_order`'s bound for each. Rows with a subnormal q are not.
+    """
+    qmin, qmax = qmin.astype(np.float64), qmax.astype(np.float64)
+    normal = ~((qmin > 0) & (qmin < np.finfo(np.float32).tiny))
+    e = np.frexp(np.where(np.isfinite(qmin), qmin, 1.0))[1] - 24
+    top = cmax * qmax * qmax
+    bounds = [(np.zeros_like(e), cmax), (e, cmax * qmax), (2 * e + 24, top), (2 * e + 12, top / 1024),
+              (2 * e, top / 2**22)]
+    return normal & np.logical_and.reduce([largest * float(width) <= np.ldexp(1.0, unit + 53)
+                                           for unit, largest in bounds])
 
 
 def summed(parts) -> tuple:
@@ -929,16 +999,15 @@ def graph_rows(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
     """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
 
-    One chunk of rows at a time (:func:`location_rows`): the partners, their squared lengths
-    q in ``dtype`` and the sums of :func:`pair_sums`; only the partners are kept, as
+    One chunk of rows at a time (:func:`location_rows`): the partners and the sums of
+    :func:`pair_sums` (q in ``dtype``); only the partners are kept, as
     (own, sym) per chunk, for :func:`graph_norms`.
     """
     counts_ext = _counts_ext(index)
     ext = _stream.device_points(index.points, dtype)
     chunks, sums = [], []
     for own, sym in graph_rows(index, rows, r, max_nn):
-        q = pair_lengths(index.points, own, sym, dtype, ext=ext)
-        sums.append(pair_sums(q, own, sym, index.gid, counts_ext))
+        sums.append(pair_sums(index.points, own, sym, dtype, counts_ext, index.gid, ext=ext))
         chunks.append((own, sym))
     return chunks, summed(sums)
 
