@@ -267,16 +267,17 @@ def _in_ball(coords: tuple, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r
 
     q = ||u_row - u_j||^2 exactly in float64 (``coords``: the index's :func:`_columns`). The tree's distances ``dist`` (R, k), ascending
     in each row (inf after the last hit), are within a few ulps of sqrt(q), so they decide
-    every hit except those within SURE_GAP r of q = 0 (the row itself) or of q = r, where
-    the exact q does. The hits below sqrt(r (1 + SURE_GAP)) are a prefix of each row; the
-    unsure ones lie at its two ends.
+    every hit except the row itself (its first hit, q = 0) and those within SURE_GAP r of
+    q = 0 or of q = r, where the exact q does. The hits below sqrt(r (1 + SURE_GAP)) are a
+    prefix of each row; the unsure ones lie at its two ends.
     """
     lo, hi = np.sqrt(SURE_GAP * r), np.sqrt(r * (1 - SURE_GAP))
     n_near = np.sum(dist < np.sqrt(r * (1 + SURE_GAP)), axis=1)
+    own = (j[:, 0] == rows) & (n_near > 0)  # the row itself first (q = 0; the index holds no duplicate)
     unsure = []
     for low in (True, False):  # walk in from the prefix's start (q near 0) and from its end (q near r)
-        at = np.zeros(rows.size, np.int64) if low else n_near - 1
-        left = np.flatnonzero(n_near > 0)
+        at = own.astype(np.int64) if low else n_near - 1
+        left = np.flatnonzero(at < n_near)
         while left.size:
             d = dist[left, at[left]]
             left = left[(d <= lo) if low else (d >= hi)]
@@ -285,9 +286,10 @@ def _in_ball(coords: tuple, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, r
             left = left[(at[left] < n_near[left]) & (at[left] >= 0)]
     unsure = np.unique(np.concatenate(unsure))  # a hit can be near both ends when r is tiny
     valid = np.arange(dist.shape[1]) < n_near[:, None]
+    valid[:, 0] &= ~own
     q = _sq_dist(coords, rows[unsure // dist.shape[1]], j.ravel()[unsure])
     valid.ravel()[unsure] = (q > 0) & (q < r)
-    return valid, n_near - np.bincount(unsure[~valid.ravel()[unsure]] // dist.shape[1], minlength=rows.size)
+    return valid, n_near - own - np.bincount(unsure[~valid.ravel()[unsure]] // dist.shape[1], minlength=rows.size)
 
 
 def _bounded_query(index: spatial.SpatialIndex, coords: tuple, rows: np.ndarray, k: int, reach: float, r: float):
