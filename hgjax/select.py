@@ -25,7 +25,7 @@ __all__ = ["ExactSum", "key_value", "keyed_top", "kth_pair", "order_keys", "poin
 BISECTION_STEPS = 64
 DRAW_CHUNK = 1 << 16  # ids per compiled draw: a new cloud size compiles nothing
 DRAW_PART = 1 << 20  # ids per part of :func:`keyed_top`
-EXACT_PART = 1 << 20  # values per bincount of :meth:`ExactSum.of`: exact sums, temporaries that stay in cache
+EXACT_PART = 1 << 25  # values per bincount of :meth:`ExactSum.of` (its sums stay exact)
 RADIX_BITS = 16  # bits of the key resolved per histogram round of :func:`kth_pair`
 
 

@@ -634,8 +634,8 @@ def _streamed_high_pass(points: np.ndarray, idx: np.ndarray, first: np.ndarray |
     low = points.astype(wdtype)
     ext_q = _stream.device_points(low, wdtype)  # every block's kernels read the points sent once
     ext = ext_q if wdtype == points.dtype else _stream.device_points(points, points.dtype)
-    mean_q, two_var = moments(pair_sums(low, ((own[b], sym[b]) for b in _blocks(n)), wdtype, counts_ext, tie_ext,
-                                        ext=ext_q, chunk_size=chunk_size, total=n))
+    mean_q, two_var = moments(summed([pair_sums(low, own[b], sym[b], wdtype, counts_ext, tie_ext, ext=ext_q, **stream)
+                                      for b in _blocks(n)]))
     q = [pair_lengths(low, own[b], sym[b], wdtype, ext=ext_q, **stream) if wdtype != points.dtype else None
          for b in _blocks(n)]
     lp = np.concatenate([laplacian_norms(points, own[b], sym[b], q_b, counts_ext, tie_ext, mean_q, two_var,
@@ -796,87 +796,62 @@ def pair_lengths(points, own, nbr, wdtype, *, ext=None, chunk_size=None, progres
                             progress=progress)
 
 
-def pair_sums(points, chunks, wdtype, counts_ext, tie_ext, *, ext=None, chunk_size=None, total: int = 0) -> tuple:
-    """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the stored pairs (i, j) of the rows of ``chunks``.
+def pair_sums(points, own, nbr, wdtype, counts_ext, tie_ext, *, ext=None, chunk_size=None, progress=False) -> tuple:
+    """Exact sums of c_i c_j, c_i c_j q and c_i c_j q^2 over the stored pairs (i, j) of the rows ``own``.
 
-    ``chunks`` yields (own (R,), nbr (R, K)): rows and their partners, padded with
-    n = len(tie_ext) - 1; q = ||p_i - p_j||^2 in ``wdtype`` as :func:`pair_lengths` computes it
-    (``ext`` as there); ``counts_ext`` (n + 1,) the c of each row and 0 for the padding, or
-    None for one point per row; ``total`` the number of rows to come, when known (it sets the
-    chunk of the streams, :func:`hgjax._stream.chunk_rows`). Sums of several calls add up exactly.
+    ``nbr`` (R, K) holds the partners of the rows ``own`` (R,), padded with n = len(tie_ext) - 1;
+    q = ||p_i - p_j||^2 in ``wdtype`` as :func:`pair_lengths` computes it (``ext`` as there);
+    ``counts_ext`` (n + 1,) the c of each row and 0 for the padding, or None for one point per
+    row. Sums of chunks of rows add up exactly.
 
     float32 q: every (row, partner) entry counts, so over a graph whose rows are each summed
     once every undirected pair counts twice, which leaves the ratios of :func:`moments`
     exactly as they are. Each row's terms (:func:`_moment_terms`, exact in float64) are
-    summed on the device, one stream per width K, fed as ``chunks`` yields (the device sums
-    while the host builds the next rows); where every order of adding them may not give their
-    exact sum (:func:`_exact_moments`), the row's terms come back and are summed on the host.
+    summed on the device; where every order of adding them may not give their exact sum
+    (:func:`_exact_moments`), the row's terms come back and are summed on the host.
     float64 q: the terms on the host, each undirected pair once, from its end with the
     smaller ``tie_ext``.
     """
-    stream = {"ext": _stream.device_points(points, wdtype) if ext is None else ext, "chunk_size": chunk_size}
+    stream = {"ext": ext, "chunk_size": chunk_size, "progress": progress}
+    c = () if counts_ext is None else (counts_ext[own][:, None] * counts_ext[nbr],)
     if np.dtype(wdtype) != np.float32:
-        return summed([_host_pair_sums(points, own, nbr, wdtype, counts_ext, tie_ext, stream) for own, nbr in chunks])
-    streams, pushed = {}, []
+        q = pair_lengths(points, own, nbr, wdtype, **stream)
+        counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
+        qq = q[counted].astype(np.float64)
+        w = c[0][counted] if c else np.ones(qq.size)
+        wq = w * qq
+        return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
     with jax.enable_x64(True):
-        for own, nbr in chunks:
-            width = nbr.shape[1]
-            if width not in streams:
-                streams[width] = _stream.Stream(_moment_kernel(counts_ext is not None), stream["ext"],
-                                                chunk_size=chunk_size, total=total)
-            streams[width].push(own, nbr, _pair_counts(counts_ext, own, nbr))
-            pushed.append((own, nbr))
-        out = {width: s.collect() for width, s in streams.items()}
-        at, parts = dict.fromkeys(streams, 0), []
-        for own, nbr in pushed:
-            width, rows = nbr.shape[1], own.size
-            sums, qmin, qmax, cmax = (x[at[width]:at[width] + rows] for x in out[width])
-            at[width] += rows
-            slow = np.flatnonzero(~_exact_moments(qmin, qmax, cmax, width))
-            parts.append(np.delete(sums, slow, axis=0))
-            if slow.size:
-                terms = _stream.map_rows(_moment_terms, points, own[slow], nbr[slow], dtype=wdtype,
-                                         row_args=_pair_counts(counts_ext, own[slow], nbr[slow]), **stream)
-                parts.append(np.moveaxis(terms, 1, 2).reshape(-1, 7))
-    count, sum_q, *sum_q2 = np.concatenate(parts or [np.zeros((0, 7))]).T
+        sums, qmin, qmax, cmax = _stream.map_rows(_moment_kernel(bool(c)), points, own, nbr, row_args=c,
+                                                  dtype=wdtype, **stream)
+        slow = np.flatnonzero(~_exact_moments(qmin, qmax, cmax, nbr.shape[1]))
+        terms = _stream.map_rows(_moment_terms, points, own[slow], nbr[slow], row_args=tuple(x[slow] for x in c),
+                                 dtype=wdtype, **stream) if slow.size else np.zeros((0, 5, 1))
+    fast = np.ones(own.size, bool)
+    fast[slow] = False
+    count, sum_q, *sum_q2 = (np.concatenate([sums[fast, t], terms[:, t].ravel()]) for t in range(5))
     return select.ExactSum.of(count), select.ExactSum.of(sum_q), select.ExactSum.of(np.concatenate(sum_q2))
 
 
-def _pair_counts(counts_ext, own, nbr) -> tuple:
-    """(c_i c_j (R, K),) of the rows ``own`` and partners ``nbr``, or () for one point per row."""
-    return () if counts_ext is None else (counts_ext[own][:, None] * counts_ext[nbr],)
-
-
-def _host_pair_sums(points, own, nbr, wdtype, counts_ext, tie_ext, stream: dict) -> tuple:
-    """:func:`pair_sums` of float64 q: each pair once, from its end with the smaller tie, on the host."""
-    q = pair_lengths(points, own, nbr, wdtype, **stream)
-    counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
-    qq = q[counted].astype(np.float64)
-    w = _pair_counts(counts_ext, own, nbr)[0][counted] if counts_ext is not None else np.ones(qq.size)
-    wq = w * qq
-    return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
-
-
 def _moment_terms(offsets, valid, *c):
-    """(7, K) float64 terms of one row's pairs, each exact: 1, q, and q^2 in five parts,
-    a^2, 2 a b, 2 a c + b^2, 2 b c and c^2, times c_i c_j (``c`` (K,), a row argument) when
-    given; 0 for the padding.
+    """(5, K) float64 terms of one row's pairs, each exact: 1, q, a^2, 2 a b and b^2, times
+    c_i c_j (``c`` (K,), a row argument) when given; 0 for the padding.
 
-    q (float32) = a + b + c, the 8 high, middle and low significant bits of its 24, so that
-    each part of q^2 holds at most 18 significant bits (:func:`_exact_moments`).
+    q (float32) = a + b, a the float32 q with the 12 low bits of its mantissa cleared, so that
+    a^2, a b and b^2 hold at most 24 significant bits each and q^2 = a^2 + 2 a b + b^2.
     """
     q = _sq_length(offsets, valid)
-    bits = jax.lax.bitcast_convert_type(q, jnp.uint32)
-    a, ab = (jax.lax.bitcast_convert_type(bits & jnp.uint32(mask), jnp.float32) for mask in (0xFFFF0000, 0xFFFFFF00))
-    a, b, c_ = a.astype(jnp.float64), (ab - a).astype(jnp.float64), (q - ab).astype(jnp.float64)
-    terms = jnp.stack([valid.astype(jnp.float64), q.astype(jnp.float64), a * a, 2 * a * b, 2 * a * c_ + b * b,
-                       2 * b * c_, c_ * c_])
+    a = jax.lax.bitcast_convert_type(jax.lax.bitcast_convert_type(q, jnp.uint32) & jnp.uint32(0xFFFFF000),
+                                     jnp.float32)
+    b = (q - a).astype(jnp.float64)
+    a = a.astype(jnp.float64)
+    terms = jnp.stack([valid.astype(jnp.float64), q.astype(jnp.float64), a * a, 2 * a * b, b * b])
     return terms * c[0][None, :] if c else terms
 
 
 @functools.lru_cache(maxsize=None)
 def _moment_kernel(counted: bool):
-    """Per row: the sums of :func:`_moment_terms` (7,) in float64, the smallest non-zero q (inf
+    """Per row: the sums of :func:`_moment_terms` (5,) in float64, the smallest non-zero q (inf
     if none), the largest q and the largest c_i c_j (1 unless ``counted``)."""
     def kernel(offsets, valid, *c):
         q = _sq_length(offsets, valid)
@@ -893,18 +868,16 @@ def _exact_moments(qmin: np.ndarray, qmax: np.ndarray, cmax: np.ndarray, width: 
     q ``qmax`` and largest c_i c_j ``cmax`` (R,) each.
 
     Every q of the row is a multiple of 2^e, the unit in the last place of ``qmin`` (a normal
-    float32), and so are its parts: a of 2^(e + 16), b of 2^(e + 8), c of 2^e, with |b| <
-    2^-7 q and |c| < 2^-15 q. The seven columns are then multiples of 2^0, 2^e, 2^(2 e + 32),
-    2^(2 e + 24), 2^(2 e + 16), 2^(2 e + 8) and 2^(2 e), at most cmax times 1, qmax, qmax^2,
-    2^-6, 2^-13, 2^-21 and 2^-30 qmax^2: :func:`_exact_in_any_order`'s bound for each. Rows
-    with a subnormal q are not.
+    float32), so the five columns are multiples of 2^0, 2^e, 2^(2 e + 24), 2^(2 e + 12) and
+    2^(2 e) and at most cmax times 1, qmax, qmax^2, 2^-10 qmax^2 and 2^-22 qmax^2 (|b| <
+    2^-11 q): :func:`_exact_in_any_order`'s bound for each. Rows with a subnormal q are not.
     """
     qmin, qmax = qmin.astype(np.float64), qmax.astype(np.float64)
     normal = ~((qmin > 0) & (qmin < np.finfo(np.float32).tiny))
     e = np.frexp(np.where(np.isfinite(qmin), qmin, 1.0))[1] - 24
     top = cmax * qmax * qmax
-    bounds = [(np.zeros_like(e), cmax), (e, cmax * qmax)] + [(2 * e + unit, top * 2.0**-shift) for unit, shift in
-                                                             ((32, 0), (24, 6), (16, 13), (8, 21), (0, 30))]
+    bounds = [(np.zeros_like(e), cmax), (e, cmax * qmax), (2 * e + 24, top), (2 * e + 12, top / 1024),
+              (2 * e, top / 2**22)]
     return normal & np.logical_and.reduce([largest * float(width) <= np.ldexp(1.0, unit + 53)
                                            for unit, largest in bounds])
 
@@ -1028,19 +1001,17 @@ def graph_rows(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
     """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
 
-    One chunk of rows at a time (:func:`location_rows`), each streamed through :func:`pair_sums`
-    (q in ``dtype``) as it is built; the partners are kept, as (own, sym) per chunk, for
-    :func:`graph_norms`.
+    One chunk of rows at a time (:func:`location_rows`): the partners and the sums of
+    :func:`pair_sums` (q in ``dtype``); only the partners are kept, as
+    (own, sym) per chunk, for :func:`graph_norms`.
     """
-    chunks = []
-
-    def kept():
-        for chunk in graph_rows(index, rows, r, max_nn):
-            chunks.append(chunk)
-            yield chunk
-
-    sums = pair_sums(index.points, kept(), dtype, _counts_ext(index), index.gid, total=rows.size)
-    return chunks, sums
+    counts_ext = _counts_ext(index)
+    ext = _stream.device_points(index.points, dtype)
+    chunks, sums = [], []
+    for own, sym in graph_rows(index, rows, r, max_nn):
+        sums.append(pair_sums(index.points, own, sym, dtype, counts_ext, index.gid, ext=ext))
+        chunks.append((own, sym))
+    return chunks, summed(sums)
 
 
 def graph_norms(index: spatial.SpatialIndex, chunks: list, mean_q: float, two_var: float, dtype, *,
