@@ -818,17 +818,18 @@ def pair_sums(points, own, nbr, wdtype, counts_ext, tie_ext, *, ext=None, chunk_
         q = pair_lengths(points, own, nbr, wdtype, **stream)
         counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
         qq = q[counted].astype(np.float64)
-        w = c[0][counted] if c else np.ones(qq.size)
+        if not c:  # c_i c_j = 1: the same sums
+            return select.ExactSum.of([qq.size]), select.ExactSum.of(qq), select.ExactSum.of(qq * qq)
+        w = c[0][counted]
         wq = w * qq
         return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
     with jax.enable_x64(True):
         sums, qmin, qmax, cmax = _stream.map_rows(_moment_kernel(bool(c)), points, own, nbr, row_args=c,
                                                   dtype=wdtype, **stream)
-        slow = np.flatnonzero(~_exact_moments(qmin, qmax, cmax, nbr.shape[1]))
+        fast = _exact_moments(qmin, qmax, cmax, nbr.shape[1])
+        slow = np.flatnonzero(~fast)
         terms = _stream.map_rows(_moment_terms, points, own[slow], nbr[slow], row_args=tuple(x[slow] for x in c),
                                  dtype=wdtype, **stream) if slow.size else np.zeros((0, 5, 1))
-    fast = np.ones(own.size, bool)
-    fast[slow] = False
     count, sum_q, *sum_q2 = (np.concatenate([sums[fast, t], terms[:, t].ravel()]) for t in range(5))
     return select.ExactSum.of(count), select.ExactSum.of(sum_q), select.ExactSum.of(np.concatenate(sum_q2))
 
@@ -870,16 +871,15 @@ def _exact_moments(qmin: np.ndarray, qmax: np.ndarray, cmax: np.ndarray, width: 
     Every q of the row is a multiple of 2^e, the unit in the last place of ``qmin`` (a normal
     float32), so the five columns are multiples of 2^0, 2^e, 2^(2 e + 24), 2^(2 e + 12) and
     2^(2 e) and at most cmax times 1, qmax, qmax^2, 2^-10 qmax^2 and 2^-22 qmax^2 (|b| <
-    2^-11 q): :func:`_exact_in_any_order`'s bound for each. Rows with a subnormal q are not.
+    2^-11 q): :func:`_adds_exactly` for each. Rows with a subnormal q are not.
     """
-    qmin, qmax = qmin.astype(np.float64), qmax.astype(np.float64)
     normal = ~((qmin > 0) & (qmin < np.finfo(np.float32).tiny))
-    e = np.frexp(np.where(np.isfinite(qmin), qmin, 1.0))[1] - 24
+    e = _ulp_exponent(qmin)
+    qmax = qmax.astype(np.float64)
     top = cmax * qmax * qmax
     bounds = [(np.zeros_like(e), cmax), (e, cmax * qmax), (2 * e + 24, top), (2 * e + 12, top / 1024),
               (2 * e, top / 2**22)]
-    return normal & np.logical_and.reduce([largest * float(width) <= np.ldexp(1.0, unit + 53)
-                                           for unit, largest in bounds])
+    return normal & np.logical_and.reduce([_adds_exactly(unit, largest, width) for unit, largest in bounds])
 
 
 def summed(parts) -> tuple:
@@ -939,8 +939,20 @@ def _exact_in_any_order(smallest: np.ndarray, largest: np.ndarray, width: int) -
     ``width`` times the largest |term| ``largest`` (R, 3) is at most 2^(e + 53), every partial
     sum is a multiple of 2^e of magnitude at most 2^(e + 53): exactly a float64.
     """
-    unit = np.frexp(np.where(np.isfinite(smallest), smallest, 1))[1] - (np.finfo(smallest.dtype).nmant + 1)
-    return (largest * float(width) <= np.ldexp(1.0, unit + 53)).all(axis=1)
+    return _adds_exactly(_ulp_exponent(smallest), largest, width).all(axis=1)
+
+
+def _ulp_exponent(smallest: np.ndarray) -> np.ndarray:
+    """The exponent of the unit in the last place of each of ``smallest`` (in its float dtype; that
+    of 1 where not finite)."""
+    return np.frexp(np.where(np.isfinite(smallest), smallest, 1))[1] - (np.finfo(smallest.dtype).nmant + 1)
+
+
+def _adds_exactly(unit: np.ndarray, largest: np.ndarray, width: int) -> np.ndarray:
+    """Whether ``width`` integer multiples of 2^``unit``, each of magnitude at most ``largest``, add up
+    exactly in float64 in every order: every partial sum is then a multiple of 2^unit of magnitude at
+    most 2^(unit + 53)."""
+    return largest * float(width) <= np.ldexp(1.0, unit + 53)
 
 
 @functools.lru_cache(maxsize=None)
