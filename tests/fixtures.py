@@ -11,6 +11,7 @@ the per-cloud results, so a new way of calling is one more entry.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 
 import jax
 import numpy as np
@@ -21,6 +22,7 @@ import hgjax
 # one, so the last bits may differ (float32 rtol 1e-5, jax-md's float32 default; float64
 # 1e-12); infinities coincide.
 VARIANT_RTOL = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-12}
+WIDEN = 5  # sentinel columns added to the ragged batch's last cloud
 
 
 # ----------------------------------------------------------------------------- clouds
@@ -91,6 +93,11 @@ def degenerate_clouds(n=40):
 # ----------------------------------------------------------------------------- variants
 
 
+def widen(nb, extra):
+    """``nb`` with ``extra`` more sentinel columns (the same neighbourhoods, a larger K)."""
+    return dataclasses.replace(nb, idx=np.pad(nb.idx, ((0, 0), (0, extra)), constant_values=nb.points.shape[0]))
+
+
 def stack(nbs):
     """A batch of equal-shape neighbourhoods (leading axis: the cloud)."""
     return jax.tree.map(lambda *x: np.stack(x), *nbs)
@@ -110,9 +117,16 @@ def _one_name(fn):
     return variant
 
 
+def _same_shapes(nbs):
+    """The number of leading clouds whose neighbourhoods have the first cloud's shapes."""
+    return next((i for i, nb in enumerate(nbs) if nb.idx.shape != nbs[0].idx.shape), len(nbs))
+
+
 def _jit_argument(fn, nbs):
+    """jit with the neighbourhoods as an argument, over the leading clouds of the first cloud's
+    shapes: one compilation (a new N is a new program, which the ragged variant compiles)."""
     f = jax.jit(_one_name(fn))
-    return [f(nb) for nb in nbs]
+    return [f(nb) for nb in nbs[:_same_shapes(nbs)]]
 
 
 def _jit_closed_over(fn, nbs):
@@ -124,16 +138,19 @@ def _jit_closed_over(fn, nbs):
 
 def _vmap(fn, nbs):
     """jit(vmap) over the leading clouds that share the first cloud's shapes (plain stacking)."""
-    n = next((i for i, nb in enumerate(nbs) if nb.idx.shape != nbs[0].idx.shape), len(nbs))
+    n = _same_shapes(nbs)
     out = jax.jit(jax.vmap(_one_name(fn)))(stack(nbs[:n]))
     return [out[i] for i in range(n)]
 
 
 def _ragged(fn, nbs):
-    """jit(vmap) over :func:`hgjax.stack_neighbourhoods` of every cloud (any N and K), each cloud's
-    result cut to its own rows."""
-    out = jax.jit(jax.vmap(_one_name(fn)))(hgjax.stack_neighbourhoods(nbs))
-    return [out[i, :nb.points.shape[0]] for i, nb in enumerate(nbs)]
+    """jit(vmap) over :func:`hgjax.stack_neighbourhoods` of every cloud, the last one widened by
+    ``WIDEN`` sentinel columns (N and K differ), each cloud's result cut to its own rows; the
+    padding rows must be 0 (scores) or weigh 0."""
+    out = np.asarray(jax.jit(jax.vmap(_one_name(fn)))(hgjax.stack_neighbourhoods([*nbs[:-1], widen(nbs[-1], WIDEN)])))
+    counts = [nb.points.shape[0] for nb in nbs]
+    assert all((out[i, n:] == 0).all() for i, n in enumerate(counts)), "a padding row is not 0"
+    return [out[i, :n] for i, n in enumerate(counts)]
 
 
 VARIANTS = {"eager": _eager, "jit_argument": _jit_argument, "jit_closed_over": _jit_closed_over, "vmap": _vmap,

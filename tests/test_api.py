@@ -96,9 +96,10 @@ def test_shared_soft_scores_are_the_same_functions():
 @pytest.mark.parametrize("method,static,fn", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
 def test_variants_agree(method, static, fn, dtype):
     """eager == jit(argument) == jit(closed-over) == vmap over a batch == vmap over a ragged batch
-    (a third, smaller cloud), in float32 and float64."""
+    (a third cloud, smaller, with exact duplicates and more columns), in float32 and float64."""
     capacity = None if hgjax.METHODS[method].kind == "knn" else CAPACITY  # a batch shares one K
-    clouds = [cloud(1, dtype=dtype), cloud(2, dtype=dtype), cloud(3, n=N - 61, dtype=dtype)]
+    third = cloud(3, n=N - 81, dtype=dtype)
+    clouds = [cloud(1, dtype=dtype), cloud(2, dtype=dtype), np.concatenate([third, third[:20]])]  # 20 duplicates
     nbs = [hgjax.neighbourhoods(c, method, capacity=capacity, **static) for c in clouds]
     rtol = path_rtol(method, static, dtype)
     # Weights lie in [0, 1] and soft_select's threshold moves them all: an absolute tolerance.

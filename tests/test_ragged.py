@@ -1,11 +1,12 @@
 """Ragged batches: hgjax.stack_neighbourhoods pads clouds of any N and K into one vmappable batch.
 
-Every scoring method, float32 and float64: row b of ``jit(vmap(score))`` equals cloud b's own
-eager ``hgjax.score`` on its first N_b rows (path tolerances of tests/test_api.py: the batch
-runs the traced path, the per-cloud call the host stream), and its padding rows score 0; soft
-weights carry ratio x N_b of mass per cloud, weigh exactly 0 on padding rows, and a loss through
-them has finite gradients that are exactly 0 on padding rows. The clouds differ in shape, N
-(320 with exact duplicates, 450, 640) and K (one cloud widened by sentinel columns).
+Row b of a batched score equals cloud b's own on its first N_b rows, and its padding rows
+score 0, for every score, soft score and soft weights in float32 and float64: the ragged
+variant of the variants matrix (tests/fixtures.py, run by tests/test_api.py). Here: the
+batch's layout, LHF's order statistics over the real rows only, and soft weights that carry
+ratio x N_b of mass per cloud, weigh exactly 0 on padding rows, and give a loss through them
+finite gradients that are exactly 0 on padding rows. The clouds differ in shape, N (320 with
+exact duplicates, 450, 640) and K (one cloud widened by sentinel columns).
 """
 
 from __future__ import annotations
@@ -18,15 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import fixtures
 import hgjax
 
 SCORING = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
 RATIO = 0.2
-PATH_RTOL = {np.dtype(np.float32): 1e-6, np.dtype(np.float64): 1e-12}
-# MSS's perceptron (first-layer weights up to about 10) carries a last-bit difference of its
-# float32 features into the score a few times over: the variants' float32 tolerance.
-MSS_F32_RTOL = 1e-5
-WIDEN = 5  # sentinel columns added to cloud 1: K differs between clouds whatever the method
 
 
 @functools.lru_cache(maxsize=None)
@@ -40,20 +37,15 @@ def clouds() -> tuple[np.ndarray, ...]:
             flat + 0.002 * rng.standard_normal(flat.shape))
 
 
-def widen(nb: hgjax.Neighbourhoods, extra: int) -> hgjax.Neighbourhoods:
-    return dataclasses.replace(nb, idx=np.pad(nb.idx, ((0, 0), (0, extra)), constant_values=nb.points.shape[0]))
-
-
 @functools.lru_cache(maxsize=None)
 def ragged(method: str, dtype: np.dtype):
     """(per-cloud neighbourhoods, their stacked batch) of :func:`clouds` for a method.
 
-    Cloud 1 enters the batch widened by WIDEN sentinel columns; the per-cloud neighbourhoods
-    returned (the references) are the builder's own, so the comparison also shows that
-    widening K changes no score.
+    Cloud 1 enters the batch widened by ``fixtures.WIDEN`` sentinel columns; the per-cloud
+    neighbourhoods returned (the references) are the builder's own.
     """
     nbs = [hgjax.neighbourhoods(p.astype(dtype), method) for p in clouds()]
-    return nbs, hgjax.stack_neighbourhoods([nbs[0], widen(nbs[1], WIDEN), nbs[2]])
+    return nbs, hgjax.stack_neighbourhoods([nbs[0], fixtures.widen(nbs[1], fixtures.WIDEN), nbs[2]])
 
 
 def soft(method):
@@ -67,22 +59,13 @@ def batched_score(method):
     return jax.jit(jax.vmap(lambda nb: hgjax.score(nb, method)))
 
 
-def assert_rows_agree(got, want, rtol):
-    """Equal infinities, finite values to ``rtol`` (atol rtol x 1e-3, as tests/test_api.py)."""
-    got, want = np.asarray(got), np.asarray(want)
-    assert got.dtype == want.dtype
-    np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
-    f = np.isfinite(want)
-    np.testing.assert_allclose(got[f], want[f], rtol=rtol, atol=rtol * 1e-3)
-
-
 # ----------------------------------------------------------------- the batch
 
 
 def test_stack_pads_rows_and_columns_with_the_sentinel_and_records_counts():
     nbs, batch = ragged("hkc", np.dtype(np.float64))
     n = [nb.points.shape[0] for nb in nbs]
-    n_max, k_max = max(n), max(nb.idx.shape[1] + WIDEN * (b == 1) for b, nb in enumerate(nbs))
+    n_max, k_max = max(n), max(nb.idx.shape[1] + fixtures.WIDEN * (b == 1) for b, nb in enumerate(nbs))
     assert batch.points.shape == (3, n_max, 3) and batch.idx.shape == (3, n_max, k_max)
     assert batch.idx.dtype == np.int32 and batch.count.dtype == np.int32 and batch.count.tolist() == n
     assert batch.method == "hkc" and batch.params == nbs[0].params and batch.first is None
@@ -120,21 +103,7 @@ def test_a_cloud_cut_from_a_batch_stacks_back_and_scores_eagerly_as_its_own():
     assert (eager[320:] == 0).all()
 
 
-# ----------------------------------------------------------------- scores: batch == per cloud
-
-
-@pytest.mark.parametrize("method", SCORING)
-def test_batched_scores_equal_each_clouds_own_scores(method, dtype):
-    nbs, batch = ragged(method, dtype)
-    got = batched_score(method)(batch)
-    columns = hgjax.METHODS[method].columns
-    assert got.shape == batch.points.shape[:2] + (() if columns is None else (columns,))
-    for b, nb in enumerate(nbs):
-        n = nb.points.shape[0]
-        want = hgjax.score(nb, method, chunk_size=1024)  # one block: less padding work
-        rtol = MSS_F32_RTOL if (method, np.dtype(dtype)) == ("mss", np.dtype(np.float32)) else PATH_RTOL[dtype]
-        assert_rows_agree(got[b, :n], want, rtol)
-        assert (np.asarray(got[b, n:]) == 0).all()
+# ----------------------------------------------------------------- soft scores: batch == per cloud
 
 
 @functools.lru_cache(maxsize=None)
