@@ -120,7 +120,9 @@ weighted_soft_score_and_grad = jax.jit(jax.value_and_grad(
 
 
 @pytest.mark.parametrize("case", sorted(degenerate_clouds()))
-def test_soft_gradients_finite_on_degenerate_clouds(case, dtype):
+def test_soft_gradients_finite_on_degenerate_clouds(case):
+    """float32 (tests/test_soft.py::test_gradients_finite_on_degenerate_clouds: every method in float64)."""
+    dtype = np.dtype(np.float32)
     pts = degenerate_clouds()[case].astype(dtype)
     nb = hgjax.neighbourhoods(pts, "mss", capacity=K)
     w = jnp.asarray(np.random.default_rng(9).random(len(pts)), dtype)
