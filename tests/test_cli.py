@@ -167,9 +167,14 @@ def test_count_keeps_exactly_m_points(capsys, tmp_path, method):
 
 
 def test_count_ratio_is_exact_for_every_size():
-    for n in range(1, 1200):
+    for n in range(1, 150):
         for m in range(1, n + 1):
             assert _validate.n_keep(n, cli.count_ratio(m, n)) == m
+    # Every count of every N below 1200 at once: n_keep's rounded ceiling of count_ratio(m, n) x n
+    # (its clamp to [1, n] cannot change a value that is m).
+    n, m = np.meshgrid(np.arange(1, 1200), np.arange(1, 1200), indexing="ij")
+    n, m = n[m <= n], m[m <= n]
+    np.testing.assert_array_equal(_validate._ceil_rounded(cli.count_ratio(m, n) * n, np), m)
     rng = np.random.default_rng(0)
     for n in [*rng.integers(1, 10**10, 3000).tolist(), 6369616873]:
         for m in (1, 2, int(rng.integers(1, n + 1)), n - 1, n):
