@@ -100,6 +100,19 @@ def test_capped_grid_rows_hit_the_cap():
     assert pairs_of(graph(p, variant="reference", max_nn=7)) == gfr_pairs(p, max_nn=7)[0]
 
 
+def test_reference_ranks_by_float32_squared_distances():
+    """The authors' graph judges q in float32: here point 0's two candidates tie in float32 (kept by
+    index: point 1), while in float64 point 2 is nearer."""
+    p = np.array([[0.7218128442764282, 0.5002991557121277, 0.6625536680221558],
+                  [0.7281467914581299, 0.5072412490844727, 0.6690453290939331],
+                  [0.7283044457435608, 0.5066331624984741, 0.6694957613945007]], dtype=np.float32)
+    q64 = ((p[1:].astype(np.float64) - p[0]) ** 2).sum(axis=1)
+    assert q64[1] < q64[0]
+    want, _ = gfr_pairs(p, max_nn=1)
+    assert want == [(0, 1), (1, 2)]
+    assert pairs_of(graph(p, variant="reference", max_nn=1)) == want
+
+
 def test_dense_balls_are_asked_once_more_only_for_their_partners():
     """A plane lattice holds about 316 points in a ball of 10 spacings: every row asks a first bounded query
     (109 columns), which decides its cut; a capped row then asks once more, bounded by its partner bound

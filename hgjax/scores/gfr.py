@@ -73,9 +73,10 @@ def _edge_weight(q, two_var):
 
 
 def _columns(p: np.ndarray, pad: bool = False) -> tuple:
-    """The x, y and z columns of ``p`` (N, 3), each contiguous (N,), or (N + 1,) with NaN at N
-    (no point) if ``pad``."""
-    return tuple(np.append(p[:, axis], np.nan) if pad else np.ascontiguousarray(p[:, axis]) for axis in range(3))
+    """The x, y and z columns of ``p`` (N, 3) in its dtype, each contiguous (N,), or (N + 1,) with
+    NaN at N (no point) if ``pad``."""
+    nan = np.full(1, np.nan, p.dtype)
+    return tuple(np.append(p[:, axis], nan) if pad else np.ascontiguousarray(p[:, axis]) for axis in range(3))
 
 
 def _sq_dist(coords: tuple, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -142,22 +143,40 @@ def _pairs(p: np.ndarray, index: spatial.SpatialIndex, r: float, max_nn: int):
 
     Each row i ranks its candidates j > i (0 < q_ij < r, q in the dtype of ``p``) by
     (q_ij, j) and keeps the first ``max_nn``. ``index`` is built on ``p`` (global ids i, j).
+    A bounded k-nearest query per row (k = 2 max_nn + 9 first: about half of a row's hits have
+    j > i) decides the row when it holds the whole ball, or when its ``max_nn``-th candidate
+    lies closer than every point beyond the query (by more than q's rounding); the other rows
+    ask again with twice the columns. A dense ball (the authors' radius can hold thousands of
+    points) is enumerated whole only for the rows with fewer than ``max_nn`` candidates j > i.
     """
-    n = p.shape[0]
+    n, m = p.shape[0], index.n
     bound = np.sqrt(r) * (1 + 1e-5)  # q is rounded (float32 for the reference); exact test below
-    rows, cols, coords = [], [], _columns(p)
-    for part in _chunks(index, bound):
-        hits = cKDTree(index.points[part]).sparse_distance_matrix(index.tree, bound, output_type="ndarray")
-        i, j = index.gid[part[hits["i"]]], index.gid[hits["j"]]
-        i, j = i[i < j], j[i < j]
-        q = _sq_dist(coords, i, j)
-        keep = (q > 0) & (q < r)
-        i, j, q = i[keep], j[keep], q[keep]
-        order = np.lexsort((j, q, i))
-        i, j = i[order], j[order]
-        rank = np.arange(i.size) - np.searchsorted(i, i)
-        rows.append(i[rank < max_nn])
-        cols.append(j[rank < max_nn])
+    coords = _columns(p, pad=True)  # row n: no point
+    gid = np.minimum(index.gid, n)  # global ids; the tree's "no hit" m -> n
+    first_k = min(2 * max_nn + 9, m)
+    rows, cols = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    for batch in np.array_split(np.arange(m), max(1, m * first_k // PAIR_BUDGET)):
+        queue = [(np.arange(batch.size), first_k)]
+        while queue:
+            todo, k = queue.pop()
+            dist, j = index.tree.query(index.points[batch[todo]], k=k, distance_upper_bound=bound, workers=-1)
+            dist, g = dist.reshape(todo.size, k), gid[j.reshape(todo.size, k)]
+            own = gid[batch[todo]]
+            q = _sq_dist(coords, own[:, None], g)  # NaN where no hit
+            q = np.where((g > own[:, None]) & (q > 0) & (q < r), q, np.inf)
+            done = (g[:, -1] == n) | (k >= m)  # the query holds every point within the bound
+            capped = np.flatnonzero(~done & (np.isfinite(q).sum(axis=1) >= max_nn))
+            if capped.size:  # decided when no point beyond the query can rank before the cut
+                cut = np.partition(q[capped], max_nn - 1, axis=1)[:, max_nn - 1]
+                done[capped] = cut < (dist[capped, -1] * (1 - 1e-5)) ** 2
+            q, g, own = q[done], g[done], own[done]
+            order = np.lexsort((g, q), axis=1)[:, :max_nn]
+            q, g = np.take_along_axis(q, order, axis=1), np.take_along_axis(g, order, axis=1)
+            keep = np.isfinite(q)
+            rows.append(np.repeat(own, keep.sum(axis=1)))
+            cols.append(g[keep])
+            if not done.all():
+                queue.append((todo[~done], min(2 * k, m)))
     return _split_keys(np.concatenate(rows) * n + np.concatenate(cols), n)
 
 
