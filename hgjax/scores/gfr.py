@@ -50,7 +50,6 @@ import itertools
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial import cKDTree
 
 from hgjax import _registry, _stream, _validate, select, spatial
 from hgjax.scores import _common
@@ -126,16 +125,6 @@ def _reference_radius(p32: np.ndarray, index: spatial.SpatialIndex) -> float:
     if min_nn == max_nn:
         max_nn = 5 * min_nn
     return float(min(10 * min_nn, 2 * max_nn))
-
-
-def _chunks(index: spatial.SpatialIndex, bound: float):
-    """The index's rows (spatial order), cut into runs of about PAIR_BUDGET candidates."""
-    counts = index.tree.query_ball_point(index.points, bound, return_length=True, workers=-1)
-    total = np.cumsum(counts)
-    cuts = np.searchsorted(total, np.arange(PAIR_BUDGET, total[-1], PAIR_BUDGET))
-    for part in np.split(np.arange(index.n), np.unique(cuts)):
-        if part.size:
-            yield part
 
 
 def _pairs(p: np.ndarray, index: spatial.SpatialIndex, r: float, max_nn: int):
