@@ -45,7 +45,6 @@ the same length) every weight is exp(-inf) = 0, the limit of the formula, and ev
 from __future__ import annotations
 
 import functools
-import itertools
 
 import jax
 import jax.numpy as jnp
@@ -181,14 +180,12 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
 
     Each location a keeps its ``max_nn`` nearest other locations b with 0 < q_ab < r
     (squared distances in float64), ranked by (q_ab, gid_b) (``index.gid``); the pair {a, b}
-    is stored when either end keeps the other. A first pass queries the ball of every row that
-    can be a wanted row's partner (those in the wanted rows' bounding box grown by sqrt(r)) and
-    keeps each row's cut, the (q, gid) of its ``max_nn``-th partner (none below the cap),
-    and the balls of the wanted rows it saw whole. Every partner b of a capped row a has
-    q_ab <= max(cut_a, cut_b), so the second pass asks the other wanted rows only for the
-    points within :func:`_partner_bounds` of them, not for their whole balls (on a dense
-    scan, balls hold several times ``max_nn`` points). Then, per chunk of wanted rows, the
-    partners b of a with (q_ab, gid_b) <= cut_a or (q_ab, gid_a) <= cut_b are kept.
+    is stored when either end keeps the other. Every location that can keep a wanted one (those
+    in the wanted rows' bounding box grown by sqrt(r)) asks one bounded k-nearest query
+    (:func:`_kept`), which yields what it keeps; a wanted row's partners are what it keeps and
+    the rows that keep it, found by reading the kept lists the other way (only a capped row can
+    leave out a row that keeps it). No row asks for its whole ball: on a dense scan, balls hold
+    several times ``max_nn`` points.
 
     Args:
       index: a deduplicated :class:`hgjax.spatial.SpatialIndex`.
@@ -197,10 +194,10 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
       want: (n,) bool, the rows whose partners are returned.
 
     Yields:
-      (own, sym): own (C,) wanted rows, sym (C, W) int32 their partners (in the order of
-      the ball query), padded with n, W a power of two or 1.5 times one, chosen per group
-      of rows (:func:`_by_width`); the chunks' own together are ``flatnonzero(want)``, each
-      in one chunk.
+      (own, sym): own (C,) wanted rows, ascending, sym (C, W) int32 their partners (what the
+      row keeps in the order of its query, then the rows that keep it by row), padded with n,
+      W a power of two or 1.5 times one, chosen per group of rows (:func:`_by_width`); the
+      chunks' own together are ``flatnonzero(want)``, each in one chunk.
     """
     m = index.n
     if r <= 0:  # no pair: every wanted row alone
@@ -208,28 +205,83 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         return
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
     coords = _columns(index.points, pad=True)  # row n: no point
-    near = _near_box(index.points, want, np.sqrt(r) * (1 + 1e-5))
-    balls = [_balls(index, coords, batch, r, max_nn, want[batch], cut_q, cut_g)
-             for batch in np.array_split(np.flatnonzero(near), max(1, near.sum() * min(max_nn + 9, m) // PAIR_BUDGET))]
+    near = np.flatnonzero(_near_box(index.points, want, np.sqrt(r) * (1 + 1e-5)))
+    batches = np.array_split(near, max(1, near.size * min(max_nn + 9, m) // PAIR_BUDGET))
+    kept = [_kept(index, coords, batch, r, max_nn, cut_q, cut_g) for batch in batches]
     capped = np.isfinite(cut_q)
-    balls = [(whole, np.concatenate(later, dtype=np.int64)) for whole, later in balls]
-    # the rows left out are no wanted row's partners: they bound no partner
-    grid = _cut_grid(index.points, np.where(near, cut_q, 0.0), r) if any(later.size for _, later in balls) else None
-    for at in range(len(balls)):
-        whole, later = balls[at]
-        balls[at] = None
-        near = _near_balls(index, coords, later, _partner_bounds(grid, r, later), cut_q[later], r, max_nn)
-        own, counts, cols = _in_row_order(*(np.concatenate(w + n) for w, n in zip(whole, near)))
-        line = np.repeat(np.arange(own.size), counts)
-        test = np.flatnonzero(capped[own][line] | capped[cols])  # only a capped end may drop a pair
-        if test.size:
-            a, b = own[line[test]], cols[test]
-            q = _sq_dist(coords, a, b)
-            kept = np.ones(cols.size, bool)
-            kept[test] = (_ranks_before(q, index.gid[b], cut_q[a], cut_g[a])
-                          | _ranks_before(q, index.gid[a], cut_q[b], cut_g[b]))
-            counts, cols = np.bincount(line[kept], minlength=own.size), cols[kept]
+    back = [_kept_back(coords, index.gid, *part, want & capped, cut_q, cut_g) for part in kept]
+    back_row, back_col = (np.concatenate(x) for x in zip(*back))
+    by_row = np.argsort(back_row, kind="stable")
+    back_row, back_col = back_row[by_row], back_col[by_row]
+    for at, batch in enumerate(batches):
+        own, counts, cols = kept[at]
+        kept[at] = None
+        lo, hi = np.searchsorted(back_row, [batch[0], batch[-1] + 1]) if batch.size else (0, 0)
+        if hi > lo or not want[own].all() or (own[1:] < own[:-1]).any():
+            line = np.concatenate([np.repeat(own, counts), back_row[lo:hi]])
+            cols = np.concatenate([cols, back_col[lo:hi].astype(np.int32)])
+            mine = want[line]
+            line, cols = line[mine], cols[mine]
+            order = np.argsort(line, kind="stable")
+            line, cols = line[order], cols[order]
+            own = batch[want[batch]]
+            counts = np.diff(np.searchsorted(line, own, side="right"), prepend=0)
         yield from _by_width(own, counts, cols, m)
+
+
+def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int,
+          cut_q: np.ndarray, cut_g: np.ndarray):
+    """What the rows ``batch`` keep, and the cuts of the capped ones (written into ``cut_q``, ``cut_g``).
+
+    A bounded k-nearest query per row (k = max_nn + 9), asked again for the rows whose
+    query came back full while more may lie within r (:func:`_grown` columns), until the row's
+    whole ball is seen or, for a capped row, its cut (the (q, gid) of its ``max_nn``-th
+    partner) is certain: no tie with it beyond the query.
+
+    Args:
+      coords: the index's x, y and z (n + 1,) each, NaN at n.
+
+    Returns:
+      (own (C,), counts (C,), cols (P,) int32): the rows of ``batch`` in the order they were
+      decided, and each one's kept partners in the order of its query.
+    """
+    m, gid = index.n, index.gid
+    bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
+    own, counts, cols = [], [], []
+    queue = [(np.arange(batch.size), min(max_nn + 9, m))]
+    while queue:
+        todo, k = queue.pop()
+        rows = batch[todo]
+        dist, j, valid, n_valid, seen = _bounded_query(index, coords, rows, k, bound, r)
+        done = seen.copy()
+        capped = np.flatnonzero(n_valid >= max_nn)
+        if capped.size:
+            q = _sq_dist(coords, rows[capped][:, None], j[capped])  # NaN where the query found no point
+            inside = valid[capped]
+            cq, cg = _cut(np.where(inside, q, np.inf), gid[j[capped]], max_nn)
+            # the cut is certain unless a tie with it may lie beyond a full query
+            sure = seen[capped] | (cq < np.max(q, axis=1, where=inside, initial=-np.inf))
+            at = capped[sure]
+            cut_q[rows[at]], cut_g[rows[at]] = cq[sure], cg[sure]
+            done[at] = True
+            valid[at] = inside[sure] & _ranks_before(q[sure], gid[j[at]], cq[sure, None], cg[sure, None])
+            n_valid[at] = max_nn
+        own.append(rows[done])
+        counts.append(n_valid[done])
+        cols.append(j[valid if done.all() else valid & done[:, None]].astype(np.int32))
+        queue += _grown(todo[~done], k, bound, dist[~done, -1], m)
+    return np.concatenate(own), np.concatenate(counts), np.concatenate(cols)
+
+
+def _kept_back(coords: tuple, gid: np.ndarray, own: np.ndarray, counts: np.ndarray, cols: np.ndarray,
+               ask: np.ndarray, cut_q: np.ndarray, cut_g: np.ndarray):
+    """(b (E,), a (E,)): the pairs where row a keeps row b, b is one of the rows ``ask`` (n,) bool
+    (wanted and capped) and b does not keep a (a ranks after b's cut)."""
+    pick = np.flatnonzero(ask[cols]) if ask.any() else np.zeros(0, np.int64)
+    a = own[np.searchsorted(np.cumsum(counts), pick, side="right")]
+    b = cols[pick].astype(np.int64)
+    one = ~_ranks_before(_sq_dist(coords, a, b), gid[a], cut_q[b], cut_g[b])
+    return b[one], a[one]
 
 
 def _near_box(u: np.ndarray, want: np.ndarray, reach: float) -> np.ndarray:
@@ -311,49 +363,6 @@ def _bounded_query(index: spatial.SpatialIndex, coords: tuple, rows: np.ndarray,
     return dist, j, valid, n_valid, ~((j[:, -1] < m) & (k < m))
 
 
-def _balls(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int, want: np.ndarray,
-           cut_q: np.ndarray, cut_g: np.ndarray):
-    """The cuts of the rows ``batch`` (written into ``cut_q``, ``cut_g``) and the wanted rows' balls seen whole.
-
-    A bounded k-nearest query per row, asked again for the rows whose query came back full
-    while more may lie within r (:func:`_grown` columns), until the row's cut is certain (no
-    tie with it beyond the query) or its whole ball is seen.
-
-    Args:
-      coords: the index's x, y and z (n + 1,) each, NaN at n.
-
-    Returns:
-      ((own (C,), counts (C,), cols (P,) int32): the wanted rows whose whole ball was seen,
-      each one's ball by distance; later (L,): the other wanted rows, all capped).
-    """
-    m, gid = index.n, index.gid
-    bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
-    own, counts, cols, later = [], [], [], [np.zeros(0, np.int64)]
-    queue = [(np.arange(batch.size), min(max_nn + 9, m))]
-    while queue:
-        todo, k = queue.pop()
-        rows = batch[todo]
-        dist, j, valid, n_valid, seen = _bounded_query(index, coords, rows, k, bound, r)
-        done = seen.copy()
-        capped = np.flatnonzero(n_valid >= max_nn)
-        if capped.size:
-            q = _sq_dist(coords, rows[capped][:, None], j[capped])  # NaN where the query found no point
-            inside = valid[capped]
-            cq, cg = _cut(np.where(inside, q, np.inf), gid[j[capped]], max_nn)
-            # the cut is certain unless a tie with it may lie beyond a full query
-            sure = seen[capped] | (cq < np.max(q, axis=1, where=inside, initial=-np.inf))
-            cut_q[rows[capped[sure]]], cut_g[rows[capped[sure]]] = cq[sure], cg[sure]
-            done[capped[sure]] = True
-            defer = capped[sure & ~seen[capped]]
-            later.append(rows[defer[want[todo[defer]]]])
-        keep = seen & want[todo]
-        own.append(rows[keep])
-        counts.append(n_valid[keep])
-        cols.append(j[valid if keep.all() else valid & keep[:, None]].astype(np.int32))
-        queue += _grown(todo[~done], k, bound, dist[~done, -1], m)
-    return (own, counts, cols), later
-
-
 def _cut(q: np.ndarray, g: np.ndarray, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
     """(cut_q, cut_g) (R,): each row's ``max_nn``-th (q, g) pair in (q, g) order.
 
@@ -383,83 +392,6 @@ def _grown(todo: np.ndarray, k: int, bound: float, last: np.ndarray, m: int) -> 
     grown = np.minimum(np.ceil(1.25 * k * (bound / last) ** 2), m)
     grown = np.minimum(np.maximum(2 * k, 1 << np.frexp(grown - 1)[1].astype(np.int64)), m)
     return [(todo[grown == g], int(g)) for g in np.unique(grown)]
-
-
-def _cut_grid(u: np.ndarray, cut_q: np.ndarray, r: float):
-    """The locations' cuts on a grid of side sqrt(r), for :func:`_partner_bounds`: (key (n,) each
-    location's cell, dims (3,), cells (C,) the occupied cells ascending, reach (C,) the largest
-    min(cut, r) of each), or None where the grid would not fit int64 cell keys."""
-    side = np.sqrt(r) * (1 + 1e-6)
-    lo = u.min(axis=0)
-    dims = np.floor((u.max(axis=0) - lo) / side) + 3
-    if np.prod(dims) >= 2.0 ** 62:
-        return None
-    dims = dims.astype(np.int64)
-    cell = np.floor((u - lo) / side).astype(np.int64) + 1
-    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    order = np.argsort(key)
-    sorted_key = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
-    return key, dims, sorted_key[starts], np.maximum.reduceat(np.minimum(cut_q, r)[order], starts)
-
-
-def _partner_bounds(grid, r: float, rows: np.ndarray) -> np.ndarray:
-    """(R,) a squared distance within which every partner of each of the ``rows`` lies.
-
-    A partner b of a has q_ab <= max(cut_a, cut_b), and b lies in one of the 27 cells of the
-    ``grid`` (:func:`_cut_grid`, side sqrt(r)) around a's cell: the bound is the largest
-    min(cut, r) over the locations of those cells. r where there is no grid.
-    """
-    if grid is None:
-        return np.full(rows.size, r)
-    key, dims, cells, reach = grid
-    bound = np.zeros(rows.size)
-    for shift in itertools.product((-1, 0, 1), repeat=3):
-        near = key[rows] + (shift[0] * dims[1] + shift[1]) * dims[2] + shift[2]
-        at = np.minimum(np.searchsorted(cells, near), cells.size - 1)
-        bound = np.maximum(bound, np.where(cells[at] == near, reach[at], 0.0))
-    return bound
-
-
-def _near_balls(index: spatial.SpatialIndex, coords: tuple, rows: np.ndarray, bound: np.ndarray, cut: np.ndarray,
-                r: float, max_nn: int):
-    """(own, counts, cols) as :func:`_balls`' whole balls, for ``rows``: each row's points with
-    0 < q < r within its squared ``bound`` at least.
-
-    Rows are grouped by bounds within 2^(1/8) and by the number of columns first asked, about
-    ``max_nn`` bound / ``cut`` (the row's cut: points within q grow about like q on a surface),
-    in steps of 2^(1/4); full queries are asked again (:func:`_grown`).
-    """
-    tiny = np.finfo(np.float64).tiny
-    level = np.ceil(8 * np.log2(np.maximum(bound, tiny)))
-    wide = np.ceil(4 * np.log2(1.25 * max_nn * bound / np.maximum(cut, tiny) + 9))
-    m = index.n
-    own, counts, cols = [rows[:0]], [np.zeros(0, np.int64)], [np.zeros(0, np.int32)]
-    groups = np.unique(np.stack([level, wide]), axis=1)
-    for lev, wid in groups.T:
-        group = rows[(level == lev) & (wide == wid)]
-        reach = np.sqrt(min(r, 2.0 ** (lev / 8) * (1 + 1e-9))) * (1 + 1e-5)
-        queue = [(np.arange(group.size), int(min(max(2.0 ** (wid / 4), max_nn + 9), m)))]
-        while queue:
-            todo, k = queue.pop()
-            part = group[todo]
-            dist, j, valid, n_valid, seen = _bounded_query(index, coords, part, k, reach, r)
-            own.append(part[seen])
-            counts.append(n_valid[seen])
-            cols.append((j[valid] if seen.all() else j[seen][valid[seen]]).astype(np.int32))
-            queue += _grown(todo[~seen], k, reach, dist[~seen, -1], m)
-    return own, counts, cols
-
-
-def _in_row_order(own: np.ndarray, counts: np.ndarray, cols: np.ndarray):
-    """(own, counts, cols) of rows given in any order, with each row's cols, sorted by row."""
-    order = np.argsort(own, kind="stable")
-    if (order[1:] < order[:-1]).any():
-        starts = np.cumsum(counts) - counts
-        cols = cols[np.repeat(starts[order], counts[order]) + np.arange(cols.size)
-                    - np.repeat(np.cumsum(counts[order]) - counts[order], counts[order])]
-        own, counts = own[order], counts[order]
-    return own, counts, cols
 
 
 def graph_params(variant: str, radius_factor: float | None, max_nn: int) -> tuple[str, float | None, int]:
