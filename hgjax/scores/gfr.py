@@ -276,10 +276,16 @@ def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: floa
 def _kept_back(coords: tuple, gid: np.ndarray, own: np.ndarray, counts: np.ndarray, cols: np.ndarray,
                ask: np.ndarray, cut_q: np.ndarray, cut_g: np.ndarray):
     """(b (E,), a (E,)): the pairs where row a keeps row b, b is one of the rows ``ask`` (n,) bool
-    (wanted and capped) and b does not keep a (a ranks after b's cut)."""
-    pick = np.flatnonzero(ask[cols]) if ask.any() else np.zeros(0, np.int64)
-    a = own[np.searchsorted(np.cumsum(counts), pick, side="right")]
-    b = cols[pick].astype(np.int64)
+    (wanted and capped) and b does not keep a (a ranks after b's cut).
+
+    A pair a keeps has q_ab <= cut_a, and b leaves a out only when q_ab >= cut_b: only the pairs
+    with cut_b <= cut_a (inf for an uncapped a) are measured.
+    """
+    if not ask.any():
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    line = np.repeat(np.arange(own.size), counts)
+    pick = np.flatnonzero(ask[cols] & (cut_q[cols] <= cut_q[own][line]))
+    a, b = own[line[pick]], cols[pick].astype(np.int64)
     one = ~_ranks_before(_sq_dist(coords, a, b), gid[a], cut_q[b], cut_g[b])
     return b[one], a[one]
 
