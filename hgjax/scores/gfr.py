@@ -283,9 +283,13 @@ def _kept_back(coords: tuple, gid: np.ndarray, own: np.ndarray, counts: np.ndarr
     """
     if not ask.any():
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    line = np.repeat(np.arange(own.size), counts)
-    pick = np.flatnonzero(ask[cols] & (cut_q[cols] <= cut_q[own][line]))
-    a, b = own[line[pick]], cols[pick].astype(np.int64)
+    pick = np.flatnonzero(ask[cols])
+    # each picked pair's row: a binary search when few pairs are picked, else every pair's row repeated
+    line = (np.repeat(np.arange(own.size), counts)[pick] if 4 * pick.size > cols.size
+            else np.searchsorted(np.cumsum(counts), pick, side="right"))
+    a, b = own[line], cols[pick].astype(np.int64)
+    close = cut_q[b] <= cut_q[a]
+    a, b = a[close], b[close]
     one = ~_ranks_before(_sq_dist(coords, a, b), gid[a], cut_q[b], cut_g[b])
     return b[one], a[one]
 
