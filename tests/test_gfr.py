@@ -113,6 +113,19 @@ def test_reference_ranks_by_float32_squared_distances():
     assert pairs_of(graph(p, variant="reference", max_nn=1)) == want
 
 
+def exact_location_graph(index, r, max_nn):
+    """(stored, inside) (n, n) bool of a deduplicated index, from all pair distances: each location keeps its
+    ``max_nn`` nearest with 0 < q < r by (q, global id), a pair is stored when either end keeps the other."""
+    d2 = ((index.points[:, None] - index.points[None]) ** 2).sum(axis=-1)
+    inside = (0 < d2) & (d2 < r)
+    by_gid = np.argsort(index.gid[:index.n])
+    order = np.argsort(np.where(inside, d2, np.inf)[:, by_gid], axis=1, kind="stable")
+    keeps = np.zeros_like(inside)
+    np.put_along_axis(keeps, by_gid[order[:, :max_nn]], True, axis=1)
+    keeps &= inside
+    return keeps | keeps.T, inside
+
+
 @pytest.mark.parametrize("max_nn", [gfr_module.MAX_NN, 69])
 def test_dense_balls_are_asked_once(max_nn):
     """A plane lattice holds about 316 points in a ball of 10 spacings: every row asks one bounded query
@@ -139,17 +152,33 @@ def test_dense_balls_are_asked_once(max_nn):
     again = sum(n for _, n in asked[1:])
     assert again == 0 if max_nn == gfr_module.MAX_NN else 0.5 * index.n < again < index.n
     got = {(int(a), int(b)) for own, sym in rows for a, row in zip(own, sym) for b in row[row < index.n]}
-    # the exact graph from all pair distances: each row keeps its MAX_NN nearest by (q, global id)
-    d2 = ((index.points[:, None] - index.points[None]) ** 2).sum(axis=-1)
-    inside = (0 < d2) & (d2 < r)
+    stored, inside = exact_location_graph(index, r, max_nn)
     assert inside.sum(axis=1).max() > 300
-    by_gid = np.argsort(index.gid[:index.n])
-    order = np.argsort(np.where(inside, d2, np.inf)[:, by_gid], axis=1, kind="stable")
-    ranked = by_gid[order[:, :max_nn]]
-    keeps = np.zeros_like(inside)
-    np.put_along_axis(keeps, ranked, True, axis=1)
-    keeps &= inside
-    assert got == {(int(a), int(b)) for a, b in zip(*np.nonzero(keeps | keeps.T))}
+    assert got == {(int(a), int(b)) for a, b in zip(*np.nonzero(stored))}
+
+
+@pytest.mark.parametrize("max_nn", [7, 40])
+def test_any_rows_in_small_batches_get_their_partners_in_the_whole_graph(monkeypatch, max_nn):
+    """The rows of a subset (a scattered one and a corner), built in batches of a few rows each, get the
+    partners the whole graph gives them: every row of a dense jittered lattice is capped, and the rows that
+    keep a wanted row lie in other batches as often as in its own."""
+    rng = np.random.default_rng(5)
+    pts = np.column_stack([grid((40, 40)) + rng.normal(0, 0.2, (1600, 2)), rng.normal(0, 0.05, 1600)])
+    index = spatial.SpatialIndex(pts, dedupe=True)
+    r = gfr_module.squared_radius(gfr_module.RADIUS_FACTOR, spatial.sample_stats(index))
+
+    def partners(want):
+        return {int(a): sorted(row[row < index.n].tolist()) for own, sym in
+                gfr_module.location_rows(index, r, max_nn, want) for a, row in zip(own, sym)}
+
+    stored, inside = exact_location_graph(index, r, max_nn)
+    assert (inside.sum(axis=1) > max_nn).all()  # every row capped
+    assert (stored.sum(axis=1) > max_nn).mean() > 0.3  # many also kept by rows they do not keep
+    monkeypatch.setattr(gfr_module, "PAIR_BUDGET", 40 * (max_nn + 9))  # batches of about 40 rows
+    for want in (rng.random(index.n) < 0.3, (index.points[:, :2] < 12).all(axis=1)):
+        got = partners(want)
+        assert sorted(got) == np.flatnonzero(want).tolist()
+        assert got == {a: np.flatnonzero(stored[a]).tolist() for a in got}
 
 
 @pytest.mark.parametrize("cloud", [uniform_cloud(500), box_surface(500, 0)],
