@@ -159,7 +159,7 @@ def test_dense_balls_are_asked_once(max_nn):
 
 @pytest.mark.parametrize("max_nn", [7, 40])
 def test_any_rows_in_small_batches_get_their_partners_in_the_whole_graph(monkeypatch, max_nn):
-    """The rows of a subset (a scattered one and a corner), built in batches of a few rows each, get the
+    """The rows of a subset (a scattered one, a corner, none), built in batches of a few rows each, get the
     partners the whole graph gives them: every row of a dense jittered lattice is capped, and the rows that
     keep a wanted row lie in other batches as often as in its own."""
     rng = np.random.default_rng(5)
@@ -175,7 +175,7 @@ def test_any_rows_in_small_batches_get_their_partners_in_the_whole_graph(monkeyp
     assert (inside.sum(axis=1) > max_nn).all()  # every row capped
     assert (stored.sum(axis=1) > max_nn).mean() > 0.3  # many also kept by rows they do not keep
     monkeypatch.setattr(gfr_module, "PAIR_BUDGET", 40 * (max_nn + 9))  # batches of about 40 rows
-    for want in (rng.random(index.n) < 0.3, (index.points[:, :2] < 12).all(axis=1)):
+    for want in (rng.random(index.n) < 0.3, (index.points[:, :2] < 12).all(axis=1), np.zeros(index.n, bool)):
         got = partners(want)
         assert sorted(got) == np.flatnonzero(want).tolist()
         assert got == {a: np.flatnonzero(stored[a]).tolist() for a in got}

@@ -200,7 +200,7 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
       chunks' own together are ``flatnonzero(want)``, each in one chunk.
     """
     m = index.n
-    if r <= 0:  # no pair: every wanted row alone
+    if r <= 0 or not want.any():  # no pair: every wanted row alone (if any)
         yield np.flatnonzero(want), np.full((int(want.sum()), 1), m, dtype=np.int32)
         return
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
