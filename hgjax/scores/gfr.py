@@ -256,15 +256,13 @@ def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: floa
         done = seen.copy()
         capped = np.flatnonzero(n_valid >= max_nn)
         if capped.size:
-            q = _sq_dist(coords, rows[capped][:, None], j[capped])  # NaN where the query found no point
-            inside = valid[capped]
-            cq, cg = _cut(np.where(inside, q, np.inf), gid[j[capped]], max_nn)
+            cq, cg, keep, reach = _cut(coords, gid, rows[capped], dist[capped], j[capped], valid[capped], max_nn)
             # the cut is certain unless a tie with it may lie beyond a full query
-            sure = seen[capped] | (cq < np.max(q, axis=1, where=inside, initial=-np.inf))
+            sure = seen[capped] | (dist[capped, -1] > reach)
             at = capped[sure]
             cut_q[rows[at]], cut_g[rows[at]] = cq[sure], cg[sure]
             done[at] = True
-            valid[at] = inside[sure] & _ranks_before(q[sure], gid[j[at]], cq[sure, None], cg[sure, None])
+            valid[at] = keep[sure]
             n_valid[at] = max_nn
         own.append(rows[done])
         counts.append(n_valid[done])
@@ -373,22 +371,43 @@ def _bounded_query(index: spatial.SpatialIndex, coords: tuple, rows: np.ndarray,
     return dist, j, valid, n_valid, ~((j[:, -1] < m) & (k < m))
 
 
-def _cut(q: np.ndarray, g: np.ndarray, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
-    """(cut_q, cut_g) (R,): each row's ``max_nn``-th (q, g) pair in (q, g) order.
+def _cut(coords: tuple, gid: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: np.ndarray, valid: np.ndarray,
+         max_nn: int) -> tuple:
+    """The cuts of capped rows: each row's ``max_nn``-th valid hit in (q, gid) order, and its hits up to it.
 
-    ``q`` (R, k) squared distances, inf where no hit, at least ``max_nn`` finite per row;
-    ``g`` (R, k) the hits' global ids. A partition finds the max_nn-th q; only rows where
-    it is tied and more than one of its ties ranks before the cut sort their tied ids.
+    The hits of a bounded query come in ascending tree distance, within a few ulps of sqrt(q),
+    so the max_nn-th valid hit in (q, gid) order lies within ulps of the tree distance d of
+    the max_nn-th valid column. A hit beyond SURE_GAP (relative) of d lies on its side of the
+    cut whatever the rounding: only the hits within that gap (a run of columns, most often
+    one) are measured exactly and ranked by (q, gid).
+
+    Args:
+      coords: the index's :func:`_columns` (padded); gid: (n + 1,) global ids.
+      rows: (C,) capped rows; dist, j, valid: (C, k) their hits (:func:`_bounded_query`),
+        at least ``max_nn`` valid in each row.
+
+    Returns:
+      (cut_q (C,), cut_g (C,), keep (C, k) bool: the ``max_nn`` hits ranked at or before the
+      cut, reach (C,): a tree distance beyond which every point ranks after the cut).
     """
-    cut_q = np.partition(q, max_nn - 1, axis=1)[:, max_nn - 1]
-    at = q == cut_q[:, None]
-    need = max_nn - np.count_nonzero(q < cut_q[:, None], axis=1)  # the cut is the need-th tie by id
-    tied = np.where(at, g, np.iinfo(np.int64).max)
-    cut_g = tied.min(axis=1)
-    deep = np.flatnonzero(need > 1)
-    if deep.size:
-        cut_g[deep] = np.sort(tied[deep], axis=1)[np.arange(deep.size), need[deep] - 1]
-    return cut_q, cut_g
+    c, k = dist.shape
+    line = np.arange(c)
+    d = dist[line, np.argmax(np.cumsum(valid, axis=1) >= max_nn, axis=1)]
+    reach = d * (1 + SURE_GAP)
+    keep = valid & (dist < (d * (1 - SURE_GAP))[:, None])
+    near = valid & ~keep & (dist <= reach[:, None])
+    first = np.argmax(near, axis=1)
+    span = first[:, None] + np.arange(int((k - np.argmax(near[:, ::-1], axis=1) - first).max()))
+    cols = np.minimum(span, k - 1)
+    inside = np.take_along_axis(near, cols, axis=1) & (span < k)
+    hit = np.take_along_axis(j, cols, axis=1)
+    q = np.where(inside, _sq_dist(coords, rows[:, None], hit), np.inf)
+    g = np.where(inside, gid[hit], np.iinfo(np.int64).max)
+    at = np.take_along_axis(np.lexsort((g, q), axis=1), (max_nn - 1 - keep.sum(axis=1))[:, None], axis=1)[:, 0]
+    cut_q, cut_g = q[line, at], g[line, at]
+    won = inside & _ranks_before(q, g, cut_q[:, None], cut_g[:, None])
+    keep[np.nonzero(won)[0], cols[won]] = True
+    return cut_q, cut_g, keep, reach
 
 
 def _grown(todo: np.ndarray, k: int, bound: float, last: np.ndarray, m: int) -> list:
