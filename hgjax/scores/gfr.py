@@ -879,7 +879,9 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
     was cut nor on the order of its columns (:func:`row_sums`). float32 flows are summed on
     the device (in float64, JAX's x64 mode on for the kernel only), where every order gives
     the exact sum; only the rows where it may not (:func:`row_sums`' bound) come back as
-    flows to be added in order on the host. ``counts_ext`` as :func:`pair_sums`.
+    flows to be added in order on the host. float64 flows are added one by one on the device
+    (:func:`_ordered_sum_kernel`), each row's partners sorted by ``tie_ext`` first.
+    ``counts_ext`` as :func:`pair_sums`.
     """
     acc = np.promote_types(dtype, wdtype)
     args = (np.asarray(mean_q, acc), np.asarray(two_var, acc))
@@ -892,7 +894,12 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
                                                      nbr, row_args=q_arg + c, **stream)
         slow = np.flatnonzero(~_exact_in_any_order(smallest, largest, nbr.shape[1]))
     else:
-        lp, slow = np.zeros((own.size, 3)), np.arange(own.size)
+        order = np.argsort(tie_ext[nbr], axis=1, kind="stable")
+        nbr = np.take_along_axis(nbr, order, axis=1)
+        c = () if counts_ext is None else (counts_ext[nbr],)
+        lp = _stream.map_rows(_ordered_sum_kernel(q is None, counts_ext is not None, np.dtype(wdtype)), points, own,
+                              nbr, row_args=tuple(np.take_along_axis(a, order, axis=1) for a in q_arg) + c, **stream)
+        slow = np.zeros(0, np.int64)
     if slow.size:
         kernel = _own_summed_flow if q is None else _summed_flow_kernel(np.dtype(wdtype))
         flows = _stream.map_rows(kernel, points, own[slow], nbr[slow], row_args=tuple(a[slow] for a in q_arg), **stream)
@@ -943,6 +950,25 @@ def _device_sum_kernel(q_own: bool, counted: bool):
     return kernel
 
 
+@functools.lru_cache(maxsize=None)
+def _ordered_sum_kernel(q_own: bool, counted: bool, wdtype):
+    """The flow kernel of :func:`laplacian_norms` summed on the device in the order of its columns: the
+    terms c_j f_ij in float64 added one by one (3,), as :func:`row_sums` adds them on the host.
+
+    Row arguments: q (K,) unless ``q_own`` (q from the offsets, weights in the points' dtype, else
+    in ``wdtype``), then c (K,) float64 when ``counted``.
+    """
+    def kernel(offsets, valid, *rest):
+        *row_args, mean_q, two_var = rest
+        q = _sq_length(offsets, valid) if q_own else row_args.pop(0)
+        terms = _flow(offsets, valid, q, mean_q, two_var, offsets.dtype if q_own else wdtype).astype(jnp.float64)
+        if counted:
+            terms = row_args[0][:, None] * terms
+        return jax.lax.scan(lambda total, term: (total + term, None), jnp.zeros(3, jnp.float64), terms)[0]
+
+    return kernel
+
+
 def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: np.ndarray, counts_ext,
              tie_ext: np.ndarray) -> np.ndarray:
     """(R, 3) float64 sums over each row of the terms c_j f_ij.
@@ -950,7 +976,7 @@ def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: 
     Each sum has the bits of the terms added one by one in float64, in the order of the
     partners' ``tie_ext`` (padding columns, whose terms are 0, last). Most rows need no
     order (:func:`_exact_in_any_order`); only the others are ordered and added one by one
-    (in practice: the rows of float64 flows, and about one float32 row in 1e5).
+    (in practice about one float32 row in 1e5).
 
     Args:
       flows: (R, 3, K) f_ij, padding columns 0.
