@@ -414,10 +414,13 @@ def test_row_sums_are_the_sums_in_global_id_order(dtype, with_counts):
     assert not np.array_equal(unordered, expected)  # the order matters in some rows: the test can fail
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("with_counts", [False, True])
-def test_float32_rows_summed_on_the_device_have_the_bits_of_the_sums_in_global_id_order(with_counts):
-    """laplacian_norms sums float32 flows on the device: each row's norm has the bits of its flows added one by
-    one in global-id order, for rows exact in any order and for rows whose partners span 2^40 in distance."""
+def test_rows_summed_on_the_device_have_the_bits_of_the_sums_in_global_id_order(dtype, with_counts):
+    """laplacian_norms sums the flows on the device (float32: in any order where that is exact, else on the
+    host; float64: one by one after sorting the partners): each row's norm has the bits of its flows added one
+    by one in global-id order, for rows exact in any order and for rows whose partners span 2^40 in distance,
+    whatever the order of the row's columns."""
     rng = np.random.default_rng(11)
     n, rows, k = 400, 300, 20
     points = rng.standard_normal((n, 3)) * 2.0 ** rng.uniform(-40, 0, (n, 1))
@@ -430,10 +433,13 @@ def test_float32_rows_summed_on_the_device_have_the_bits_of_the_sums_in_global_i
         pool = np.flatnonzero(np.abs(points).max(axis=1) < 2.0**-35) if i % 2 else np.arange(n)
         width = rng.integers(0, k + 1)
         nbr[i, :width] = rng.choice(pool[pool != own[i]], width, replace=False)
-    args = (np.float32(2.0**-20), np.float32(3.0))
-    got = gfr_module.laplacian_norms(points, own, nbr, None, counts_ext, tie_ext, *args, np.float32, np.float32)
-    flows = _stream.map_rows(gfr_module._own_summed_flow, points, own, nbr, args=args, dtype=np.float32)[0]
-    flows = np.transpose(flows, (0, 2, 1)).astype(np.float64)  # the host path's float32 flows (R, K, 3)
+    args = (dtype(2.0**-20), dtype(3.0))
+    got = gfr_module.laplacian_norms(points, own, nbr, None, counts_ext, tie_ext, *args, dtype, dtype)
+    shuffled = np.take_along_axis(nbr, np.argsort(rng.random(nbr.shape), axis=1), axis=1)
+    assert np.array_equal(gfr_module.laplacian_norms(points, own, shuffled, None, counts_ext, tie_ext, *args, dtype,
+                                                     dtype), got)
+    flows = _stream.map_rows(gfr_module._own_summed_flow, points, own, nbr, args=args, dtype=dtype)[0]
+    flows = np.transpose(flows, (0, 2, 1)).astype(np.float64)  # the host path's flows (R, K, 3)
     c = np.ones(n + 1) if counts_ext is None else counts_ext
     lp = np.zeros((rows, 3))
     for i in range(rows):
