@@ -893,17 +893,17 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
             lp, smallest, largest = _stream.map_rows(_device_sum_kernel(q is None, counts_ext is not None), points, own,
                                                      nbr, row_args=q_arg + c, **stream)
         slow = np.flatnonzero(~_exact_in_any_order(smallest, largest, nbr.shape[1]))
+        if slow.size:
+            kernel = _own_summed_flow if q is None else _summed_flow_kernel(np.dtype(wdtype))
+            flows = _stream.map_rows(kernel, points, own[slow], nbr[slow], row_args=tuple(a[slow] for a in q_arg),
+                                     **stream)
+            lp[slow] = row_sums(*flows, nbr[slow], counts_ext, tie_ext)
     else:
         order = np.argsort(tie_ext[nbr], axis=1, kind="stable")
         nbr = np.take_along_axis(nbr, order, axis=1)
         c = () if counts_ext is None else (counts_ext[nbr],)
         lp = _stream.map_rows(_ordered_sum_kernel(q is None, counts_ext is not None, np.dtype(wdtype)), points, own,
                               nbr, row_args=tuple(np.take_along_axis(a, order, axis=1) for a in q_arg) + c, **stream)
-        slow = np.zeros(0, np.int64)
-    if slow.size:
-        kernel = _own_summed_flow if q is None else _summed_flow_kernel(np.dtype(wdtype))
-        flows = _stream.map_rows(kernel, points, own[slow], nbr[slow], row_args=tuple(a[slow] for a in q_arg), **stream)
-        lp[slow] = row_sums(*flows, nbr[slow], counts_ext, tie_ext)
     return np.sqrt(lp[:, 0] * lp[:, 0] + lp[:, 1] * lp[:, 1] + lp[:, 2] * lp[:, 2])
 
 
@@ -931,6 +931,17 @@ def _adds_exactly(unit: np.ndarray, largest: np.ndarray, width: int) -> np.ndarr
     return largest * float(width) <= np.ldexp(1.0, unit + 53)
 
 
+def _row_terms(offsets, valid, rest, q_own: bool, counted: bool, wdtype):
+    """One row's flows f_ij (K, 3) (weights in ``wdtype``) and its terms c_j f_ij (K, 3) in float64, for the
+    summing kernels; ``rest``: the row arguments (q (K,) unless ``q_own``, then c (K,) when ``counted``),
+    mean q and 2 var z."""
+    *row_args, mean_q, two_var = rest
+    q = _sq_length(offsets, valid) if q_own else row_args.pop(0)
+    flow = _flow(offsets, valid, q, mean_q, two_var, wdtype)
+    terms = flow.astype(jnp.float64)
+    return flow, (row_args[0][:, None] * terms if counted else terms)
+
+
 @functools.lru_cache(maxsize=None)
 def _device_sum_kernel(q_own: bool, counted: bool):
     """The float32 flow kernel of :func:`laplacian_norms` summed on the device, per row: the sum of
@@ -939,12 +950,7 @@ def _device_sum_kernel(q_own: bool, counted: bool):
     Row arguments: q (K,) unless ``q_own`` (q from the offsets), then c (K,) float64 when ``counted``.
     """
     def kernel(offsets, valid, *rest):
-        *row_args, mean_q, two_var = rest
-        q = _sq_length(offsets, valid) if q_own else row_args.pop(0)
-        flow = _flow(offsets, valid, q, mean_q, two_var, offsets.dtype)
-        terms = flow.astype(jnp.float64)
-        if counted:
-            terms = row_args[0][:, None] * terms
+        flow, terms = _row_terms(offsets, valid, rest, q_own, counted, offsets.dtype)
         return jnp.sum(terms, axis=0), _smallest_nonzero(jnp.abs(flow)), jnp.max(jnp.abs(terms), axis=0)
 
     return kernel
@@ -959,11 +965,7 @@ def _ordered_sum_kernel(q_own: bool, counted: bool, wdtype):
     in ``wdtype``), then c (K,) float64 when ``counted``.
     """
     def kernel(offsets, valid, *rest):
-        *row_args, mean_q, two_var = rest
-        q = _sq_length(offsets, valid) if q_own else row_args.pop(0)
-        terms = _flow(offsets, valid, q, mean_q, two_var, offsets.dtype if q_own else wdtype).astype(jnp.float64)
-        if counted:
-            terms = row_args[0][:, None] * terms
+        terms = _row_terms(offsets, valid, rest, q_own, counted, offsets.dtype if q_own else wdtype)[1]
         return jax.lax.scan(lambda total, term: (total + term, None), jnp.zeros(3, jnp.float64), terms)[0]
 
     return kernel
