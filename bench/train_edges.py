@@ -60,6 +60,8 @@ from hgjax.scores import mss  # noqa: E402
 FAMILIES = solids.FAMILIES + ("boxes",)
 SHEET_FAMILIES = FAMILIES + ("sheet",)  # with --sheets: folded sheets (two rectangles at one crease) too
 GRADED = (0.5, 1.0, 1.5)  # --target graded: the mean of the labels of bands this many times the default one
+MIXED_BELOW = 0.5  # --target mixed: graded targets for the clouds of less noise (spacings), band targets above
+TARGETS = {"band": 0.0, "graded": np.inf, "mixed": MIXED_BELOW}  # graded below this noise
 NOISES = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
 L2 = 1e-4
 LEARNING_RATE = 1e-2
@@ -83,9 +85,9 @@ def folded_sheet(rng: np.random.Generator) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2], [0, 5, 1], [0, 4, 5]]), process=False)
 
 
-def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, graded=False, band_factor=1.0):
+def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, graded_below=0.0, band_factor=1.0):
     """Training cloud ``i`` of the set of ``seed``: (points, edge, ignore, name, target); ``noise`` (spacings)
-    drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or with ``graded`` the mean of the
+    drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or below ``graded_below`` noise the mean of the
     edge labels of the bands ``GRADED`` times the default band (1 nearest the crease, falling to 0 at 1.5
     bands): a target that orders the points by their distance to the crease. ``band_factor`` scales the band
     of ``edge`` (1: the generators' default)."""
@@ -116,7 +118,7 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
     band *= band_factor
     points, edge, ignore = make(band)
     target = edge.astype(np.float64)
-    if graded:
+    if noise < graded_below:
         target = np.mean([make(f * band)[1] if f != 1.0 else edge for f in GRADED], axis=0)
     return points, edge, ignore, name, target
 
@@ -128,14 +130,14 @@ def cloud_features(points):
     return np.asarray(_stream.map_neighbourhoods(mss.inputs, nb, args=(noise,)))
 
 
-def dataset(n_clouds: int, seed: int, families=FAMILIES, graded=False, near=0.0):
+def dataset(n_clouds: int, seed: int, families=FAMILIES, graded_below=0.0, near=0.0):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
     ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
     (the negatives that decide the ranking about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
-        points, edge, ignore, name, target = cloud(i, seed, families=families, graded=graded)
+        points, edge, ignore, name, target = cloud(i, seed, families=families, graded_below=graded_below)
         rows = np.random.default_rng([seed, i, 1]).permutation(np.flatnonzero(~ignore))
         negatives = rows[~edge[rows]]
         if near > 0 and edge.any():
@@ -195,10 +197,10 @@ def adam(params, x, y, w, steps: int, verbose: bool = False):
     return params, losses
 
 
-def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, graded=False,
+def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, graded_below=0.0,
           near=0.0):
     """Fit the model; returns (weights as float64 NumPy arrays, losses, the training set's size)."""
-    x, y, w, _ = dataset(n_clouds, seed, families, graded, near)
+    x, y, w, _ = dataset(n_clouds, seed, families, graded_below, near)
     mean, std = x.mean(0), x.std(0) + 1e-12
     params = init(x.shape[1], seed)
     params, losses = adam(params, jnp.asarray((x - mean) / std), jnp.asarray(y), jnp.asarray(w), steps, verbose)
@@ -297,8 +299,9 @@ def main(argv=None):
                         help="folder for the weights module (default: hgjax/scores/_mss_weights.py)")
     parser.add_argument("--validate-only", action="store_true",
                         help="no training: report the shipped weights on the held-out clouds")
-    parser.add_argument("--target", choices=("band", "graded"), default="band",
-                        help="band: 1 within the edge band, else 0 (default); graded: see GRADED")
+    parser.add_argument("--target", choices=tuple(TARGETS), default="band",
+                        help="band: 1 within the edge band, else 0 (default); graded: see GRADED; mixed: graded "
+                             "below MIXED_BELOW spacings of noise, band above")
     parser.add_argument("--sheets", action="store_true", help="folded sheets as one more family (training and "
                         "held-out clouds)")
     parser.add_argument("--near", type=float, default=0.0,
@@ -308,6 +311,8 @@ def main(argv=None):
                              "('shipped' for the shipped weights)")
     parser.add_argument("--bands", type=float, nargs="+", default=[1.0],
                         help="with --validate-only: held-out label bands, in units of the default band (default 1)")
+    parser.add_argument("--per-noise", type=int, default=28,
+                        help="with --validate-only: held-out clouds per noise (default 28: 20 with edges)")
     args = parser.parse_args(argv)
     families = SHEET_FAMILIES if args.sheets else FAMILIES
     jax.config.update("jax_enable_x64", True)
@@ -315,7 +320,7 @@ def main(argv=None):
     if args.validate_only:
         folders = args.weights or ["shipped"]
         weights = [mss.weights(np.float64) if str(f) == "shipped" else load_weights(pathlib.Path(f)) for f in folders]
-        results = validate(weights, args.seed, families=families, bands=tuple(args.bands))
+        results = validate(weights, args.seed, args.per_noise, families=families, bands=tuple(args.bands))
         for folder, per_band in zip(folders, results):
             for band, metrics in per_band.items():
                 print(f"held-out synthetic clouds{' with sheets' if args.sheets else ''}, band x{band}: {folder}")
@@ -324,7 +329,7 @@ def main(argv=None):
         return
     else:
         weights, losses, rows = train(args.clouds, args.steps, args.seed, verbose=True, families=families,
-                                      graded=args.target == "graded", near=args.near)
+                                      graded_below=TARGETS[args.target], near=args.near)
         path = (args.out / "_mss_weights.py") if args.out else ROOT / "hgjax" / "scores" / "_mss_weights.py"
         write_weights(weights, path, sys.argv[1:] if argv is None else argv)
         print(f"{rows} rows, loss {losses[0]:.4f} -> {losses[-1]:.4f}, {time.time() - t0:.0f} s -> {path}")
