@@ -32,7 +32,9 @@ shipped recipe): ``--target graded`` (the target is the mean of the labels of th
 the default one, so that the logit falls with the distance to the crease), ``--sheets`` (folded sheets,
 two rectangles at one crease of 30 to 170 degrees with an open non-edge border, as one more family, in
 training and held-out clouds), ``--near F`` (a fraction F of each cloud's non-edge rows drawn within two
-spacings of an edge).
+spacings of an edge). Round 4 (bench/results/mss_candidates4.md): ``--target mixed`` (graded targets for the
+clouds of less than ``MIXED_BELOW`` spacings of noise, band targets above) and ``--per-noise`` (a larger
+held-out check).
 """
 
 from __future__ import annotations
