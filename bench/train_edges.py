@@ -33,8 +33,8 @@ the default one, so that the logit falls with the distance to the crease), ``--s
 two rectangles at one crease of 30 to 170 degrees with an open non-edge border, as one more family, in
 training and held-out clouds), ``--near F`` (a fraction F of each cloud's non-edge rows drawn within two
 spacings of an edge). Round 4 (bench/results/mss_candidates4.md): ``--target mixed`` (graded targets for the
-clouds of less than ``MIXED_BELOW`` spacings of noise, band targets above) and ``--per-noise`` (a larger
-held-out check).
+clouds of less than ``MIXED_BELOW`` spacings of noise, band targets above), ``--target blend`` (``BLEND``
+times the graded target plus the rest of the band target) and ``--per-noise`` (a larger held-out check).
 """
 
 from __future__ import annotations
@@ -63,7 +63,9 @@ FAMILIES = solids.FAMILIES + ("boxes",)
 SHEET_FAMILIES = FAMILIES + ("sheet",)  # with --sheets: folded sheets (two rectangles at one crease) too
 GRADED = (0.5, 1.0, 1.5)  # --target graded: the mean of the labels of bands this many times the default one
 MIXED_BELOW = 0.5  # --target mixed: graded targets for the clouds of less noise (spacings), band targets above
-TARGETS = {"band": 0.0, "graded": np.inf, "mixed": MIXED_BELOW}  # graded below this noise
+BLEND = 0.25  # --target blend: the graded target's share beside the band target's
+# (noise in spacings below which the target is graded, the graded target's share there)
+TARGETS = {"band": (0.0, 0.0), "graded": (np.inf, 1.0), "mixed": (MIXED_BELOW, 1.0), "blend": (np.inf, BLEND)}
 NOISES = (0.0, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
 L2 = 1e-4
 LEARNING_RATE = 1e-2
@@ -87,11 +89,12 @@ def folded_sheet(rng: np.random.Generator) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2], [0, 5, 1], [0, 4, 5]]), process=False)
 
 
-def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, graded_below=0.0, band_factor=1.0):
+def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grading=(0.0, 0.0), band_factor=1.0):
     """Training cloud ``i`` of the set of ``seed``: (points, edge, ignore, name, target); ``noise`` (spacings)
-    drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or below ``graded_below`` noise the mean of the
-    edge labels of the bands ``GRADED`` times the default band (1 nearest the crease, falling to 0 at 1.5
-    bands): a target that orders the points by their distance to the crease. ``band_factor`` scales the band
+    drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or, below ``grading = (noise,
+    share)``'s noise, ``share`` times the graded target (the mean of the edge labels of the bands ``GRADED`` times
+    the default band: 1 nearest the crease, falling to 0 at 1.5 bands, a target that orders the points by their
+    distance to the crease) plus 1 - ``share`` times ``edge``. ``band_factor`` scales the band
     of ``edge`` (1: the generators' default)."""
     rng = np.random.default_rng([seed, i])
     family = families[i % len(families)]
@@ -120,8 +123,10 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
     band *= band_factor
     points, edge, ignore = make(band)
     target = edge.astype(np.float64)
-    if noise < graded_below:
-        target = np.mean([make(f * band)[1] if f != 1.0 else edge for f in GRADED], axis=0)
+    below, share = grading
+    if noise < below:
+        graded = np.mean([make(f * band)[1] if f != 1.0 else edge for f in GRADED], axis=0)
+        target = share * graded + (1 - share) * target
     return points, edge, ignore, name, target
 
 
@@ -132,14 +137,14 @@ def cloud_features(points):
     return np.asarray(_stream.map_neighbourhoods(mss.inputs, nb, args=(noise,)))
 
 
-def dataset(n_clouds: int, seed: int, families=FAMILIES, graded_below=0.0, near=0.0):
+def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), near=0.0):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
     ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
     (the negatives that decide the ranking about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
-        points, edge, ignore, name, target = cloud(i, seed, families=families, graded_below=graded_below)
+        points, edge, ignore, name, target = cloud(i, seed, families=families, grading=grading)
         rows = np.random.default_rng([seed, i, 1]).permutation(np.flatnonzero(~ignore))
         negatives = rows[~edge[rows]]
         if near > 0 and edge.any():
@@ -199,10 +204,10 @@ def adam(params, x, y, w, steps: int, verbose: bool = False):
     return params, losses
 
 
-def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, graded_below=0.0,
+def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, grading=(0.0, 0.0),
           near=0.0):
     """Fit the model; returns (weights as float64 NumPy arrays, losses, the training set's size)."""
-    x, y, w, _ = dataset(n_clouds, seed, families, graded_below, near)
+    x, y, w, _ = dataset(n_clouds, seed, families, grading, near)
     mean, std = x.mean(0), x.std(0) + 1e-12
     params = init(x.shape[1], seed)
     params, losses = adam(params, jnp.asarray((x - mean) / std), jnp.asarray(y), jnp.asarray(w), steps, verbose)
@@ -303,7 +308,8 @@ def main(argv=None):
                         help="no training: report the shipped weights on the held-out clouds")
     parser.add_argument("--target", choices=tuple(TARGETS), default="band",
                         help="band: 1 within the edge band, else 0 (default); graded: see GRADED; mixed: graded "
-                             "below MIXED_BELOW spacings of noise, band above")
+                             "below MIXED_BELOW spacings of noise, band above; blend: BLEND x graded + "
+                             "(1 - BLEND) x band")
     parser.add_argument("--sheets", action="store_true", help="folded sheets as one more family (training and "
                         "held-out clouds)")
     parser.add_argument("--near", type=float, default=0.0,
@@ -331,7 +337,7 @@ def main(argv=None):
         return
     else:
         weights, losses, rows = train(args.clouds, args.steps, args.seed, verbose=True, families=families,
-                                      graded_below=TARGETS[args.target], near=args.near)
+                                      grading=TARGETS[args.target], near=args.near)
         path = (args.out / "_mss_weights.py") if args.out else ROOT / "hgjax" / "scores" / "_mss_weights.py"
         write_weights(weights, path, sys.argv[1:] if argv is None else argv)
         print(f"{rows} rows, loss {losses[0]:.4f} -> {losses[-1]:.4f}, {time.time() - t0:.0f} s -> {path}")
