@@ -267,16 +267,17 @@ def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(
     return out[0] if len(bands) > 1 else out[0][bands[0]]
 
 
-def validation_table(metrics) -> str:
-    """Markdown rows of :func:`validate`'s means, per noise and overall, and the clouds where the model >= EA."""
+def validation_table(metrics, digits: int = 3) -> str:
+    """Markdown rows of :func:`validate`'s means (``digits`` decimals), per noise and overall, and the clouds where
+    the model >= EA."""
     lines = ["| noise (spacings) | clouds | model MCC / AP | EA MCC / AP | model >= EA (MCC and AP) |",
              "|---|---|---|---|---|"]
     every = [r for per_noise in metrics.values() for r in per_noise]
     for noise, rows in [*metrics.items(), ("all", every)]:
         a = np.asarray(rows)
         wins = int(np.sum((a[:, 0] >= a[:, 2]) & (a[:, 1] >= a[:, 3])))
-        lines.append(f"| {noise} | {len(a)} | {a[:, 0].mean():.3f} / {a[:, 1].mean():.3f} | "
-                     f"{a[:, 2].mean():.3f} / {a[:, 3].mean():.3f} | {wins} of {len(a)} |")
+        m = [f"{x:.{digits}f}" for x in a.mean(axis=0)]
+        lines.append(f"| {noise} | {len(a)} | {m[0]} / {m[1]} | {m[2]} / {m[3]} | {wins} of {len(a)} |")
     return "\n".join(lines)
 
 
@@ -319,6 +320,7 @@ def main(argv=None):
                              "('shipped' for the shipped weights)")
     parser.add_argument("--bands", type=float, nargs="+", default=[1.0],
                         help="with --validate-only: held-out label bands, in units of the default band (default 1)")
+    parser.add_argument("--digits", type=int, default=3, help="decimals of the held-out tables (default 3)")
     parser.add_argument("--per-noise", type=int, default=28,
                         help="with --validate-only: held-out clouds per noise (default 28: 20 with edges)")
     args = parser.parse_args(argv)
@@ -332,7 +334,7 @@ def main(argv=None):
         for folder, per_band in zip(folders, results):
             for band, metrics in per_band.items():
                 print(f"held-out synthetic clouds{' with sheets' if args.sheets else ''}, band x{band}: {folder}")
-                print(validation_table(metrics), flush=True)
+                print(validation_table(metrics, args.digits), flush=True)
         print(f"{time.time() - t0:.0f} s")
         return
     else:
