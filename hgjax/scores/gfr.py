@@ -44,6 +44,7 @@ the same length) every weight is exp(-inf) = 0, the limit of the formula, and ev
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 
 import jax
@@ -1012,14 +1013,17 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 
     One chunk of rows at a time (:func:`location_rows`): the partners and the sums of
     :func:`pair_sums` (q in ``dtype``); only the partners are kept, as
-    (own, sym) per chunk, for :func:`graph_norms`.
+    (own, sym) per chunk, for :func:`graph_norms`. A chunk's sums are taken in a background
+    thread while the next chunk's partners are found (exact sums: the same in any order).
     """
     counts_ext = _counts_ext(index)
     ext = _stream.device_points(index.points, dtype)
     chunks, sums = [], []
-    for own, sym in graph_rows(index, rows, r, max_nn):
-        sums.append(pair_sums(index.points, own, sym, dtype, counts_ext, index.gid, ext=ext))
-        chunks.append((own, sym))
+    with concurrent.futures.ThreadPoolExecutor(1) as behind:
+        for own, sym in graph_rows(index, rows, r, max_nn):
+            sums.append(behind.submit(pair_sums, index.points, own, sym, dtype, counts_ext, index.gid, ext=ext))
+            chunks.append((own, sym))
+        sums = [s.result() for s in sums]
     return chunks, summed(sums)
 
 
