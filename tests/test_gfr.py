@@ -187,6 +187,22 @@ def test_reference_scores_few_exact_zeros(cloud):
     assert (scores(cloud, "reference") == 0).mean() < 0.02
 
 
+def test_a_float64_context_reaches_the_pair_sums_thread():
+    """A process with x64 off that scores inside ``with jax.enable_x64(True)`` (as a Dask worker runs a tile)
+    keeps the points of a process with x64 on: the pair sums, taken in a background thread, are float64
+    too (a thread starts with the process's setting, not the context's)."""
+    p = np.round(hgjax.eval.box_union_cloud(seed=3, n_points=2500).points * 50) / 50  # tied pair lengths
+    want = hgjax.resample(p, 0.2, method="gfr", mode="top")
+    before = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with jax.enable_x64(True):
+            got = hgjax.resample(p, 0.2, method="gfr", mode="top")
+    finally:
+        jax.config.update("jax_enable_x64", before)
+    np.testing.assert_array_equal(got, want)
+
+
 # ------------------------------------------------------------------ invariant default
 @pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid", "graded"])
 @pytest.mark.parametrize("max_nn", [100, 4])
