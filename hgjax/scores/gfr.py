@@ -1014,14 +1014,16 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
     One chunk of rows at a time (:func:`location_rows`): the partners and the sums of
     :func:`pair_sums` (q in ``dtype``); only the partners are kept, as
     (own, sym) per chunk, for :func:`graph_norms`. A chunk's sums are taken in a background
-    thread, in the caller's JAX precision, while the next chunk's partners are found.
+    thread, in the caller's JAX precision and on its default device, while the next chunk's
+    partners are found.
     """
     counts_ext = _counts_ext(index)
     ext = _stream.device_points(index.points, dtype)
-    x64 = jax.config.jax_enable_x64  # this thread's setting, a context's included: a new thread has the default
+    # this thread's settings, contexts included: a new thread has the process's
+    x64, device = jax.config.jax_enable_x64, jax.config.jax_default_device
 
     def sums_of(own, sym):
-        with jax.enable_x64(x64):
+        with jax.enable_x64(x64), jax.default_device(device):
             return pair_sums(index.points, own, sym, dtype, counts_ext, index.gid, ext=ext)
 
     chunks, sums = [], []
