@@ -209,8 +209,8 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
     near = np.flatnonzero(_near_box(index.points, want, np.sqrt(r) * (1 + 1e-5)))
     batches = np.array_split(near, max(1, near.size * min(max_nn + 9, m) // PAIR_BUDGET))
     kept = [_kept(index, coords, batch, r, max_nn, cut_q, cut_g) for batch in batches]
-    capped = np.isfinite(cut_q)
-    back = [_kept_back(coords, index.gid, *part, want & capped, cut_q, cut_g) for part in kept]
+    ask = want & np.isfinite(cut_q)  # the wanted rows that are capped
+    back = [_kept_back(coords, index.gid, *part, ask, cut_q, cut_g) for part in kept]
     back_row, back_col = (np.concatenate(x) for x in zip(*back))
     by_row = np.argsort(back_row, kind="stable")
     back_row, back_col = back_row[by_row], back_col[by_row]
