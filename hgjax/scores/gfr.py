@@ -206,9 +206,10 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         return
     cut_q, cut_g = np.full(m, np.inf), np.zeros(m, np.int64)
     coords = _columns(index.points, pad=True)  # row n: no point
-    near = np.flatnonzero(_near_box(index.points, want, np.sqrt(r) * (1 + 1e-5)))
+    bound = np.sqrt(r) * (1 + 1e-5)  # a tree distance beyond every q < r (the exact test: _in_ball)
+    near = np.flatnonzero(_near_box(index.points, want, bound))
     batches = np.array_split(near, max(1, near.size * min(max_nn + 9, m) // PAIR_BUDGET))
-    kept = [_kept(index, coords, batch, r, max_nn, cut_q, cut_g) for batch in batches]
+    kept = [_kept(index, coords, batch, r, bound, max_nn, cut_q, cut_g) for batch in batches]
     ask = want & np.isfinite(cut_q)  # the wanted rows that are capped
     back = [_kept_back(coords, index.gid, *part, ask, cut_q, cut_g) for part in kept]
     back_row, back_col = (np.concatenate(x) for x in zip(*back))
@@ -230,7 +231,7 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         yield from _by_width(own, counts, cols, m)
 
 
-def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, max_nn: int,
+def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, bound: float, max_nn: int,
           cut_q: np.ndarray, cut_g: np.ndarray):
     """What the rows ``batch`` keep, and the cuts of the capped ones (written into ``cut_q``, ``cut_g``).
 
@@ -241,13 +242,13 @@ def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: floa
 
     Args:
       coords: the index's x, y and z (n + 1,) each, NaN at n.
+      bound: the tree distance the queries are bounded by, a hair above sqrt(r).
 
     Returns:
       (own (C,), counts (C,), cols (P,) int32): the rows of ``batch`` in the order they were
       decided, and each one's kept partners in the order of its query.
     """
     m, gid = index.n, index.gid
-    bound = np.sqrt(r) * (1 + 1e-5)  # exact q < r test below
     own, counts, cols = [], [], []
     queue = [(np.arange(batch.size), min(max_nn + 9, m))]
     while queue:
