@@ -220,15 +220,39 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         kept[at] = None
         lo, hi = np.searchsorted(back_row, [batch[0], batch[-1] + 1]) if batch.size else (0, 0)
         if hi > lo or not want[own].all() or (own[1:] < own[:-1]).any():
-            line = np.concatenate([np.repeat(own, counts), back_row[lo:hi]])
-            cols = np.concatenate([cols, back_col[lo:hi].astype(np.int32)])
-            mine = want[line]
-            line, cols = line[mine], cols[mine]
-            order = np.argsort(line, kind="stable")
-            line, cols = line[order], cols[order]
-            own = batch[want[batch]]
-            counts = np.diff(np.searchsorted(line, own, side="right"), prepend=0)
+            own, counts, cols = _merged(batch, want, own, counts, cols, back_row[lo:hi], back_col[lo:hi])
         yield from _by_width(own, counts, cols, m)
+
+
+def _merged(batch: np.ndarray, want: np.ndarray, own: np.ndarray, counts: np.ndarray, cols: np.ndarray,
+            back_row: np.ndarray, back_col: np.ndarray):
+    """The wanted rows of ``batch`` with each one's partners: what it keeps, then the rows that keep it.
+
+    Args:
+      batch: (B,) ascending rows; want: (n,) bool.
+      own, counts, cols: :func:`_kept`'s rows (every row of ``batch``, in any order), their counts and
+        kept partners.
+      back_row, back_col: (E,) the pairs of :func:`_kept_back` whose row is in ``batch``, ascending rows.
+
+    Returns:
+      (own (R,) ascending, counts (R,), cols (P,) int32), each row's partners moved to their place
+      in one scatter.
+    """
+    pos, back_pos = np.searchsorted(batch, own), np.searchsorted(batch, back_row)
+    n_back = np.bincount(back_pos, minlength=batch.size)
+    total = n_back.copy()
+    total[pos] += counts
+    keep = want[batch]
+    total[~keep] = 0
+    start = np.cumsum(total) - total
+    to = np.repeat(start[pos] - (np.cumsum(counts) - counts), counts) + np.arange(cols.size)
+    back_to = (start + total - n_back)[back_pos] + np.arange(back_row.size) - (np.cumsum(n_back) - n_back)[back_pos]
+    if not keep.all():
+        mine, back_mine = np.repeat(keep[pos], counts), keep[back_pos]
+        to, cols, back_to, back_col = to[mine], cols[mine], back_to[back_mine], back_col[back_mine]
+    out = np.empty(int(total.sum()), np.int32)
+    out[to], out[back_to] = cols, back_col
+    return batch[keep], total[keep], out
 
 
 def _kept(index: spatial.SpatialIndex, coords: tuple, batch: np.ndarray, r: float, bound: float, max_nn: int,
@@ -283,13 +307,10 @@ def _kept_back(coords: tuple, gid: np.ndarray, own: np.ndarray, counts: np.ndarr
     """
     if not ask.any():
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pick = np.flatnonzero(ask[cols])
-    # each picked pair's row: a binary search when few pairs are picked, else every pair's row repeated
-    line = (np.repeat(np.arange(own.size), counts)[pick] if 4 * pick.size > cols.size
-            else np.searchsorted(np.cumsum(counts), pick, side="right"))
-    a, b = own[line], cols[pick].astype(np.int64)
-    close = cut_q[b] <= cut_q[a]
-    a, b = a[close], b[close]
+    line = np.repeat(np.arange(own.size, dtype=np.int32), counts)  # each pair's row
+    # NaN at the rows not asked about: no comparison with it holds
+    pick = np.flatnonzero(np.take(np.where(ask, cut_q, np.nan), cols) <= cut_q[own][line])
+    a, b = own[line[pick]], cols[pick].astype(np.int64)
     one = ~_ranks_before(_sq_dist(coords, a, b), gid[a], cut_q[b], cut_g[b])
     return b[one], a[one]
 
@@ -394,7 +415,11 @@ def _cut(coords: tuple, gid: np.ndarray, rows: np.ndarray, dist: np.ndarray, j: 
     """
     c, k = dist.shape
     line = np.arange(c)
-    d = dist[line, np.argmax(np.cumsum(valid, axis=1) >= max_nn, axis=1)]
+    # the max_nn-th valid column: column max_nn where the row itself comes first and every hit after it is valid
+    at = np.full(c, max_nn)
+    holes = np.flatnonzero(valid[:, 0] | ~valid[:, 1:max_nn + 1].all(axis=1))
+    at[holes] = np.argmax(np.cumsum(valid[holes], axis=1) >= max_nn, axis=1)
+    d = dist[line, at]
     reach = d * (1 + SURE_GAP)
     keep = valid & (dist < (d * (1 - SURE_GAP))[:, None])
     near = valid & ~keep & (dist <= reach[:, None])
