@@ -307,10 +307,17 @@ def _kept_back(coords: tuple, gid: np.ndarray, own: np.ndarray, counts: np.ndarr
     """
     if not ask.any():
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    line = np.repeat(np.arange(own.size, dtype=np.int32), counts)  # each pair's row
-    # NaN at the rows not asked about: no comparison with it holds
-    pick = np.flatnonzero(np.take(np.where(ask, cut_q, np.nan), cols) <= cut_q[own][line])
-    a, b = own[line[pick]], cols[pick].astype(np.int64)
+    asked = np.take(ask, cols)
+    if 4 * np.count_nonzero(asked) > cols.size:  # most pairs (a dense scan): every pair's row repeated
+        line = np.repeat(np.arange(own.size, dtype=np.int32), counts)
+        pick = np.flatnonzero(asked & (np.take(cut_q, cols) <= cut_q[own][line]))
+        line = line[pick]
+    else:  # few: their rows by a binary search
+        pick = np.flatnonzero(asked)
+        line = np.searchsorted(np.cumsum(counts), pick, side="right")
+        close = np.take(cut_q, cols[pick]) <= cut_q[own[line]]
+        pick, line = pick[close], line[close]
+    a, b = own[line], cols[pick].astype(np.int64)
     one = ~_ranks_before(_sq_dist(coords, a, b), gid[a], cut_q[b], cut_g[b])
     return b[one], a[one]
 
