@@ -933,7 +933,8 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
                                      **stream)
             lp[slow] = row_sums(*flows, nbr[slow], counts_ext, tie_ext)
     else:
-        order = np.argsort(tie_ext[nbr], axis=1, kind="stable")
+        # a row's partners are distinct locations (distinct ties), its padding all n: one order whatever the sort
+        order = np.argsort(tie_ext[nbr], axis=1)
         nbr = np.take_along_axis(nbr, order, axis=1)
         c = () if counts_ext is None else (counts_ext[nbr],)
         lp = _stream.map_rows(_ordered_sum_kernel(q is None, counts_ext is not None, np.dtype(wdtype)), points, own,
