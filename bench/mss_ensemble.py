@@ -1,6 +1,6 @@
 """Round 5 of bench/results/mss_candidates5.md: MSS with its logit the mean of several models' logits.
 
-The shipped model is the first member; ``--weights`` adds the others (folders holding a ``_mss_weights.py``
+The shipped model is the first member (unless ``--without-shipped``); ``--weights`` adds the others (folders holding a ``_mss_weights.py``
 written by ``bench/train_edges.py --out``). ``held-out``: :func:`train_edges.validate` of the shipped model, of
 each other member alone and of the ensemble, on the held-out clouds of seed 0 (no member trained on them);
 ``labelled``: ``bench/edge_detectors.py`` (MSS and EA) with MSS the ensemble. The package is not changed: the
@@ -9,6 +9,8 @@ ensemble replaces ``mss.mlp`` and ``mss.weights`` inside this process only.
 Usage (from the repository root):
   python bench/mss_ensemble.py held-out --weights /tmp/mss_c6 --per-noise 112
   python bench/mss_ensemble.py labelled --weights /tmp/mss_c6 --out /tmp/c6_labelled
+  python bench/mss_ensemble.py labelled --weights /tmp/mss_c7 --without-shipped --out /tmp/c7_labelled
+                                                # one candidate model alone
 """
 
 from __future__ import annotations
@@ -45,18 +47,19 @@ def main(argv=None):
     parser.add_argument("check", choices=("held-out", "labelled"))
     parser.add_argument("--weights", type=pathlib.Path, nargs="+", required=True,
                         help="folders of the members beside the shipped model")
+    parser.add_argument("--without-shipped", action="store_true", help="the --weights members only")
     parser.add_argument("--per-noise", type=int, default=112, help="held-out clouds per noise (default 112)")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("/tmp"),
                         help="labelled: folder of the edge_detectors.md written")
     args = parser.parse_args(argv)
     shipped = [np.asarray(a) for a in mss.weights(np.float64)]
     others = [train_edges.load_weights(f) for f in args.weights]
-    ensemble = shipped + [a for w in others for a in w]
+    ensemble = ([] if args.without_shipped else shipped) + [a for w in others for a in w]
     with mock.patch.object(mss, "mlp", mean_logit):
         if args.check == "held-out":
             jax.config.update("jax_enable_x64", True)
             models = [shipped, *others, ensemble]
-            names = ["shipped", *map(str, args.weights), f"ensemble of {len(models) - 1}"]
+            names = ["shipped", *map(str, args.weights), f"ensemble of {len(ensemble) // PARTS}"]
             for name, result in zip(names, train_edges.validate(models, 0, args.per_noise)):
                 print(f"held-out synthetic clouds, band x1: {name}")
                 print(train_edges.validation_table(result[1.0], 4), flush=True)

@@ -35,6 +35,8 @@ training and held-out clouds), ``--near F`` (a fraction F of each cloud's non-ed
 spacings of an edge). Round 4 (bench/results/mss_candidates4.md): ``--target mixed`` (graded targets for the
 clouds of less than ``MIXED_BELOW`` spacings of noise, band targets above), ``--target blend`` (``BLEND``
 times the graded target plus the rest of the band target) and ``--per-noise`` (a larger held-out check).
+Round 5 (bench/results/mss_candidates5.md): ``--varying`` (clouds of varying density, ``hgjax.eval.solids``'
+third regime, in the cycle of the mesh families' regimes).
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ from hgjax.eval import solids  # noqa: E402
 from hgjax.scores import mss  # noqa: E402
 
 FAMILIES = solids.FAMILIES + ("boxes",)
+REGIMES = hgjax.eval.REGIMES  # the training clouds' sampling, in turn; with --varying: solids.MESH_REGIMES
 SHEET_FAMILIES = FAMILIES + ("sheet",)  # with --sheets: folded sheets (two rectangles at one crease) too
 GRADED = (0.5, 1.0, 1.5)  # --target graded: the mean of the labels of bands this many times the default one
 MIXED_BELOW = 0.5  # --target mixed: graded targets for the clouds of less noise (spacings), band targets above
@@ -89,7 +92,8 @@ def folded_sheet(rng: np.random.Generator) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, np.array([[0, 1, 3], [0, 3, 2], [0, 5, 1], [0, 4, 5]]), process=False)
 
 
-def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grading=(0.0, 0.0), band_factor=1.0):
+def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grading=(0.0, 0.0), band_factor=1.0,
+          regimes=REGIMES):
     """Training cloud ``i`` of the set of ``seed``: (points, edge, ignore, name, target); ``noise`` (spacings)
     drawn from ``NOISES`` unless given. ``target`` is ``edge`` as floats, or, below ``grading = (noise,
     share)``'s noise, ``share`` times the graded target (the mean of the edge labels of the bands ``GRADED`` times
@@ -98,14 +102,15 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
     of ``edge`` (1: the generators' default)."""
     rng = np.random.default_rng([seed, i])
     family = families[i % len(families)]
-    regime = hgjax.eval.REGIMES[(i // len(families)) % 2]
+    regime = regimes[(i // len(families)) % len(regimes)]
     drawn = float(NOISES[int(rng.integers(len(NOISES)))])
     noise = drawn if noise is None else noise
     kind = solids.NOISE_KINDS[int(rng.integers(2))]
     n = int(rng.integers(*N_POINTS))
     shape_seed = int(rng.integers(1 << 30))
-    band = hgjax.eval.synthetic.DEFAULT_DELTA if regime == "random" else hgjax.eval.synthetic.GRID_DELTA
+    band = hgjax.eval.synthetic.GRID_DELTA if regime == "grid" else hgjax.eval.synthetic.DEFAULT_DELTA
     if family == "boxes":
+        regime = "grid" if regime == "grid" else "random"  # box unions come in the two uniform regimes
         def make(delta):
             c = hgjax.eval.box_union_cloud(seed=shape_seed, n_points=n, rotate=True, noise=noise, regime=regime,
                                            delta=delta)
@@ -119,7 +124,7 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
             c = solids.mesh_cloud(mesh, n_points=n, seed=shape_seed, regime=regime, noise=noise, noise_kind=kind,
                                   delta=delta)
             return c.points, c.edge_mask, c.ignore
-        name = f"{'grid-' if regime == 'grid' else ''}{family}{shape_seed} p={noise} {kind}"
+        name = f"{'' if regime == 'random' else regime + '-'}{family}{shape_seed} p={noise} {kind}"
     band *= band_factor
     points, edge, ignore = make(band)
     target = edge.astype(np.float64)
@@ -137,14 +142,14 @@ def cloud_features(points):
     return np.asarray(_stream.map_neighbourhoods(mss.inputs, nb, args=(noise,)))
 
 
-def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), near=0.0):
+def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), near=0.0, regimes=REGIMES):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
     ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
     (the negatives that decide the ranking about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
-        points, edge, ignore, name, target = cloud(i, seed, families=families, grading=grading)
+        points, edge, ignore, name, target = cloud(i, seed, families=families, grading=grading, regimes=regimes)
         rows = np.random.default_rng([seed, i, 1]).permutation(np.flatnonzero(~ignore))
         negatives = rows[~edge[rows]]
         if near > 0 and edge.any():
@@ -205,9 +210,9 @@ def adam(params, x, y, w, steps: int, verbose: bool = False):
 
 
 def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, grading=(0.0, 0.0),
-          near=0.0):
+          near=0.0, regimes=REGIMES):
     """Fit the model; returns (weights as float64 NumPy arrays, losses, the training set's size)."""
-    x, y, w, _ = dataset(n_clouds, seed, families, grading, near)
+    x, y, w, _ = dataset(n_clouds, seed, families, grading, near, regimes)
     mean, std = x.mean(0), x.std(0) + 1e-12
     params = init(x.shape[1], seed)
     params, losses = adam(params, jnp.asarray((x - mean) / std), jnp.asarray(y), jnp.asarray(w), steps, verbose)
@@ -227,7 +232,7 @@ def mcc_at_e(scores, labels) -> float:
     return float((tp * tn - fp * fn) / den) if den > 0 else 0.0
 
 
-def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,)):
+def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,), regimes=REGIMES):
     """Held-out synthetic metrics: {band: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}}, or a list of
     those for a list of models (``weights`` a list of weight lists, the features computed once).
 
@@ -244,14 +249,15 @@ def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(
     for noise in VALIDATION_NOISES:
         rows = [{b: [] for b in bands} for _ in models]
         for i in range(per_noise):
-            points, edge, ignore, _, _ = cloud(i, seed + HELD_OUT, noise, families)
+            points, edge, ignore, _, _ = cloud(i, seed + HELD_OUT, noise, families, regimes=regimes)
             if not edge[~ignore].any():
                 continue
             x = jnp.asarray(cloud_features(points))
             scores = [np.asarray(logits(p, x)) for p in models]
             ea = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "ea"), "ea"))
             for b in bands:
-                e, ig = (edge, ignore) if b == 1.0 else cloud(i, seed + HELD_OUT, noise, families, band_factor=b)[1:3]
+                e, ig = (edge, ignore) if b == 1.0 else cloud(i, seed + HELD_OUT, noise, families, band_factor=b,
+                                                              regimes=regimes)[1:3]
                 keep = ~(ignore | ig)
                 y = e[keep]
                 if not y.any():
@@ -313,6 +319,8 @@ def main(argv=None):
                              "(1 - BLEND) x band")
     parser.add_argument("--sheets", action="store_true", help="folded sheets as one more family (training and "
                         "held-out clouds)")
+    parser.add_argument("--varying", action="store_true", help="clouds of varying density as a third regime of the "
+                        "mesh families (training and held-out clouds; box unions stay uniform)")
     parser.add_argument("--near", type=float, default=0.0,
                         help="fraction of the non-edge rows drawn within two spacings of an edge (default 0)")
     parser.add_argument("--weights", type=pathlib.Path, nargs="+", default=None,
@@ -325,26 +333,29 @@ def main(argv=None):
                         help="with --validate-only: held-out clouds per noise (default 28: 20 with edges)")
     args = parser.parse_args(argv)
     families = SHEET_FAMILIES if args.sheets else FAMILIES
+    regimes = solids.MESH_REGIMES if args.varying else REGIMES
     jax.config.update("jax_enable_x64", True)
     t0 = time.time()
     if args.validate_only:
         folders = args.weights or ["shipped"]
         weights = [mss.weights(np.float64) if str(f) == "shipped" else load_weights(pathlib.Path(f)) for f in folders]
-        results = validate(weights, args.seed, args.per_noise, families=families, bands=tuple(args.bands))
+        results = validate(weights, args.seed, args.per_noise, families=families, bands=tuple(args.bands),
+                           regimes=regimes)
+        kind = "".join([" with sheets"] * args.sheets + [" with varying density"] * args.varying)
         for folder, per_band in zip(folders, results):
             for band, metrics in per_band.items():
-                print(f"held-out synthetic clouds{' with sheets' if args.sheets else ''}, band x{band}: {folder}")
+                print(f"held-out synthetic clouds{kind}, band x{band}: {folder}")
                 print(validation_table(metrics, args.digits), flush=True)
         print(f"{time.time() - t0:.0f} s")
         return
     else:
         weights, losses, rows = train(args.clouds, args.steps, args.seed, verbose=True, families=families,
-                                      grading=TARGETS[args.target], near=args.near)
+                                      grading=TARGETS[args.target], near=args.near, regimes=regimes)
         path = (args.out / "_mss_weights.py") if args.out else ROOT / "hgjax" / "scores" / "_mss_weights.py"
         write_weights(weights, path, sys.argv[1:] if argv is None else argv)
         print(f"{rows} rows, loss {losses[0]:.4f} -> {losses[-1]:.4f}, {time.time() - t0:.0f} s -> {path}")
     print("held-out synthetic clouds:")
-    print(validation_table(validate(weights, args.seed, families=families)), flush=True)
+    print(validation_table(validate(weights, args.seed, families=families, regimes=regimes)), flush=True)
     print(f"{time.time() - t0:.0f} s")
 
 

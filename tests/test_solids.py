@@ -24,14 +24,14 @@ def test_chamfers_crease_at_45_degrees_and_corners_at_35():
     np.testing.assert_allclose(creases, [np.rad2deg(np.arccos(np.sqrt(2 / 3))), 45.0], atol=1e-6)
 
 
-@pytest.mark.parametrize("regime", ["random", "grid"])
+@pytest.mark.parametrize("regime", solids.MESH_REGIMES)
 def test_box_labels_are_the_band_around_its_twelve_edges(regime):
     cloud = solids.mesh_cloud(trimesh.creation.box((1.0, 1.0, 1.0)), n_points=3000, seed=1, regime=regime,
                               rotate=False)
     p, h = cloud.points, cloud.resolution
     # distance to the nearest of the 12 edges of the unit cube centred at the origin
     d = np.sort(np.abs(np.abs(p) - 0.5), axis=1)[:, :2]
-    np.testing.assert_array_equal(cloud.edge_mask, np.linalg.norm(d, axis=1) <= (0.9 if regime == "random" else 1.0) * h
+    np.testing.assert_array_equal(cloud.edge_mask, np.linalg.norm(d, axis=1) <= (1.0 if regime == "grid" else 0.9) * h
                                   + 1e-12)
     assert np.abs(np.abs(p).max(axis=1) - 0.5).max() < 1e-12  # on the surface
     if regime == "grid":  # a lattice of spacing sqrt(area / N) on each face, no duplicates
@@ -39,6 +39,20 @@ def test_box_labels_are_the_band_around_its_twelve_edges(regime):
 
         nearest = cKDTree(p).query(p, k=2)[0][:, 1]
         assert nearest.min() > 0.5 * h and np.median(nearest) == pytest.approx(np.sqrt(6 / 3000))
+
+
+def test_varying_density_is_several_times_denser_on_one_side():
+    mesh = trimesh.creation.box((1.0, 1.0, 1.0))
+    cloud = solids.mesh_cloud(mesh, n_points=6000, seed=2, regime="varying", rotate=False)
+    again = solids.mesh_cloud(mesh, n_points=6000, seed=2, regime="varying", rotate=False)
+    np.testing.assert_array_equal(cloud.points, again.points)
+    assert len(np.unique(cloud.points, axis=0)) == 6000
+    shift = cloud.points.mean(axis=0)  # the box is centred at 0, and so are uniform points, about
+    direction = shift / np.linalg.norm(shift)
+    along = cloud.points @ direction
+    assert (along > 0).sum() > 1.5 * (along < 0).sum()  # 2.8 times as many on the dense half along the change
+    uniform = solids.mesh_cloud(mesh, n_points=6000, seed=2, rotate=False).points @ direction
+    assert 0.9 < (uniform > 0).sum() / (uniform < 0).sum() < 1.1
 
 
 def test_normal_noise_moves_points_along_the_faces_normals_only():

@@ -23,7 +23,9 @@ degrees between neighbouring faces) that they never reach it. A crease between
 The surface is sampled in the two regimes of :mod:`hgjax.eval.synthetic`: i.i.d. uniform
 points (``"random"``), or the positions of a square lattice laid on every plane of the mesh
 (``"grid"``: the lattice of a plane depends only on the plane, so the triangles of one flat
-face share it). Noise is Gaussian, of standard deviation ``noise`` x the clean cloud's
+face share it); or at a density that changes across the shape, as a scanner's falls with range
+(``"varying"``: of 4 N uniform points, N kept without replacement with probability proportional
+to ``DENSITY_RATIO`` ** t, t in [-1/2, 1/2] the position along a random direction). Noise is Gaussian, of standard deviation ``noise`` x the clean cloud's
 intrinsic resolution, on every coordinate (``"iso"``) or along the surface normal
 (``"normal"``); labels are those of the clean points. Everything comes from one seed.
 """
@@ -40,14 +42,16 @@ from hgjax import _validate
 from hgjax.eval.synthetic import DEFAULT_DELTA, GRID_DELTA, REGIMES, _check_noise, _distance_to_segments
 from hgjax.spatial import intrinsic_resolution
 
-__all__ = ["AMBIGUOUS_ANGLE", "FAMILIES", "NOISE_KINDS", "SHARP_ANGLE", "MeshCloud", "mesh_cloud", "random_solid",
-           "solid_cloud"]
+__all__ = ["AMBIGUOUS_ANGLE", "DENSITY_RATIO", "FAMILIES", "MESH_REGIMES", "NOISE_KINDS", "SHARP_ANGLE", "MeshCloud",
+           "mesh_cloud", "random_solid", "solid_cloud"]
 
 FAMILIES = ("polytope", "chamfered", "filleted", "prism", "cylinder", "sphere")
 NOISE_KINDS = ("iso", "normal")
 SHARP_ANGLE = np.deg2rad(20.0)  # angle between face normals from which a mesh edge is sharp
 AMBIGUOUS_ANGLE = np.deg2rad(10.0)  # creases between this and SHARP_ANGLE are left unlabelled
 SECTIONS = 64  # segments of a circle
+MESH_REGIMES = REGIMES + ("varying",)
+DENSITY_RATIO = 8.0  # "varying": the densest side's density over the sparsest's
 
 # Independent random streams of one seed: np.random.default_rng([seed, stream]).
 _SHAPE, _SAMPLES, _ROTATION, _NOISE = range(4)
@@ -186,6 +190,17 @@ def _grid(mesh: trimesh.Trimesh, spacing: float, rng: np.random.Generator):
     return points[first][order], faces[first][order]
 
 
+def _varying(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator):
+    """``n`` points of the surface and their faces at a density ``DENSITY_RATIO`` times higher on one side
+    than on the other (module docstring)."""
+    points, faces = trimesh.sample.sample_surface(mesh, 4 * n, seed=rng)
+    along = points @ Rotation.random(random_state=rng).apply([1.0, 0.0, 0.0])
+    t = (along - along.min()) / max(float(np.ptp(along)), np.finfo(float).tiny) - 0.5
+    weight = DENSITY_RATIO ** t
+    kept = np.sort(rng.choice(points.shape[0], n, replace=False, p=weight / weight.sum()))
+    return points[kept], faces[kept]
+
+
 def mesh_cloud(mesh: trimesh.Trimesh, *, n_points: int, seed: int, regime: str = "random", noise: float = 0.0,
                noise_kind: str = "iso", rotate: bool = True, delta: float | None = None,
                name: str = "mesh") -> MeshCloud:
@@ -193,13 +208,13 @@ def mesh_cloud(mesh: trimesh.Trimesh, *, n_points: int, seed: int, regime: str =
 
     Args:
       mesh: a ``trimesh.Trimesh``.
-      n_points: N (``"random"``) or the approximate N (``"grid"``, spacing sqrt(area / N)).
+      n_points: N (``"random"``, ``"varying"``) or the approximate N (``"grid"``, spacing sqrt(area / N)).
       seed: integer seed of the samples, the noise and the rotation (independent streams).
-      regime: ``"random"`` or ``"grid"`` (module docstring).
+      regime: ``"random"``, ``"grid"`` or ``"varying"`` (module docstring).
       noise: p >= 0, the noise's standard deviation in clean resolutions.
       noise_kind: ``"iso"`` or ``"normal"``.
       rotate: apply a random rotation (from ``seed``).
-      delta: edge band half-width in resolutions; default 0.9 (random) or 1.0 (grid), as
+      delta: edge band half-width in resolutions; default 0.9 (random, varying) or 1.0 (grid), as
         :func:`hgjax.eval.box_union_cloud`.
       name: stored in the result.
 
@@ -218,16 +233,18 @@ def mesh_cloud(mesh: trimesh.Trimesh, *, n_points: int, seed: int, regime: str =
     """
     n_points = _validate.check_int(n_points, "n_points", minimum=2)
     seed = _validate.check_int(seed, "seed", minimum=0)
-    regime = _validate.check_choice(regime, "regime", REGIMES)
+    regime = _validate.check_choice(regime, "regime", MESH_REGIMES)
     noise_kind = _validate.check_choice(noise_kind, "noise_kind", NOISE_KINDS)
     noise = _check_noise(noise)
-    delta = (DEFAULT_DELTA if regime == "random" else GRID_DELTA) if delta is None else _validate.check_positive(
+    delta = (GRID_DELTA if regime == "grid" else DEFAULT_DELTA) if delta is None else _validate.check_positive(
         delta, "delta")
     rng = np.random.default_rng([seed, _SAMPLES])
     if regime == "random":
         clean, face = trimesh.sample.sample_surface(mesh, n_points, seed=rng)
-    else:
+    elif regime == "grid":
         clean, face = _grid(mesh, float(np.sqrt(mesh.area / n_points)), rng)
+    else:
+        clean, face = _varying(mesh, n_points, rng)
     resolution = intrinsic_resolution(clean)
     sharp = _creases(mesh, SHARP_ANGLE)
     edge = _distance_to_segments(clean, sharp) <= delta * resolution if len(sharp) else np.zeros(len(clean), bool)
