@@ -25,9 +25,10 @@ points (``"random"``), or the positions of a square lattice laid on every plane 
 (``"grid"``: the lattice of a plane depends only on the plane, so the triangles of one flat
 face share it); or at a density that changes across the shape, as a scanner's falls with range
 (``"varying"``: of 4 N uniform points, N kept without replacement with probability proportional
-to ``DENSITY_RATIO`` ** t, t in [-1/2, 1/2] the position along a random direction). Noise is Gaussian, of standard deviation ``noise`` x the clean cloud's
-intrinsic resolution, on every coordinate (``"iso"``) or along the surface normal
-(``"normal"``); labels are those of the clean points. Everything comes from one seed.
+to ``DENSITY_RATIO`` ** t, t in [-1/2, 1/2] the position along a random direction). Noise is
+Gaussian, of standard deviation ``noise`` x the clean cloud's intrinsic resolution, on every
+coordinate (``"iso"``) or along the surface normal (``"normal"``); labels are those of the clean
+points. Everything comes from one seed.
 """
 
 from __future__ import annotations

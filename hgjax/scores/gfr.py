@@ -933,7 +933,7 @@ def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, d
                                      **stream)
             lp[slow] = row_sums(*flows, nbr[slow], counts_ext, tie_ext)
     else:
-        # a row's partners are distinct locations (distinct ties), its padding all n: one order whatever the sort
+        # entries of a row tie only where they are equal (the same partner, or the padding n): any sort, one order
         order = np.argsort(tie_ext[nbr], axis=1)
         nbr = np.take_along_axis(nbr, order, axis=1)
         c = () if counts_ext is None else (counts_ext[nbr],)
