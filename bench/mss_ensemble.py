@@ -1,9 +1,10 @@
 """Round 5 of bench/results/mss_candidates5.md: MSS with its logit the mean of several models' logits.
 
-The shipped model is the first member (unless ``--without-shipped``); ``--weights`` adds the others (folders holding a ``_mss_weights.py``
-written by ``bench/train_edges.py --out``). ``held-out``: :func:`train_edges.validate` of the shipped model, of
-each other member alone and of the ensemble, on the held-out clouds of seed 0 (no member trained on them);
-``labelled``: ``bench/edge_detectors.py`` (MSS and EA) with MSS the ensemble. The package is not changed: the
+The shipped model is the first member (unless ``--without-shipped``); ``--weights`` adds the others
+(folders holding a ``_mss_weights.py`` written by ``bench/train_edges.py --out``). ``held-out``:
+:func:`train_edges.validate` of the shipped model, of each other member alone and of the ensemble, on
+the held-out clouds of seed 0 (no member trained on them); ``labelled``: ``bench/edge_detectors.py``
+(MSS and EA) with MSS the ensemble. The package is not changed: the
 ensemble replaces ``mss.mlp`` and ``mss.weights`` inside this process only.
 
 Usage (from the repository root):
