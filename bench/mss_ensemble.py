@@ -32,6 +32,7 @@ import train_edges  # noqa: E402
 from hgjax.scores import mss  # noqa: E402
 
 PARTS = 6  # arrays per member: W1, b1, W2, b2, W3, b3
+SINGLE = mss.mlp  # one member's logit
 
 
 def mean_logit(params, x):
@@ -39,8 +40,6 @@ def mean_logit(params, x):
     members = len(params) // PARTS
     return sum(SINGLE(params[PARTS * i:PARTS * (i + 1)], x) for i in range(members)) / members
 
-
-SINGLE = mss.mlp
 
 
 def main(argv=None):
