@@ -41,7 +41,6 @@ def mean_logit(params, x):
     return sum(SINGLE(params[PARTS * i:PARTS * (i + 1)], x) for i in range(members)) / members
 
 
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("check", choices=("held-out", "labelled"))
