@@ -99,7 +99,8 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
     share)``'s noise, ``share`` times the graded target (the mean of the edge labels of the bands ``GRADED`` times
     the default band: 1 nearest the crease, falling to 0 at 1.5 bands, a target that orders the points by their
     distance to the crease) plus 1 - ``share`` times ``edge``. ``band_factor`` scales the band
-    of ``edge`` (1: the generators' default)."""
+    of ``edge`` (1: the generators' default). ``regimes``: the sampling regimes the clouds take in turn (box unions
+    take "random" for "varying")."""
     rng = np.random.default_rng([seed, i])
     family = families[i % len(families)]
     regime = regimes[(i // len(families)) % len(regimes)]
@@ -237,7 +238,7 @@ def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(
     those for a list of models (``weights`` a list of weight lists, the features computed once).
 
     The clouds are those of ``cloud`` for the seed ``seed + HELD_OUT`` (shapes never trained
-    on), ``per_noise`` of them (every family, both regimes) at each noise of
+    on), ``per_noise`` of them (every family, every one of ``regimes``) at each noise of
     ``VALIDATION_NOISES``; points near creases of 10 to 20 degrees are left out. ``bands``: the
     edge labels' band widths in units of the default band (1: the training labels; 0.5: the points
     nearest the crease, which only a ranking by distance to the crease finds).
