@@ -247,7 +247,7 @@ def real_worker(methods, repeats: int) -> dict:
 
     jax.config.update("jax_enable_x64", True)
     clouds = _real_clouds()
-    out = {"clouds": [(name, twin, int(p.shape[0])) for name, twin, p in clouds], "times": {}}
+    out = {"clouds": [(name, twin, int(p.shape[0])) for name, twin, p in clouds], "times": {}, "beside": {}}
 
     def timed(fn) -> float:
         t = time.perf_counter()
@@ -256,6 +256,7 @@ def real_worker(methods, repeats: int) -> dict:
 
     morton = {name: _report.morton_copy(p) for name, _, p in clouds}
     for m in ["knn", "floor"] + list(methods):
+        yardstick = m in ("knn", "floor")
         if m == "knn":
             call = lambda name, p: _report.knn16_seconds(p)
         elif m == "floor":
@@ -268,12 +269,12 @@ def real_worker(methods, repeats: int) -> dict:
             call(name, p)  # warm-up
         for _ in range(repeats):
             for name, _, p in clouds:
-                if m not in ("knn", "floor"):  # the floor of this cloud just before each call of a method
+                if not yardstick:  # the floor of this cloud just before each call of a method
                     beside[name].append(_report.knn16_seconds(morton[name]))
                 times[name].append(timed(lambda name=name, p=p, call=call: call(name, p)))
         out["times"][m] = times
-        if m not in ("knn", "floor"):
-            out.setdefault("beside", {})[m] = beside
+        if not yardstick:
+            out["beside"][m] = beside
         print(f"{m}: " + ", ".join(f"{k} {statistics.median(v):.3f}" for k, v in times.items()),
               file=sys.stderr, flush=True)
     out["peak_mb"] = _peak_mb()
