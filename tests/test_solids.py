@@ -47,7 +47,7 @@ def test_varying_density_is_several_times_denser_on_one_side():
     again = solids.mesh_cloud(mesh, n_points=6000, seed=2, regime="varying", rotate=False)
     np.testing.assert_array_equal(cloud.points, again.points)
     assert len(np.unique(cloud.points, axis=0)) == 6000
-    shift = cloud.points.mean(axis=0)  # the box is centred at 0, and so are uniform points, about
+    shift = cloud.points.mean(axis=0)  # uniform points on the box centred at 0 average about 0
     direction = shift / np.linalg.norm(shift)
     along = cloud.points @ direction
     assert (along > 0).sum() > 1.5 * (along < 0).sum()  # 2.8 times as many on the dense half along the change
