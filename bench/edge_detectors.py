@@ -9,7 +9,11 @@ Columns (issue 22):
   the clean cloud, the same for every method); labels unchanged;
 * (c) box unions (``hgjax.eval.synthetic_set``, random and grid sampling, noise p = 0 / 0.2 /
   0.5 / 1 spacing), labels within one spacing of a sharp edge;
-* (d) the published figures of PCEDNet's supplement that the issue quotes, beside ours.
+* (d) the published figures of PCEDNet's supplement beside ours: the per-set means that the issue
+  quotes, and every detector's per-model MCC on the three models we share with it
+  (bench/results/pcednet_per_model.csv, written by ``bench/published.py``), each beside MSS's MCC at
+  E on the same labels (a row is compared where its TP + FP + TN + FN is the cloud's N and its
+  TP + FN the positives of one of our label columns, edge-only or edge + near).
 
 Every method runs with its defaults (GFR with ``mode="top"``, its deterministic ranking). MCC:
 keep exactly E = the number of positives (``hgjax.keep`` at ratio E / N). AP: the full keep
@@ -24,6 +28,7 @@ Usage (from the repository root):
 from __future__ import annotations
 
 import argparse
+import csv
 import pathlib
 import sys
 import time
@@ -47,8 +52,9 @@ SYNTHETIC_NOISES = (0.0, 0.2, 0.5, 1.0)
 SYNTHETIC = {"random": {"n_shapes": 6, "n_points": 6000}, "grid": {"n_shapes": 6, "n_points": 8000}}
 QUICK_SYNTHETIC = {"random": {"n_shapes": 1, "n_points": 2000}, "grid": {"n_shapes": 1, "n_points": 2000}}
 NOISE_SEED = 2022
+PER_MODEL = ROOT / "bench" / "results" / "pcednet_per_model.csv"
 # PCEDNet supplement (Himeur et al., ACM TOG 41(1), 2022), mean MCC over the shipped models of each
-# set, as quoted in issue 22. Per-model figures were not available to us.
+# set, as quoted in issue 22; its per-model figures are in PER_MODEL.
 PUBLISHED = {
     "EC-Net": (".465", ".346", ".310"),
     "covariance detector": (".441", "-", ".383"),
@@ -123,6 +129,7 @@ def main(argv=None):
     files = sorted(LABELLED.glob("*.gt.ply"))[: 2 if args.quick else None]
     noises = NOISES[:1] if args.quick else NOISES
     real = {}  # column -> {method: (mcc, ap)}
+    sizes = {}  # column -> (N, positives)
     for f in files:
         cloud = hgjax.eval.load_labelled(f)
         pts, spacing = cloud.points, cloud.resolution
@@ -138,6 +145,7 @@ def main(argv=None):
                                                     cloud.edge_mask)
         for col, (q, pos) in cols.items():
             real[col] = {m: detect(q, pos, m) for m in methods}
+            sizes[col] = (len(q), int(pos.sum()))
         print(f"{cloud.name}: {time.time() - t0:.0f} s", flush=True)
     synthetic = {}
     for regime, size in (QUICK_SYNTHETIC if args.quick else SYNTHETIC).items():
@@ -163,14 +171,18 @@ def main(argv=None):
     table += ["", "## (c) box unions (`synthetic_set`, axis-aligned): MCC at E / AP, mean over the shapes", ""]
     table += md(["method"] + list(synthetic), bold_best([[m] + [synthetic[c][m] for c in synthetic]
                                                           for m in methods]))
-    table += ["", "## (d) published detectors (PCEDNet supplement, mean MCC per set as quoted in issue 22)", "",
-              "Per-model figures for abc 7033, CubeFractal2 and TwoPlane90 were not available to us, so the "
-              "published per-set means stand beside our per-model MCC; they are not like for like (different "
-              "models, and PCEDNet's MCC protocol thresholds its classifier instead of keeping exactly E).", ""]
-    ours = {n: real[n]["mss"][0] for n in names if n.startswith("pced")}
+    published, above = per_model(real, sizes)
+    table += ["", "## (d) published detectors (PCEDNet supplement)", "",
+              "Per model: every detector of the supplement on the three models we share with it "
+              "(bench/results/pcednet_per_model.csv, from `python bench/published.py`), beside MSS's MCC at E "
+              "on the same labels, told by the row's counts (positives = edge: the sharp class; edge+near: sharp "
+              "and near-edge). The published detectors threshold their classifiers instead of keeping exactly "
+              "E points. Rows whose counts match none of our columns are listed without a comparison.", ""]
+    table += md(["model", "detector (supplement's name)", "classes", "labels", "published MCC", "mss MCC at E"],
+                published)
+    table += ["", "Per set, mean MCC over the set's models, as quoted in issue 22 (other models than ours):", ""]
     table += md(["detector", "ABC (mean)", "noisy ABC (mean)", "SHREC (mean)"],
                 [[k, *v] for k, v in PUBLISHED.items()])
-    table += [""] + md(["hgjax mss (this run)"] + list(ours), [["MCC at E"] + [f"{v:.3f}" for v in ours.values()]])
     wins = {c: all(a >= b for a, b in zip(real[c]["mss"], real[c]["ea"])) for c in real}
     below = [f"{c} ({'MCC' if real_or_syn[c]['mss'][0] < real_or_syn[c]['ea'][0] else 'AP'} "
              f"{cell(real_or_syn[c]['mss'], real_or_syn[c]['ea'])} against EA "
@@ -191,9 +203,39 @@ def main(argv=None):
         f"the labelled clouds. MSS >= EA in MCC and AP: {sum(map(bool, wins.values()))} of {len(wins)} "
         "labelled columns (a, b). Every column (per cloud and synthetic) where MSS is below EA in MCC or AP: "
         + ("; ".join(below) if below else "none") + ".",
+        f"Published per-model figures (d): MSS is above {above}.",
     ]
     _report.write(args.out / "edge_detectors.md", "edge_detectors.py", argv, title="Edge detectors: every scoring "
                   "method, labelled and synthetic clouds", paragraphs=paragraphs, table=table)
+
+
+def per_model(real, sizes):
+    """Rows of (d) from ``PER_MODEL`` and a summary: above how many comparable published figures MSS is.
+
+    A published row is compared with the column of the same model whose N and positives its
+    counts give; the others keep their figure with "other labels (P positives of N)".
+    """
+    with PER_MODEL.open() as f:
+        rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
+    out, wins, below = [], 0, []
+    for r in sorted((r for r in rows if r["model"] in real), key=lambda r: (r["model"], -float(r["mcc"]))):
+        tp, fp, tn, fn = (int(r[k]) for k in ("tp", "fp", "tn", "fn"))
+        col = next((c for c in (r["model"], f"{r['model']} edge+near") if sizes.get(c) == (tp + fp + tn + fn, tp + fn)),
+                   None)
+        mcc = float(r["mcc"])
+        if col is None:
+            out.append([r["model"], r["name"], r["classes"], f"other labels ({tp + fn} of {tp + fp + tn + fn})",
+                        f"{mcc:.3f}", ""])
+            continue
+        ours = real[col]["mss"][0]
+        wins += ours > mcc
+        if ours <= mcc:
+            below.append(f"{r['name']} on {col} ({mcc:.3f} against {ours:.3f})")
+        out.append([r["model"], r["name"], r["classes"], "edge+near" if col.endswith("edge+near") else "edge",
+                    f"{mcc:.3f}", f"**{ours:.3f}**" if ours > mcc else f"{ours:.3f}"])
+    summary = (f"{wins} of {wins + len(below)} comparable published per-model figures; at or below: "
+               + ("; ".join(below) if below else "none"))
+    return out, summary
 
 
 def _near_edge(path):
