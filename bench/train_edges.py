@@ -36,7 +36,9 @@ spacings of an edge). Round 4 (bench/results/mss_candidates4.md): ``--target mix
 clouds of less than ``MIXED_BELOW`` spacings of noise, band targets above), ``--target blend`` (``BLEND``
 times the graded target plus the rest of the band target) and ``--per-noise`` (a larger held-out check).
 Round 5 (bench/results/mss_candidates5.md): ``--varying`` (clouds of varying density, ``hgjax.eval.solids``'
-third regime, in the cycle of the mesh families' regimes).
+third regime, in the cycle of the mesh families' regimes). Round 6 (bench/results/mss_candidates6.md):
+``--regimes`` (the cycle of sampling regimes, any of ``solids.MESH_REGIMES``; ``--varying`` is
+``--regimes random grid varying``).
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ from hgjax.eval import solids  # noqa: E402
 from hgjax.scores import mss  # noqa: E402
 
 FAMILIES = solids.FAMILIES + ("boxes",)
-REGIMES = hgjax.eval.REGIMES  # the training clouds' sampling, in turn; with --varying: solids.MESH_REGIMES
+REGIMES = hgjax.eval.REGIMES  # the training clouds' sampling, in turn (--regimes)
 SHEET_FAMILIES = FAMILIES + ("sheet",)  # with --sheets: folded sheets (two rectangles at one crease) too
 GRADED = (0.5, 1.0, 1.5)  # --target graded: the mean of the labels of bands this many times the default one
 MIXED_BELOW = 0.5  # --target mixed: graded targets for the clouds of less noise (spacings), band targets above
@@ -100,7 +102,7 @@ def cloud(i: int, seed: int, noise: float | None = None, families=FAMILIES, grad
     the default band: 1 nearest the crease, falling to 0 at 1.5 bands, a target that orders the points by their
     distance to the crease) plus 1 - ``share`` times ``edge``. ``band_factor`` scales the band
     of ``edge`` (1: the generators' default). ``regimes``: the sampling regimes the clouds take in turn (box unions
-    take "random" for "varying")."""
+    take "random" for "varying" and "even")."""
     rng = np.random.default_rng([seed, i])
     family = families[i % len(families)]
     regime = regimes[(i // len(families)) % len(regimes)]
@@ -322,6 +324,9 @@ def main(argv=None):
                         "held-out clouds)")
     parser.add_argument("--varying", action="store_true", help="clouds of varying density as a third regime of the "
                         "mesh families (training and held-out clouds; box unions stay uniform)")
+    parser.add_argument("--regimes", nargs="+", choices=solids.MESH_REGIMES, default=None,
+                        help="the sampling regimes of the training and held-out clouds, in turn (default: random "
+                             "grid; box unions take random for varying and even)")
     parser.add_argument("--near", type=float, default=0.0,
                         help="fraction of the non-edge rows drawn within two spacings of an edge (default 0)")
     parser.add_argument("--weights", type=pathlib.Path, nargs="+", default=None,
@@ -334,7 +339,9 @@ def main(argv=None):
                         help="with --validate-only: held-out clouds per noise (default 28: 20 with edges)")
     args = parser.parse_args(argv)
     families = SHEET_FAMILIES if args.sheets else FAMILIES
-    regimes = solids.MESH_REGIMES if args.varying else REGIMES
+    if args.varying and args.regimes:
+        parser.error("--varying is --regimes random grid varying: give one of them")
+    regimes = REGIMES + ("varying",) if args.varying else tuple(args.regimes or REGIMES)
     jax.config.update("jax_enable_x64", True)
     t0 = time.time()
     if args.validate_only:
@@ -342,7 +349,7 @@ def main(argv=None):
         weights = [mss.weights(np.float64) if str(f) == "shipped" else load_weights(pathlib.Path(f)) for f in folders]
         results = validate(weights, args.seed, args.per_noise, families=families, bands=tuple(args.bands),
                            regimes=regimes)
-        kind = "".join([" with sheets"] * args.sheets + [" with varying density"] * args.varying)
+        kind = "".join([" with sheets"] * args.sheets + [f" ({', '.join(regimes)})"] * (regimes != REGIMES))
         for folder, per_band in zip(folders, results):
             for band, metrics in per_band.items():
                 print(f"held-out synthetic clouds{kind}, band x{band}: {folder}")

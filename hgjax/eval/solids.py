@@ -25,7 +25,10 @@ points (``"random"``), or the positions of a square lattice laid on every plane 
 (``"grid"``: the lattice of a plane depends only on the plane, so the triangles of one flat
 face share it); or at a density that changes across the shape, as a scanner's falls with range
 (``"varying"``: of 4 N uniform points, N kept without replacement with probability proportional
-to ``DENSITY_RATIO`` ** t, t in [-1/2, 1/2] the position along a random direction). Noise is
+to ``DENSITY_RATIO`` ** t, t in [-1/2, 1/2] the position along a random direction); or evenly,
+as the Poisson-disk samplers that turn meshes into clouds do (``"even"``: trimesh's
+``sample_surface_even``, uniform points less those closer than a spacing to a kept one; blue noise,
+whose nearest-neighbour distances vary far less than i.i.d. points'). Noise is
 Gaussian, of standard deviation ``noise`` x the clean cloud's intrinsic resolution, on every
 coordinate (``"iso"``) or along the surface normal (``"normal"``); labels are those of the clean
 points. Everything comes from one seed.
@@ -51,7 +54,7 @@ NOISE_KINDS = ("iso", "normal")
 SHARP_ANGLE = np.deg2rad(20.0)  # angle between face normals from which a mesh edge is sharp
 AMBIGUOUS_ANGLE = np.deg2rad(10.0)  # creases between this and SHARP_ANGLE are left unlabelled
 SECTIONS = 64  # segments of a circle
-MESH_REGIMES = REGIMES + ("varying",)
+MESH_REGIMES = REGIMES + ("varying", "even")
 DENSITY_RATIO = 8.0  # "varying": the densest side's density over the sparsest's
 
 # Independent random streams of one seed: np.random.default_rng([seed, stream]).
@@ -209,13 +212,14 @@ def mesh_cloud(mesh: trimesh.Trimesh, *, n_points: int, seed: int, regime: str =
 
     Args:
       mesh: a ``trimesh.Trimesh``.
-      n_points: N (``"random"``, ``"varying"``) or the approximate N (``"grid"``, spacing sqrt(area / N)).
+      n_points: N (``"random"``, ``"varying"``) or the approximate N (``"grid"``, spacing sqrt(area / N);
+        ``"even"``, at most N).
       seed: integer seed of the samples, the noise and the rotation (independent streams).
-      regime: ``"random"``, ``"grid"`` or ``"varying"`` (module docstring).
+      regime: ``"random"``, ``"grid"``, ``"varying"`` or ``"even"`` (module docstring).
       noise: p >= 0, the noise's standard deviation in clean resolutions.
       noise_kind: ``"iso"`` or ``"normal"``.
       rotate: apply a random rotation (from ``seed``).
-      delta: edge band half-width in resolutions; default 0.9 (random, varying) or 1.0 (grid), as
+      delta: edge band half-width in resolutions; default 0.9 (random, varying, even) or 1.0 (grid), as
         :func:`hgjax.eval.box_union_cloud`.
       name: stored in the result.
 
@@ -244,6 +248,8 @@ def mesh_cloud(mesh: trimesh.Trimesh, *, n_points: int, seed: int, regime: str =
         clean, face = trimesh.sample.sample_surface(mesh, n_points, seed=rng)
     elif regime == "grid":
         clean, face = _grid(mesh, float(np.sqrt(mesh.area / n_points)), rng)
+    elif regime == "even":
+        clean, face = trimesh.sample.sample_surface_even(mesh, n_points, seed=rng)
     else:
         clean, face = _varying(mesh, n_points, rng)
     resolution = intrinsic_resolution(clean)
