@@ -55,6 +55,23 @@ def test_varying_density_is_several_times_denser_on_one_side():
     assert 0.9 < (uniform > 0).sum() / (uniform < 0).sum() < 1.1
 
 
+def test_even_regime_is_blue_noise():
+    from scipy.spatial import cKDTree
+
+    mesh = trimesh.creation.box((1.0, 1.0, 1.0))
+    clouds = {regime: solids.mesh_cloud(mesh, n_points=4000, seed=4, regime=regime, rotate=False).points
+              for regime in ("even", "random")}
+    again = solids.mesh_cloud(mesh, n_points=4000, seed=4, regime="even", rotate=False).points
+    np.testing.assert_array_equal(clouds["even"], again)
+    assert 3000 < len(again) <= 4000
+    spread = {}
+    for regime, p in clouds.items():
+        nearest = cKDTree(p).query(p, k=2)[0][:, 1]
+        spread[regime] = np.percentile(nearest, [5, 95]) / np.median(nearest)
+    assert 0.7 < spread["even"][0] and spread["even"][1] < 1.6  # about 0.85 and 1.38
+    assert spread["random"][0] < 0.4 and spread["random"][1] > 1.8  # i.i.d.: about 0.28 and 2.0
+
+
 def test_normal_noise_moves_points_along_the_faces_normals_only():
     mesh = trimesh.creation.box((1.0, 1.0, 1.0))
     clean = solids.mesh_cloud(mesh, n_points=2000, seed=3, rotate=False)
