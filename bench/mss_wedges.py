@@ -15,7 +15,6 @@ Usage (from the repository root):
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import pathlib
 import sys
 
@@ -102,13 +101,7 @@ def main():
     parser.add_argument("--weights", type=pathlib.Path, default=None, help="folder holding a _mss_weights.py")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    if args.weights is None:
-        weights = mss.weights(np.float64)
-    else:
-        spec = importlib.util.spec_from_file_location("w", args.weights / "_mss_weights.py")
-        w = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(w)
-        weights = [np.asarray(getattr(w, k), np.float64) for k in ("W1", "B1", "W2", "B2", "W3", "B3")]
+    weights = mss.weights(np.float64) if args.weights is None else train_edges.load_weights(args.weights)
     print(table(run(weights)))
 
 
