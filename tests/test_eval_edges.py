@@ -158,3 +158,41 @@ def test_quick_bench(tmp_path):
         assert f"| {label} |" in table1 or label in table1
     assert table1.count("| 0.1 |") == 12  # six methods, reference and default rows
     assert (tmp_path / "edge_noise.png").stat().st_size > 0 and (tmp_path / "edge_ratio.png").exists()
+
+
+def test_published_per_model_rows_are_copied_and_compared_on_matching_labels(tmp_path):
+    """bench/published.py copies a supplement's rows of the shared models; edge_detectors.per_model compares a row
+    only where its counts give one of our columns (N and positives)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    import edge_detectors
+    import published
+
+    supp = tmp_path / "supp" / "scripts"
+    (supp / "3dmodels" / "default").mkdir(parents=True)
+    (supp / "3dmodels" / "default" / "nameToId.json").write_text('{"CubeFractal2.ply": 1, "TwoPlane90.ply": 0}')
+    (supp / "utilsmodule.py").write_text('methods_descr = {"pced": "PCED (D)"}\nmethods_nbclasses = {"pced": "3"}\n')
+    for dataset, rows in (("default", ["0.9 0.8 0.5 30 5 65 0", "1 0.5 0.7 10 0 88 2"]),
+                          ("abc", ["0 0 0 1 1 1 1"] * 7033 + ["0.9 0.9 0.8 8 1 90 1"])):
+        (supp / "data" / dataset).mkdir(parents=True)
+        (supp / "data" / dataset / "pced.txt").write_text("#header\n#columns\n" + "\n".join(rows) + "\n")
+    rows = published.extract(tmp_path / "supp")
+    got = {r["model"]: (r["name"], r["classes"], r["mcc"], r["tp"], r["fn"], r["row"]) for r in rows}
+    assert got == {"pced_abc_7033": ("PCED (D)", "3", 0.8, 8, 1, 7033),
+                   "pced_cubefractal2": ("PCED (D)", "3", 0.7, 10, 2, 1),
+                   "pced_twoplane90": ("PCED (D)", "3", 0.5, 30, 0, 0)}
+    csv_path = tmp_path / "per_model.csv"
+    published.main([str(tmp_path / "supp"), "--out", str(csv_path)])
+    real = {"pced_abc_7033": {"mss": (0.9, 0.95)}, "pced_cubefractal2": {"mss": (0.6, 0.7)},
+            "pced_cubefractal2 edge+near": {"mss": (0.65, 0.7)}, "pced_twoplane90": {"mss": (0.4, 0.5)}}
+    sizes = {"pced_abc_7033": (100, 9), "pced_cubefractal2": (100, 12), "pced_cubefractal2 edge+near": (100, 30),
+             "pced_twoplane90": (100, 3)}
+    edge_detectors.PER_MODEL, saved = csv_path, edge_detectors.PER_MODEL
+    try:
+        table, summary = edge_detectors.per_model(real, sizes)
+    finally:
+        edge_detectors.PER_MODEL = saved
+    by_model = {r[0]: r for r in table}
+    assert by_model["pced_abc_7033"][3:] == ["edge", "0.800", "**0.900**"]
+    assert by_model["pced_cubefractal2"][3:] == ["edge", "0.700", "0.600"]
+    assert by_model["pced_twoplane90"][3:] == ["other labels (30 of 100)", "0.500", ""]  # 30 positives: no column
+    assert summary.startswith("1 of 2 comparable") and "PCED (D) on pced_cubefractal2 (0.700 against 0.600)" in summary
