@@ -27,8 +27,9 @@ face share it); or at a density that changes across the shape, as a scanner's fa
 (``"varying"``: of 4 N uniform points, N kept without replacement with probability proportional
 to ``DENSITY_RATIO`` ** t, t in [-1/2, 1/2] the position along a random direction); or evenly,
 as the Poisson-disk samplers that turn meshes into clouds do (``"even"``: trimesh's
-``sample_surface_even``, uniform points less those closer than a spacing to a kept one; blue noise,
-whose nearest-neighbour distances vary far less than i.i.d. points'). Noise is
+``sample_surface_even``: 3 N uniform points thinned until none is within sqrt(area / 3 N) of
+another, the first N kept; blue noise, whose nearest-neighbour distances vary far less than
+i.i.d. points'). Noise is
 Gaussian, of standard deviation ``noise`` x the clean cloud's intrinsic resolution, on every
 coordinate (``"iso"``) or along the surface normal (``"normal"``); labels are those of the clean
 points. Everything comes from one seed.
