@@ -178,8 +178,8 @@ def main(argv=None):
               "on the same labels, told by the row's counts (positives = edge: the sharp class; edge+near: sharp "
               "and near-edge). The published detectors threshold their classifiers instead of keeping exactly "
               "E points. Rows whose counts match none of our columns are listed without a comparison.", ""]
-    table += md(["model", "detector (supplement's name)", "classes", "labels", "published MCC", "mss MCC at E"],
-                published)
+    table += md(["model", "detector (supplement's name)", "classes", "labels", "published MCC", "mss MCC at E",
+                 "best hgjax method, MCC at E"], published)
     table += ["", "Per set, mean MCC over the set's models, as quoted in issue 22 (other models than ours):", ""]
     table += md(["detector", "ABC (mean)", "noisy ABC (mean)", "SHREC (mean)"],
                 [[k, *v] for k, v in PUBLISHED.items()])
@@ -213,7 +213,8 @@ def per_model(real, sizes):
     """Rows of (d) from ``PER_MODEL`` and a summary: above how many comparable published figures MSS is.
 
     A published row is compared with the column of the same model whose N and positives its
-    counts give; the others keep their figure with "other labels (P positives of N)".
+    counts give (MSS's MCC at E there, and the best of every method run); the others keep their
+    figure with "other labels (P positives of N)".
     """
     with PER_MODEL.open() as f:
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
@@ -225,14 +226,16 @@ def per_model(real, sizes):
         mcc = float(r["mcc"])
         if col is None:
             out.append([r["model"], r["name"], r["classes"], f"other labels ({tp + fn} of {tp + fp + tn + fn})",
-                        f"{mcc:.3f}", ""])
+                        f"{mcc:.3f}", "", ""])
             continue
         ours = real[col]["mss"][0]
         wins += ours > mcc
         if ours <= mcc:
             below.append(f"{r['name']} on {col} ({mcc:.3f} against {ours:.3f})")
+        best = max(real[col], key=lambda m: real[col][m][0])
         out.append([r["model"], r["name"], r["classes"], "edge+near" if col.endswith("edge+near") else "edge",
-                    f"{mcc:.3f}", f"**{ours:.3f}**" if ours > mcc else f"{ours:.3f}"])
+                    f"{mcc:.3f}", f"**{ours:.3f}**" if ours > mcc else f"{ours:.3f}",
+                    f"{best} {real[col][best][0]:.3f}"])
     summary = (f"{wins} of {wins + len(below)} comparable published per-model figures; at or below: "
                + ("; ".join(below) if below else "none"))
     return out, summary

@@ -182,7 +182,8 @@ def test_published_per_model_rows_are_copied_and_compared_on_matching_labels(tmp
                    "pced_twoplane90": ("PCED (D)", "3", 0.5, 30, 0, 0)}
     csv_path = tmp_path / "per_model.csv"
     published.main([str(tmp_path / "supp"), "--out", str(csv_path)])
-    real = {"pced_abc_7033": {"mss": (0.9, 0.95)}, "pced_cubefractal2": {"mss": (0.6, 0.7)},
+    real = {"pced_abc_7033": {"mss": (0.9, 0.95), "ea": (0.2, 0.3)},
+            "pced_cubefractal2": {"mss": (0.6, 0.7), "ea": (0.75, 0.7)},
             "pced_cubefractal2 edge+near": {"mss": (0.65, 0.7)}, "pced_twoplane90": {"mss": (0.4, 0.5)}}
     sizes = {"pced_abc_7033": (100, 9), "pced_cubefractal2": (100, 12), "pced_cubefractal2 edge+near": (100, 30),
              "pced_twoplane90": (100, 3)}
@@ -192,7 +193,7 @@ def test_published_per_model_rows_are_copied_and_compared_on_matching_labels(tmp
     finally:
         edge_detectors.PER_MODEL = saved
     by_model = {r[0]: r for r in table}
-    assert by_model["pced_abc_7033"][3:] == ["edge", "0.800", "**0.900**"]
-    assert by_model["pced_cubefractal2"][3:] == ["edge", "0.700", "0.600"]
-    assert by_model["pced_twoplane90"][3:] == ["other labels (30 of 100)", "0.500", ""]  # 30 positives: no column
+    assert by_model["pced_abc_7033"][3:] == ["edge", "0.800", "**0.900**", "mss 0.900"]
+    assert by_model["pced_cubefractal2"][3:] == ["edge", "0.700", "0.600", "ea 0.750"]
+    assert by_model["pced_twoplane90"][3:] == ["other labels (30 of 100)", "0.500", "", ""]  # 30 positives: no column
     assert summary.startswith("1 of 2 comparable") and "PCED (D) on pced_cubefractal2 (0.700 against 0.600)" in summary
