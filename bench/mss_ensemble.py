@@ -53,6 +53,7 @@ def main(argv=None):
     parser.add_argument("--without-shipped", action="store_true", help="the --weights members only")
     parser.add_argument("--per-noise", type=int, default=112, help="held-out clouds per noise (default 112)")
     parser.add_argument("--regimes", nargs="+", default=list(train_edges.REGIMES),
+                        choices=train_edges.solids.MESH_REGIMES,
                         help="held-out: the sampling regimes of the clouds, in turn (default: random grid)")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("/tmp"),
                         help="labelled: folder of the edge_detectors.md written")
