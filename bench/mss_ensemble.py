@@ -58,12 +58,12 @@ def main(argv=None):
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("/tmp"),
                         help="labelled: folder of the edge_detectors.md written")
     args = parser.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)  # every check in float64, the shipped weights included
     shipped = [np.asarray(a) for a in mss.weights(np.float64)]
     others = [train_edges.load_weights(f) for f in args.weights]
     ensemble = ([] if args.without_shipped else shipped) + [a for w in others for a in w]
     with mock.patch.object(mss, "mlp", mean_logit):
         if args.check == "held-out":
-            jax.config.update("jax_enable_x64", True)
             models = [shipped, *others, ensemble]
             names = ["shipped", *map(str, args.weights), f"ensemble of {len(ensemble) // PARTS}"]
             for name, result in zip(names, train_edges.validate(models, 0, args.per_noise,
@@ -71,7 +71,6 @@ def main(argv=None):
                 print(f"held-out synthetic clouds, band x1: {name}")
                 print(train_edges.validation_table(result[1.0], 4), flush=True)
         elif args.check == "wedges":
-            jax.config.update("jax_enable_x64", True)
             print(mss_wedges.table(mss_wedges.run(ensemble)))
         else:
             with mock.patch.object(mss, "weights", lambda dtype: [jnp.asarray(a, dtype) for a in ensemble]):
