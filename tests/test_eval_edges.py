@@ -160,7 +160,7 @@ def test_quick_bench(tmp_path):
     assert (tmp_path / "edge_noise.png").stat().st_size > 0 and (tmp_path / "edge_ratio.png").exists()
 
 
-def test_published_per_model_rows_are_copied_and_compared_on_matching_labels(tmp_path):
+def test_published_per_model_rows_are_copied_and_compared_on_matching_labels(tmp_path, monkeypatch):
     """bench/published.py copies a supplement's rows of the shared models; edge_detectors.per_model compares a row
     only where its counts give one of our columns (N and positives)."""
     sys.path.insert(0, str(ROOT / "bench"))
@@ -187,11 +187,8 @@ def test_published_per_model_rows_are_copied_and_compared_on_matching_labels(tmp
             "pced_cubefractal2 edge+near": {"mss": (0.65, 0.7)}, "pced_twoplane90": {"mss": (0.4, 0.5)}}
     sizes = {"pced_abc_7033": (100, 9), "pced_cubefractal2": (100, 12), "pced_cubefractal2 edge+near": (100, 30),
              "pced_twoplane90": (100, 3)}
-    edge_detectors.PER_MODEL, saved = csv_path, edge_detectors.PER_MODEL
-    try:
-        table, summary = edge_detectors.per_model(real, sizes)
-    finally:
-        edge_detectors.PER_MODEL = saved
+    monkeypatch.setattr(edge_detectors, "PER_MODEL", csv_path)
+    table, summary = edge_detectors.per_model(real, sizes)
     by_model = {r[0]: r for r in table}
     assert by_model["pced_abc_7033"][3:] == ["edge", "0.800", "**0.900**", "mss 0.900"]
     assert by_model["pced_cubefractal2"][3:] == ["edge", "0.700", "0.600", "ea 0.750"]
