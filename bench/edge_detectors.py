@@ -198,9 +198,10 @@ def main(argv=None):
         "intrinsic resolution, isotropic or along PCA normals of the clean cloud (16 neighbours), one fixed seed "
         "per column; labels unchanged. Box unions: `hgjax.eval.synthetic_set(regime, noise=p)` "
         f"({', '.join(f'{r}: {s}' for r, s in (QUICK_SYNTHETIC if args.quick else SYNTHETIC).items())}).",
-        "MSS (`hgjax.scores.mss`) is a small perceptron trained by `bench/train_edges.py` on synthetic shapes "
-        "only (`hgjax.eval.solids` and box unions of other seeds than (c)'s); nothing in this file was tuned on "
-        f"the labelled clouds. MSS >= EA in MCC and AP: {sum(map(bool, wins.values()))} of {len(wins)} "
+        "MSS (`hgjax.scores.mss`) is a small perceptron trained by `bench/mss_training/train_edges.py` on "
+        "synthetic shapes only (`hgjax.eval.solids` and box unions of other seeds than (c)'s); nothing in this "
+        "file was tuned on the labelled clouds. "
+        f"MSS >= EA in MCC and AP: {sum(map(bool, wins.values()))} of {len(wins)} "
         "labelled columns (a, b). Every column (per cloud and synthetic) where MSS is below EA in MCC or AP: "
         + ("; ".join(below) if below else "none") + ".",
         f"Published per-model figures (d): MSS is above {above}.",

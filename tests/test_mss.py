@@ -1,7 +1,7 @@
 """MSS (hgjax.scores.mss, issue 22): kernel against the naive NumPy loop, transformations of the
 execution (streaming; jit and vmap in tests/test_api.py's variants matrix) and of the cloud
 (rotation, translation, scale, permutation), finite gradients of its smooth twin on degenerate
-clouds, and the retraining of its edge model (bench/train_edges.py)."""
+clouds, and the retraining of its edge model (bench/mss_training/train_edges.py)."""
 
 from __future__ import annotations
 
@@ -176,7 +176,7 @@ def test_finds_the_edges_of_a_box_union_better_than_ea():
 def _train_edges():
     import importlib.util
 
-    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "train_edges.py"
+    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "mss_training" / "train_edges.py"
     spec = importlib.util.spec_from_file_location("train_edges", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -184,7 +184,7 @@ def _train_edges():
 
 
 def test_a_small_retraining_reproduces_the_shipped_ranking():
-    """bench/train_edges.py from the shipped seed: the same weights bit for bit when run twice,
+    """bench/mss_training/train_edges.py from the shipped seed: the same weights bit for bit when run twice,
     and, trained on 21 clouds (3 per family) for 150 steps, on held-out clouds (shape seeds outside the training set,
     normal noise of half a spacing) the same edges: top-E overlap with the shipped model's
     ranking >= 0.6, edge AP within 0.1 of the shipped model's and above EA's."""

@@ -19,24 +19,24 @@ of ``VALIDATION_NOISES``: mean MCC keeping exactly E and AP, and on how many clo
 is >= EA in both. These, not the labelled clouds, choose between candidate models.
 
 Usage (from the repository root):
-  python bench/train_edges.py                   # writes hgjax/scores/_mss_weights.py and
-                                                # prints the held-out table
-  python bench/train_edges.py --clouds 14 --steps 300 --out /tmp/x   # a small run
-  python bench/train_edges.py --validate-only    # the shipped model on the held-out clouds
-  python bench/train_edges.py --validate-only --weights shipped /tmp/a /tmp/b --bands 1.0 0.5
-                                                # several models on the same held-out clouds, labels
-                                                # at the training band and at half of it
+  python bench/mss_training/train_edges.py                  # writes hgjax/scores/_mss_weights.py and
+                                                            # prints the held-out table
+  python bench/mss_training/train_edges.py --clouds 14 --steps 300 --out small   # a small run
+  python bench/mss_training/train_edges.py --validate-only  # the shipped model on the held-out clouds
+  python bench/mss_training/train_edges.py --validate-only --weights shipped run_a run_b --bands 1.0 0.5
+                                                            # several models on the same held-out clouds,
+                                                            # labels at the training band and at half of it
 
-Options of the candidates of bench/results/mss_candidates3.md (none adopted; the defaults are the
+Options of the candidates of bench/mss_training/mss_candidates3.md (none adopted; the defaults are the
 shipped recipe): ``--target graded`` (the target is the mean of the labels of the bands ``GRADED`` x
 the default one, so that the logit falls with the distance to the crease), ``--sheets`` (folded sheets,
 two rectangles at one crease of 30 to 170 degrees with an open non-edge border, as one more family, in
 training and held-out clouds), ``--near F`` (a fraction F of each cloud's non-edge rows drawn within two
-spacings of an edge). Round 4 (bench/results/mss_candidates4.md): ``--target mixed`` (graded targets for the
+spacings of an edge). Round 4 (bench/mss_training/mss_candidates4.md): ``--target mixed`` (graded targets for the
 clouds of less than ``MIXED_BELOW`` spacings of noise, band targets above), ``--target blend`` (``BLEND``
 times the graded target plus the rest of the band target) and ``--per-noise`` (a larger held-out check).
-Round 5 (bench/results/mss_candidates5.md): ``--varying`` (clouds of varying density, ``hgjax.eval.solids``'
-third regime, in the cycle of the mesh families' regimes). Round 6 (bench/results/mss_candidates6.md):
+Round 5 (bench/mss_training/mss_candidates5.md): ``--varying`` (clouds of varying density, ``hgjax.eval.solids``'
+third regime, in the cycle of the mesh families' regimes). Round 6 (bench/mss_training/mss_candidates6.md):
 ``--regimes`` (the cycle of sampling regimes, any of ``solids.MESH_REGIMES``; ``--varying`` is
 ``--regimes random grid varying``).
 """
@@ -55,7 +55,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 import hgjax  # noqa: E402
@@ -292,8 +292,9 @@ def validation_table(metrics, digits: int = 3) -> str:
 
 def write_weights(weights, path: pathlib.Path, argv):
     names = ("W1", "B1", "W2", "B2", "W3", "B3")
-    lines = ['"""Weights of MSS\'s edge model (hgjax.scores.mss), written by `python bench/train_edges.py'
-             + (" " + " ".join(argv) if argv else "") + '`; do not edit."""', ""]
+    lines = ['"""Weights of MSS\'s edge model (hgjax.scores.mss), written by '
+             '`python bench/mss_training/train_edges.py' + (" " + " ".join(argv) if argv else "")
+             + '`; do not edit."""', ""]
     for name, a in zip(names, weights):
         lines.append(f"{name} = {np.asarray(a, np.float64).tolist()!r}")
     path.write_text("\n".join(lines) + "\n")
