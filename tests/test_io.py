@@ -1,5 +1,6 @@
 """hgjax.io: real files round-trip, PCD as PCL writes it, clear errors naming the file."""
 
+import dataclasses
 import os
 import pathlib
 import struct
@@ -367,13 +368,13 @@ def test_failed_write_leaves_the_target_untouched(tmp_path, monkeypatch):
     io.write_points(path, np.eye(3))
     before = path.read_bytes()
 
-    def failing_writer(points, attributes, binary):
+    def failing_writer(points, attributes, header, binary, compressed):
         def write(fh):
             fh.write(b"ply\nformat binary_little_endian 1.0\n")
             raise RuntimeError("disk on fire")
         return write
 
-    monkeypatch.setattr(io, "_ply_writer", failing_writer)
+    monkeypatch.setitem(io._FORMATS, ".ply", dataclasses.replace(io._FORMATS[".ply"], write=failing_writer))
     with pytest.raises(RuntimeError, match="disk on fire"):
         io.write_points(path, np.ones((5, 3)))
     assert path.read_bytes() == before
