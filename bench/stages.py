@@ -36,14 +36,16 @@ sys.path.insert(0, str(HERE))
 
 import _report  # noqa: E402
 
-# (label, module path, attribute, depth): the wrapped stage functions, in the order of a call
-# (hgjax.resample is the one-tile case of hgjax.tiles.resample).
+# The engine's own stages, reported by hgjax.resample's public on_stage hook (hgjax.engine.STAGES["tiles"]).
+ENGINE_STAGES = [("plan (bounds, grid, resolved parameters)", "plan"), ("tiles (neighbourhoods and scores)", "tiles"),
+                 ("keep (global selection)", "keep")]
+# (label, module path, attribute, depth): internal probes inside those stages, wrapped by timers, in the order
+# of a call; they name the library's current internals and move with them.
 STAGES = [
-    ("resample (whole call)", "hgjax.tiles", "resample", 0),
-    ("plan (bounds, grid)", "hgjax.tiles", "_base", 1),
+    ("resample (whole call)", "hgjax.engine", "run", 0),
     ("sample statistics (d_factor)", "hgjax.spatial", "nearest_distances", 1),
-    ("tile_scores (index, neighbourhoods, kernel)", "hgjax.tiles", "tile_scores", 1),
-    ("gather (tile points in the frame, float64)", "hgjax.tiles._Cloud", "gather", 2),
+    ("tile_scores (index, neighbourhoods, kernel)", "hgjax._tiling", "tile_scores", 1),
+    ("gather (tile points in the frame, float64)", "hgjax._tiling.Cloud", "gather", 2),
     ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.spatial.SpatialIndex", "__init__", 2),
     ("spatial_order (Morton codes and sort)", "hgjax.spatial", "spatial_order", 3),
     ("device_points (the tile's points to the device)", "hgjax._stream", "device_points", 2),
@@ -57,13 +59,13 @@ STAGES = [
     ("cube: the ball rows", "hgjax.spatial.SpatialIndex", "cube", 3),
     ("_cube_query (re-queries of wider rows)", "hgjax.spatial.SpatialIndex", "_cube_query", 4),
     ("_ranked (tie ranking: lexsort)", "hgjax.spatial.SpatialIndex", "_ranked", 3),
-    ("covers (halo check)", "hgjax.tiles._Cloud", "covers", 2),
+    ("covers (halo check)", "hgjax._tiling.Cloud", "covers", 2),
     ("NarrowStream.push (HKC/HKF rows routed by width, chunks dispatched as built)", "hgjax._stream.NarrowStream",
      "push", 2),
     ("NarrowStream.collect (the last chunks, then waiting for the kernel)", "hgjax._stream.NarrowStream", "collect", 2),
     ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 2),
     ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 2),
-    ("_gfr_graph (GFR graph and exact pair sums)", "hgjax.tiles", "_gfr_graph", 1),
+    ("_tile_graph (GFR graph and exact pair sums)", "hgjax.scores.gfr", "_tile_graph", 1),
     ("_kept (bounded kNN queries, k = max_nn + 9: what each location keeps, and cuts)", "hgjax.scores.gfr", "_kept",
      2),
     ("_kept_back (the kept lists read the other way)", "hgjax.scores.gfr", "_kept_back", 2),
@@ -71,10 +73,10 @@ STAGES = [
     ("pair_sums (exact sums of c, c q, c q^2: the moment kernel's row sums)", "hgjax.scores.gfr", "pair_sums", 2),
     ("pair_lengths (q kernel: float64 q)", "hgjax.scores.gfr", "pair_lengths", 3),
     ("ExactSum.of", "hgjax.select.ExactSum", "of", 3),
-    ("_gfr_norms (GFR flows and row sums)", "hgjax.tiles", "_gfr_norms", 1),
+    ("_tile_norms (GFR flows and row sums)", "hgjax.scores.gfr", "_tile_norms", 1),
     ("laplacian_norms (flow kernel, rows summed on the device)", "hgjax.scores.gfr", "laplacian_norms", 2),
     ("row_sums (rows summed in global-id order on the host)", "hgjax.scores.gfr", "row_sums", 3),
-    ("_per_point (scores of the core points)", "hgjax.tiles", "_per_point", 2),
+    ("per_point (scores of the core points)", "hgjax._tiling", "per_point", 2),
     ("LHF tiled_select (Gamma_a, Gamma_b, mix)", "hgjax.scores.lhf", "tiled_select", 1),
     ("selection (exact top-k)", "hgjax.select", "top_pairs", 1),
 ]
@@ -127,11 +129,14 @@ def _install(totals: dict, cpu: dict) -> None:
                 return timed(lambda: _fn(*args, **kwargs), _key, _labels)
 
         setattr(owner, attr, wrapped)
-        methods = importlib.import_module("hgjax.pipeline").METHODS  # entries hold their hooks by reference
+        methods = importlib.import_module("hgjax._registry").METHODS  # entries hold their hooks by reference
         for name, entry in methods.items():
-            hooks = {f.name: wrapped for f in dataclasses.fields(entry) if getattr(entry, f.name) is fn}
+            tiling = getattr(entry, "tiling", None)
+            if tiling is None:
+                continue
+            hooks = {f.name: wrapped for f in dataclasses.fields(tiling) if getattr(tiling, f.name) is fn}
             if hooks:
-                methods[name] = dataclasses.replace(entry, **hooks)
+                methods[name] = dataclasses.replace(entry, tiling=dataclasses.replace(tiling, **hooks))
 
 
 def _kernel_split(p, method: str, repeats: int) -> dict:
@@ -234,8 +239,12 @@ def main() -> None:
         for m in methods:
             totals.clear()
             cpu.clear()
-            hgjax.resample(p, 0.2, method=m, key=jax.random.key(0))
+            engine = {}
+            hgjax.resample(p, 0.2, method=m, key=jax.random.key(0),
+                           on_stage=lambda name, seconds: engine.__setitem__(name, seconds))
             if r:
+                for label, name in ENGINE_STAGES:
+                    per[m][label].append(engine.get(name, 0.0))
                 for label, _, _, _ in STAGES:
                     per[m][label].append(totals.get(label, 0.0))
                     per_cpu[m][label].append(cpu.get(label, 0.0))
@@ -244,6 +253,9 @@ def main() -> None:
     floor, floor_cpu = med(yard["floor"]), med(yard_cpu["floor"])
     lines = ["| stage | " + " | ".join(f"{m} s | {m} / floor | {m} CPU / floor CPU" for m in methods) + " |",
              "|---|" + "---|---|---|" * len(methods)]
+    for label, _ in ENGINE_STAGES:  # on_stage reports wall seconds only
+        vals = [statistics.median(per[m][label]) for m in methods]
+        lines.append(f"| engine stage: {label} | " + " | ".join(f"{v:.3f} | {v / floor:.2f} | - " for v in vals) + " |")
     for label, _, _, depth in STAGES:
         vals = [(statistics.median(per[m][label]), statistics.median(per_cpu[m][label])) for m in methods]
         if not any(v > 0.0005 for v, _ in vals):

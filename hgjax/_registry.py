@@ -1,155 +1,46 @@
-"""The two kinds of registry entry: scoring methods and samplers.
+"""The method registry: :data:`METHODS`, lookup by name, and the split of parameters by stage.
 
-Each method module declares its own entry (``METHOD`` in :mod:`hgjax.scores.hkc` and its
-siblings, ``SAMPLERS`` in :mod:`hgjax.samplers`), naming the parameters of each stage
-explicitly; :data:`hgjax.METHODS` collects them.
+Each method module declares its own entry (:class:`hgjax.Method` or :class:`hgjax.Sampler`,
+:mod:`hgjax._method`); this module only collects them.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Callable
+from hgjax import _validate, samplers
+from hgjax._method import Method, Sampler
+from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, pca_ac
 
-STAGES = ("build", "score", "soft_score", "select")
-PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
-DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
+__all__ = ["DEFAULT", "METHODS", "Method", "Sampler"]
 
-
-def stages(**names) -> dict:
-    """{stage: frozenset of keyword parameters} for every stage of :data:`STAGES` (missing ones empty)."""
-    return {stage: frozenset(names.get(stage, ())) for stage in STAGES}
-
-
-@dataclasses.dataclass(frozen=True)
-class Method:
-    """A registered scoring method: neighbourhoods, a per-point score, a selection.
-
-    Attributes:
-      name: registry key.
-      kind: neighbourhood kind, ``"cube"``, ``"knn"`` or ``"graph"``.
-      largest: True when the largest scores are kept, False for the smallest.
-      needs_key: whether the default selection draws random numbers (explicit ``key``).
-      summary: one line for the README and ``--help``.
-      citation: where the method comes from.
-      build: ``build(points, **params) -> Neighbourhoods`` (host).
-      score: ``score(nb, **params) -> (N,)``, or (N, ``columns``), pure JAX; never depends on
-        the ratio.
-      soft_score: differentiable twin of ``score``, of the same shape.
-      params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
-        keyword parameters it accepts, as declared by the method's module.
-      columns: None for (N,) scores; C for (N, C) (LHF's two lengths, C = 2).
-      combine: ``combine(scores, m, *, count=None) -> (N,)``: the value each point is ranked
-        by, from its (N, ``columns``) scores and the kept count m (traced in
-        :func:`hgjax.soft_weights`; ``count`` the real rows of a padded cloud), LHF's
-        Eqs. (15)-(16); None ranks (N,) scores as they are.
-      select: ``select(scores, m, *, key, **params) -> (m,) indices`` (host); None keeps the
-        m top ranked values (:func:`hgjax.top_k`, ties by index).
-      check_key: ``check_key(key, params) -> key``: the validated key that the selection
-        with these parameters draws from (raising before any work when it is missing);
-        None for a method that never draws.
-      untiled: ``untiled(params) -> (qualifier, reason) | None``: why these parameters need
-        the whole cloud at once (the tiled path refuses a tile size, naming the reason);
-        None when the method always tiles.
-      whole_selection: the selection ranks every score at once (PCA-AC's Ward clustering):
-        ``untiled`` refuses a tile size, and a run without one scores the cloud as one tile
-        (``tile_params``, ``rows``, ``kernel``) before ``select`` takes all the scores. False
-        for a method whose refused parameters need the whole cloud to score it (GFR's
-        reference radius).
-      tile_params: ``tile_params(n, params) -> (build, score)``: the validated build and
-        score parameters of a tiled run of ``n`` points, before any whole-cloud decision.
-      resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
-        whole cloud, ``stats()`` giving the seeded sample's nearest distances and
-        neighbourhoods (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
-      rows: ``rows(index, rows, build, dtype)``: a tile's neighbourhoods of the sorted-frame
-        ``rows``, yielded batch by batch as ``(part, idx, row_args, reach)`` (a slice of
-        ``rows``, their neighbour rows, per-row kernel arguments and the radius each
-        neighbourhood reaches); None for the graph method.
-      kernel: ``kernel(score_params) -> (row kernel, narrow)``: the per-neighbourhood kernel
-        the tiles stream (:class:`hgjax._stream.Stream`, or :class:`hgjax._stream.NarrowStream`
-        when ``narrow``); None for the graph method.
-      tiled_select: ``tiled_select(runner, parts, plan, key) -> (parts, keyed parts,
-        statistics, largest)``: the global selection over the tiles' (gids, scores) parts,
-        as order keys for :func:`hgjax.select.top_pairs`; None keeps the top scores.
-
-    Examples:
-      >>> import hgjax
-      >>> entry = hgjax.METHODS["hkc"]
-      >>> entry.kind, entry.largest, entry.citation
-      ('cube', False, 'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)')
-    """
-
-    name: str
-    kind: str
-    largest: bool
-    needs_key: bool
-    summary: str
-    citation: str
-    build: Callable
-    score: Callable
-    soft_score: Callable
-    params: dict
-    columns: int | None = None
-    combine: Callable | None = None
-    select: Callable | None = None
-    check_key: Callable | None = None
-    untiled: Callable | None = None
-    whole_selection: bool = False
-    tile_params: Callable | None = None
-    resolve: Callable | None = None
-    rows: Callable | None = None
-    kernel: Callable | None = None
-    tiled_select: Callable | None = None
-
-    @property
-    def accepted(self) -> frozenset:
-        """Every keyword parameter of any stage."""
-        return frozenset().union(*self.params.values())
-
-    @property
-    def resample_params(self) -> frozenset:
-        """The parameters resampling uses: every stage's but the soft score's."""
-        return self.params["build"] | self.params["score"] | self.params["select"]
+METHODS: dict[str, Method | Sampler] = {m.name: m for m in (
+    hkc.METHOD, hkf.METHOD, lhf.METHOD, gfr.METHOD, ea.METHOD, pca_ac.METHOD, mss.METHOD, *samplers.SAMPLERS)}
+DEFAULT = hkc.METHOD.name
+"""The method of :func:`hgjax.resample`, :func:`hgjax.tiles.resample` and the command line when none is named."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Sampler:
-    """A registered sampler: it picks points from the points themselves, without scores.
+def entry(method: str) -> Method | Sampler:
+    """The registry entry of ``method``; an unknown name raises ValueError listing the known ones."""
+    return METHODS[_validate.check_choice(method, "method", METHODS)]
 
-    Attributes:
-      name: registry key.
-      needs_key: whether it draws random numbers (explicit ``key``).
-      summary: one line for the README and ``--help``.
-      citation: where the method comes from.
-      sample: ``sample(points, ratio, *, key, **params) -> (M,) indices`` (host; ``key``
-        passed only when ``needs_key``).
-      params: the keyword parameters ``sample`` accepts (``key`` aside).
-      untiled: as :attr:`Method.untiled`.
 
-    Examples:
-      >>> import hgjax
-      >>> entry = hgjax.METHODS["fps"]
-      >>> isinstance(entry, hgjax.Sampler), entry.needs_key, sorted(entry.params)
-      (True, False, ['backend', 'start'])
-    """
+def scoring(method: str) -> Method:
+    """The :class:`Method` of ``method``; a sampler (no scores) raises ValueError listing the scoring methods."""
+    found = entry(method)
+    if not isinstance(found, Method):
+        raise ValueError(f"method {method!r} is a sampler without scores; expected one of"
+                         f" {sorted(m for m, e in METHODS.items() if isinstance(e, Method))}")
+    return found
 
-    name: str
-    needs_key: bool
-    summary: str
-    citation: str
-    sample: Callable
-    params: frozenset
-    untiled: Callable | None = None
 
-    @property
-    def accepted(self) -> frozenset:
-        """Every keyword parameter of the sampler."""
-        return self.params
+def check_known(found: Method | Sampler, params: dict) -> None:
+    """Raise TypeError naming the parameters of ``params`` that no stage of ``found`` takes."""
+    unknown = set(params) - found.accepted
+    if unknown:
+        raise TypeError(f"method {found.name!r} got unexpected parameter(s) {sorted(unknown)};"
+                        f" it accepts {sorted(found.accepted)}")
 
-    @property
-    def resample_params(self) -> frozenset:
-        """The parameters resampling uses (all of them)."""
-        return self.params
 
-    def draw(self, points, ratio, key, **params):
-        """``sample(points, ratio, **params)``, given ``key`` when the sampler draws random numbers."""
-        return self.sample(points, ratio, **({"key": key} if self.needs_key else {}), **params)
+def split(found: Method, stage: str, params: dict) -> dict:
+    """The parameters of ``params`` that ``stage`` accepts; unknown names raise."""
+    check_known(found, params)
+    return {k: v for k, v in params.items() if k in found.params[stage]}

@@ -77,14 +77,6 @@ exit codes:
 DEFAULT_RATIO = 0.2
 DEMO_PICTURE = "hgjax-demo.png"
 SEED_LIMIT = 2**32
-BYTES_PER_SAMPLE = {"ea": 2048, "fps": 2048, "gfr": 4096, "hkc": 2048, "hkf": 2048, "lhf": 2048, "mss": 4096,
-                    "pca_ac": 2048, "uniform": 2048, "voxel": 2048}
-"""Peak memory per point sampled on a mesh and resampled, by method: ~190 bytes to sample
-fandisk.obj plus the method's own cost (measured: ~1700 for HKC; 2.9-3.7 KB in all for GFR),
-rounded up. The other methods are given HKC's cost: HKF, LHF and EA peaked at or below HKC
-at 2e5 samples; PCA-AC and the samplers were not measured beyond 5e4; MSS (32 neighbours,
-twice EA's) is given GFR's, unmeasured. ``--samples`` is
-refused above the available memory divided by the cost of the costliest method of the run."""
 FALLBACK_MEMORY = 8 * 2**30
 """Memory assumed where neither /proc/meminfo nor ``os.sysconf`` tells."""
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
@@ -167,6 +159,7 @@ def _param(text: str) -> tuple[str, object]:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``hgjax`` command (exposed for documentation tools)."""
     from hgjax import METHODS, Method, __version__, io
+    from hgjax._registry import DEFAULT
 
     methods = sorted(METHODS)
     scoring = [m for m in methods if isinstance(METHODS[m], Method)]
@@ -213,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
                        " cloud's centre (default 1: the whole cloud)")
 
     def with_method(p, names):
-        p.add_argument("--method", choices=names, default="hkc", help=f"one of {', '.join(names)} (default hkc)")
+        p.add_argument("--method", choices=names, default=DEFAULT, help=f"one of {', '.join(names)} (default {DEFAULT})")
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                        help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")
@@ -237,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="order of the kept points: as in the input (default; keeps a scan's GPS-time or"
                    " scan-line order) or from the highest keep priority down")
     survey = p.add_argument_group("survey", "with any of these, the inputs are one cloud resampled in tiles"
-                                  " (hgjax.tiles.resample_files): -o is a directory with one output per"
+                                  " (hgjax.survey.resample_files): -o is a directory with one output per"
                                   " input in its format and hgjax-manifest.json")
     survey.add_argument("--tile", type=_positive(float), default=None, metavar="T",
                         help="tile edge in the points' units (default: one tile)")
@@ -441,12 +434,14 @@ def _is_mesh(path: str) -> bool:
 
 def _check_samples(samples: int | None, inputs: list[str], methods: list[str]) -> None:
     """Refuse ``--samples`` on a mesh beyond what the memory holds for the costliest of
-    ``methods`` (:data:`BYTES_PER_SAMPLE`), before sampling."""
+    ``methods`` (each method's ``bytes_per_sample``), before sampling."""
+    import hgjax
+
     meshes = [path for path in inputs if _is_mesh(path)]
     if samples is None or not meshes:
         return
-    method = max(methods, key=BYTES_PER_SAMPLE.__getitem__)
-    cost, available = BYTES_PER_SAMPLE[method], _available_memory()
+    method = max(methods, key=lambda m: hgjax.METHODS[m].bytes_per_sample)
+    cost, available = hgjax.METHODS[method].bytes_per_sample, _available_memory()
     if samples * cost > available:
         raise UsageError(f"--samples {samples} needs about {samples * cost / 1e9:.1f} GB to sample {meshes[0]}"
                          f" and resample it with {method}, more than the {available / 1e9:.1f} GB available;"
@@ -509,22 +504,20 @@ def _seconds(args, name: str, seconds: float) -> None:
 def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):
     """(kept indices in keep-priority order, scores of every point or None for samplers, seconds).
 
-    The composition of :func:`hgjax.resample` (:func:`hgjax.tiles._resample`, one tile),
-    reporting each stage's seconds with ``--verbose``. The points are moved to their local
-    frame in float64 first, so that no method, the samplers included, ever casts
-    georeferenced coordinates to float32.
+    :func:`hgjax.resample`, reporting each stage's seconds with ``--verbose`` (its
+    ``on_stage``). The points are moved to their local frame in float64 first, so that no
+    method, the samplers included, ever casts georeferenced coordinates to float32.
     """
     import hgjax
-    from hgjax import tiles
 
     start = time.perf_counter()
     points = hgjax.local_frame(points)[0]
     extra = {} if voxel_size is None else {"voxel_size": voxel_size}
     if progress and "progress" in entry.resample_params:
         extra["progress"] = True
-    run = tiles._resample(points, ratio, entry.name, None, None, key, isinstance(entry, hgjax.Method),
-                          {**params, **extra}, on_stage=lambda name, seconds: _seconds(args, name, seconds))
-    return np.asarray(run.idx), run.scores, time.perf_counter() - start
+    idx, scores = hgjax.resample(points, ratio, method=entry.name, key=key, return_scores=True,
+                                 on_stage=lambda name, seconds: _seconds(args, name, seconds), **params, **extra)
+    return np.asarray(idx), scores, time.perf_counter() - start
 
 
 def count_ratio(count: int, n: int) -> float:
@@ -613,8 +606,9 @@ def cmd_resample(args) -> None:
 
     entry = METHODS[args.method]
     params = _method_params(args, entry)
-    if args.voxel_size is not None and args.method != "voxel":
-        raise UsageError(f"--voxel-size is for --method voxel; got --method {args.method}")
+    if args.voxel_size is not None and "voxel_size" not in entry.accepted:
+        takes = sorted(m for m, e in METHODS.items() if "voxel_size" in e.accepted)
+        raise UsageError(f"--voxel-size is for --method {' or '.join(takes)}; got --method {args.method}")
     if (args.tile, args.workers, args.scheduler) != (None, None, None):
         _resample_survey(args, params)
         return
@@ -661,8 +655,8 @@ def _dask_client(args):
 
 
 def _resample_survey(args, params: dict) -> None:
-    """``resample`` with --tile, --workers or --scheduler: every input one cloud (:func:`hgjax.tiles.resample_files`)."""
-    from hgjax import tiles
+    """``resample`` with --tile, --workers or --scheduler: every input one cloud (:func:`hgjax.survey.resample_files`)."""
+    from hgjax import survey
 
     if args.workers is not None and args.scheduler is not None:
         raise UsageError("give --workers (a local cluster) or --scheduler (an existing one), not both")
@@ -680,9 +674,9 @@ def _resample_survey(args, params: dict) -> None:
     start = time.perf_counter()
     with contextlib.ExitStack() as stack:
         client = None if args.workers is None and args.scheduler is None else stack.enter_context(_dask_client(args))
-        result = tiles.resample_files(inputs, args.output, ratio, method=args.method, tile=args.tile, client=client,
-                                      key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
-                                      progress=_progress(args), **params)
+        result = survey.resample_files(inputs, args.output, ratio, method=args.method, tile=args.tile, client=client,
+                                       key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
+                                       progress=_progress(args), **params)
     _stage(args, "survey", start)
     for target in result.skipped:
         print(f"skipped {target}: it exists and the manifest matches (--skip-existing)", file=sys.stderr)
@@ -759,7 +753,7 @@ def cmd_compare(args) -> None:
     data = _load(path, args)
     res = hgjax.intrinsic_resolution(data.points)
     unit, unit_name = _gap_unit(data.points, res)
-    variation = _feature_variation(data.points)
+    variation = hgjax.eval.feature_variation(data.points)
     rows, kept = [], {}
     key, progress = _key(args), _progress(args)
     for method in methods:
@@ -795,16 +789,6 @@ def _gap_unit(points: np.ndarray, res: float) -> tuple[float, str]:
         return res, "res"
     diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
     return (diagonal, "diagonal") if diagonal > 0 else (1.0, "units")
-
-
-def _feature_variation(points: np.ndarray) -> np.ndarray:
-    """Surface variation (EA's score) of every point: 0 on planes, up to 1/3 at corners; all 0
-    for a cloud of fewer points than EA's neighbourhoods hold."""
-    import hgjax
-
-    if len(points) < hgjax.scores.ea.DEFAULT_K:
-        return np.zeros(len(points))
-    return np.asarray(hgjax.score(hgjax.neighbourhoods(hgjax.local_frame(points)[0], "ea"), "ea"), np.float64)
 
 
 def _picture(points, kept: dict, path: str, args, **style) -> bool:

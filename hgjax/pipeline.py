@@ -1,63 +1,27 @@
-"""The method registry and the public composition: neighbourhoods -> score -> keep.
-
-:func:`resample` is literally ``keep(score(neighbourhoods(points, method), method), ratio)``:
+"""The public pieces of a resample: neighbourhoods -> score -> keep, and their soft twins.
 
 * :func:`neighbourhoods` (host, SciPy, not jittable) builds exactly what a method needs;
 * :func:`score` (pure JAX: jit, vmap) and its differentiable twin :func:`soft_score`;
 * :func:`keep` (host) turns scores into indices; :func:`soft_weights` into keep weights.
 
-Each method module declares its entry (a :class:`Method`: neighbourhood kind, score and soft
-score, which end is kept, whether it needs a key, the parameters of each stage, and the hooks
-of the tiled engine; or a :class:`Sampler`, which picks points without scores);
-:data:`METHODS` collects them.
+On one tile, :func:`hgjax.resample` (:mod:`hgjax.engine`) is
+``keep(score(neighbourhoods(points, method), method), ratio)``, streamed tile by tile.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate, samplers, spatial
-from hgjax._registry import Method, Sampler
-from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, pca_ac
+from hgjax import _validate, spatial
+from hgjax._method import Method
+from hgjax._registry import DEFAULT, METHODS, scoring, split
 from hgjax.select import soft_select, top_k
 
-__all__ = ["METHODS", "Method", "Sampler", "keep", "neighbourhoods", "resample", "score", "soft_resample",
-           "soft_score", "soft_weights"]
-
-METHODS: dict[str, Method | Sampler] = {m.name: m for m in (
-    hkc.METHOD, hkf.METHOD, lhf.METHOD, gfr.METHOD, ea.METHOD, pca_ac.METHOD, mss.METHOD, *samplers.SAMPLERS)}
-
-
-def _entry(method: str) -> Method | Sampler:
-    return METHODS[_validate.check_choice(method, "method", METHODS)]
-
-
-def _scoring(method: str) -> Method:
-    entry = _entry(method)
-    if not isinstance(entry, Method):
-        raise ValueError(f"method {method!r} is a sampler without scores; expected one of"
-                         f" {sorted(m for m, e in METHODS.items() if isinstance(e, Method))}")
-    return entry
-
-
-def _check_known(entry: Method | Sampler, params: dict) -> None:
-    """Raise TypeError naming the parameters of ``params`` that no stage of ``entry`` takes."""
-    unknown = set(params) - entry.accepted
-    if unknown:
-        raise TypeError(f"method {entry.name!r} got unexpected parameter(s) {sorted(unknown)};"
-                        f" it accepts {sorted(entry.accepted)}")
-
-
-def _split(entry: Method, stage: str, params: dict) -> dict:
-    """The parameters of ``params`` that ``stage`` accepts; unknown names raise."""
-    _check_known(entry, params)
-    return {k: v for k, v in params.items() if k in entry.params[stage]}
-
+__all__ = ["keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"]
 
 def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
     """The neighbourhoods a method scores, built on the host with SciPy (not jittable).
@@ -87,8 +51,8 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
       >>> nb.idx.shape, nb.idx.dtype
       ((500, 16), dtype('int32'))
     """
-    entry = _scoring(method)
-    nb = entry.build(points, **_split(entry, "build", params))
+    entry = scoring(method)
+    nb = entry.build(points, **split(entry, "build", params))
     return dataclasses.replace(nb, method=method)
 
 
@@ -156,9 +120,9 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       >>> jax.jit(lambda nb: hgjax.score(nb, "hkc"))(nb).shape
       (500,)
     """
-    entry = _scoring(method)
+    entry = scoring(method)
     _ratio_free("score", params)
-    return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", _split(entry, "score", params))))
+    return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", split(entry, "score", params))))
 
 
 def _ratio_free(stage: str, params: dict) -> None:
@@ -202,10 +166,10 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
       >>> bool(np.isfinite(g).all())
       True
     """
-    entry = _scoring(method)
+    entry = scoring(method)
     _ratio_free("soft_score", params)
     return _absent_zero(nb, entry.soft_score(nb, **_matching(nb, entry, "soft_score",
-                                                             _split(entry, "soft_score", params))))
+                                                             split(entry, "soft_score", params))))
 
 
 def keep(scores, ratio: float | None = None, *, method: str, count: int | None = None, key=None,
@@ -243,79 +207,19 @@ def keep(scores, ratio: float | None = None, *, method: str, count: int | None =
       >>> hgjax.keep(np.array([[0.2, 0.1], [0.4, 0.3], [0.1, 0.2]]), count=1, method="lhf").tolist()
       [1]
     """
-    entry = _scoring(method)
+    entry = scoring(method)
     values = _validate.check_scores(scores, columns=entry.columns)
     m = _validate.check_keep(values.shape[0], ratio, count)
-    chosen = _split(entry, "select", params)
+    return kept(entry, values, m, key, split(entry, "select", params))
+
+
+def kept(entry: Method, values: np.ndarray, m: int, key, chosen: dict) -> np.ndarray:
+    """:func:`keep` of validated (N,) or (N, C) scores ``values``, the count ``m`` and selection parameters ``chosen``."""
     if entry.combine is not None:
         values = entry.combine(values, m)
     if entry.select is None:
         return top_k(values, m, largest=entry.largest)
     return entry.select(values, m, key=key, **chosen)
-
-
-def resample(points, ratio: float, *, method: str = "hkc", key=None, **params) -> np.ndarray:
-    """Indices of the ceil(ratio * N) points that a method keeps.
-
-    The composition ``keep(score(neighbourhoods(points, method)), ratio)`` for scoring
-    methods (:class:`Method`); samplers (:class:`Sampler`) work on the points directly.
-
-    Args:
-      points: (N, 3) float32 or float64 (NumPy or JAX array); never modified.
-      ratio: fraction alpha of points to keep, in (0, 1]. ceil(ratio N) points are kept,
-        with ratio N first rounded to 1e-9 relative (and a float32 ratio read as the
-        decimal it prints as), so ``np.float32(0.2)`` of 1000 points keeps 200.
-      method: a key of :data:`hgjax.METHODS` (default ``"hkc"``).
-      key: ``jax.random`` key for methods that draw random numbers (ignored by the others).
-      **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
-        ``chunk_size``, ``progress``).
-
-    Returns:
-      (M,) int64 unique indices into ``points``, M = ceil(ratio N), from the highest to the
-      lowest keep priority (ties broken by index), so ``points[idx]`` is the resampled cloud.
-
-    Raises:
-      TypeError, ValueError: invalid points, ratio, method or parameters.
-
-    Examples:
-      >>> import numpy as np, hgjax
-      >>> pts = hgjax.eval.box_union_cloud(seed=0, n_points=2000).points
-      >>> idx = hgjax.resample(pts, 0.2, method="hkc")
-      >>> idx.shape, len(set(idx.tolist()))
-      ((400,), 400)
-    """
-    from hgjax import tiles  # the tiled engine builds on this registry
-
-    return tiles.resample(points, ratio, method=method, key=key, **params)
-
-
-class _Clock:
-    """Reports each stage's seconds, from the end of the previous one, as ``on_stage(name, seconds)``."""
-
-    def __init__(self, on_stage):
-        self.on_stage, self.start = on_stage, time.perf_counter()
-
-    def __call__(self, name: str, value=None):
-        """``value`` unchanged, after reporting that stage ``name`` ended."""
-        if self.on_stage is not None:
-            now = time.perf_counter()
-            self.on_stage(name, now - self.start)
-            self.start = now
-        return value
-
-
-def _whole(points, ratio, entry: Method, key, params: dict, on_stage=None) -> tuple[np.ndarray, np.ndarray]:
-    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference).
-
-    ``on_stage(name, seconds)``, when given, is called as each stage (``"neighbourhoods"``,
-    ``"score"``, ``"keep"``) ends.
-    """
-    clock = _Clock(on_stage)
-    pts = _validate.check_points(points)
-    ratio = _validate.check_ratio(ratio)
-    nb = clock("neighbourhoods", neighbourhoods(pts, entry.name, **params))
-    scores = clock("score", np.asarray(score(nb, entry.name, **params)))
-    return clock("keep", keep(scores, ratio, method=entry.name, key=key, **params)), scores
 
 
 def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=0.05, **params) -> jax.Array:
@@ -348,7 +252,7 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
       >>> round(float(hgjax.soft_weights(nb, 0.2, method="hkc").sum()), 6)
       20.0
     """
-    entry = _scoring(method)
+    entry = scoring(method)
     s = soft_score(nb, method, **params)
     if entry.combine is not None:
         n = nb.points.shape[0] if nb.count is None else nb.count
@@ -357,7 +261,7 @@ def soft_weights(nb: spatial.Neighbourhoods, ratio, *, method: str, temperature=
                        valid=None if nb.count is None else nb.row_mask)
 
 
-def soft_resample(points, ratio: float, *, method: str = "hkc", temperature=0.05, **params) -> jax.Array:
+def soft_resample(points, ratio: float, *, method: str = DEFAULT, temperature=0.05, **params) -> jax.Array:
     """Differentiable soft resampling of a concrete cloud: per-point keep weights.
 
     ``soft_weights(neighbourhoods(points, method), ratio)``. The neighbourhoods are built on
@@ -391,7 +295,7 @@ def soft_resample(points, ratio: float, *, method: str = "hkc", temperature=0.05
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
     _validate.check_traced_positive(temperature, "temperature")
-    entry = _scoring(method)
+    entry = scoring(method)
     nb = neighbourhoods(pts, method, **params)
     return soft_weights(nb, ratio, method=method, temperature=temperature,
                         **{k: v for k, v in params.items() if k in entry.params["soft_score"]})

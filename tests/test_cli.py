@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _validate, cli, io, tiles
+from hgjax import _validate, cli, engine, io
 from hgjax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -43,14 +43,14 @@ def run_here(capsys, *args):
 
 @pytest.fixture
 def runs(monkeypatch):
-    """Every run of the resampling composition (hgjax.tiles._resample) made by the CLI: (method, ratio, params)."""
-    calls, composition = [], tiles._resample
+    """Every run of the resampling engine (hgjax.engine.run) made by the CLI: (method, ratio, params)."""
+    calls, composition = [], engine.run
 
-    def spy(points, ratio, method, tile, client, key, return_scores, params, on_stage=None):
+    def spy(points, ratio, *, method, params, **rest):
         calls.append((method, ratio, dict(params)))
-        return composition(points, ratio, method, tile, client, key, return_scores, params, on_stage)
+        return composition(points, ratio, method=method, params=params, **rest)
 
-    monkeypatch.setattr(tiles, "_resample", spy)
+    monkeypatch.setattr(engine, "run", spy)
     return calls
 
 
@@ -275,7 +275,7 @@ def test_unwritable_output_is_refused_before_computing(capsys, tmp_path, monkeyp
     def fail(*args, **kwargs):
         raise AssertionError("computed before the output was checked")
 
-    monkeypatch.setattr(tiles, "_resample", fail)
+    monkeypatch.setattr(engine, "run", fail)
     monkeypatch.setattr(io, "read_points", fail)
     code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "no" / "dir" / "x.ply")
     assert code == 2 and "directory" in err and "does not exist" in err

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import tiles
+from hgjax import _tiling, tiles
 
 distributed = pytest.importorskip("distributed")
 
@@ -88,7 +88,7 @@ def test_a_worker_dead_in_a_small_task_names_the_largest_tile_too():
     p = np.concatenate([rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.01], rng.uniform(0, 2, (400, 3)) * [1, 1, 0.01]])
     _, cloud = tiles.plan(p, 0.2, method="ea", tile=1.0)
     small, large = sorted(cloud.occupied(), key=cloud.core_size)[::len(cloud.occupied()) - 1]
-    dask = object.__new__(tiles._Dask)
+    dask = object.__new__(_tiling.Dask)
     dask.cloud, dask.k, dask.cells = cloud, 16, {"a": small, "b": large}
     message = dask.killed("a", 2**29)
     assert message.startswith(f"Dask workers died running tile {small} (task 'a'): it needs about 0.0 MiB")

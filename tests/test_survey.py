@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import io, tiles
+from hgjax import io, survey, tiles
 
 laspy = pytest.importorskip("laspy")
 
@@ -70,11 +70,11 @@ def test_survey_equals_the_concatenated_cloud(tmp_path, ext, survey_reference):
     reference, want = survey_reference
     np.testing.assert_array_equal(cloud, reference)
     before = [Path(p).read_bytes() for p in paths]
-    result = tiles.resample_files(str(tmp_path / f"*{ext}"), tmp_path / "kept", 0.2, method="hkc", tile=TILE)
+    result = survey.resample_files(str(tmp_path / f"*{ext}"), tmp_path / "kept", 0.2, method="hkc", tile=TILE)
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), want)
     assert [Path(p).read_bytes() for p in paths] == before
     assert result.failures == {} and len(result.written) == 4
-    manifest = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())
+    manifest = json.loads((tmp_path / "kept" / survey.MANIFEST).read_text())
     assert manifest["m"] == want.size and sum(o["kept"] for o in manifest["outputs"]) == want.size
     assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
 
@@ -84,8 +84,8 @@ def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
     paths, cloud = _survey(tmp_path, n_files=2, n=1000)
     key = jax.random.key(3) if method == "gfr" else None
     tile = 200.0 if method == "gfr" else TILE  # GFR's radius (10 spacings) wants tiles of more than a few points
-    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=tile, key=key)
-    resolved = json.loads((tmp_path / "kept" / tiles.MANIFEST).read_text())["resolved"]
+    survey.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=tile, key=key)
+    resolved = json.loads((tmp_path / "kept" / survey.MANIFEST).read_text())["resolved"]
     plan, cloud_tiles = tiles.plan(cloud, 0.2, method=method, tile=tile)
     assert len(cloud_tiles.members) >= 4
     idx, scores = tiles.resample(cloud, 0.2, method=method, tile=tile, key=key, return_scores=True)
@@ -102,7 +102,7 @@ def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
 
 def test_survey_on_a_local_cluster(tmp_path, client):
     paths, cloud = _survey(tmp_path)
-    tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, client=client)
+    survey.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, client=client)
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.2, method="ea")))
 
@@ -115,7 +115,7 @@ def test_a_point_on_a_tile_edge_is_owned_once(tmp_path):
     las.x[0], las.y[0], las.z[0] = edge
     las.write(paths[0])
     paths, cloud = paths, np.concatenate([io.read_points(p).points for p in paths])
-    result = tiles.resample_files(paths, tmp_path / "kept", 1.0, method="ea", tile=TILE)
+    result = survey.resample_files(paths, tmp_path / "kept", 1.0, method="ea", tile=TILE)
     assert sum(len(io.read_points(p)) for p in result.written) == cloud.shape[0]
 
 
@@ -124,9 +124,9 @@ def test_a_corrupt_file_is_named_before_any_output(tmp_path):
     with open(paths[1], "r+b") as fh:
         fh.truncate(os.path.getsize(paths[1]) // 2)
     with pytest.raises(io.PointCloudReadError, match="tile1.las"):
-        tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE)
+        survey.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE)
     assert not os.path.exists(tmp_path / "kept") or os.listdir(tmp_path / "kept") == []
-    result = tiles.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, keep_going=True)
+    result = survey.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, keep_going=True)
     assert list(result.failures) == [paths[1]] and len(result.written) == 2
     good = [paths[0], paths[2]]
     cloud = np.concatenate([io.read_points(p).points for p in good])
@@ -136,15 +136,15 @@ def test_a_corrupt_file_is_named_before_any_output(tmp_path):
 def test_skip_existing_resumes(tmp_path):
     paths, _ = _survey(tmp_path, n_files=2, n=1500)
     out = tmp_path / "kept"
-    tiles.resample_files(paths, out, 0.2, method="ea", tile=TILE)
+    survey.resample_files(paths, out, 0.2, method="ea", tile=TILE)
     first = (out / "tile0.las").read_bytes()
     os.unlink(out / "tile1.las")
-    result = tiles.resample_files(paths, out, 0.2, method="ea", tile=TILE, skip_existing=True)
+    result = survey.resample_files(paths, out, 0.2, method="ea", tile=TILE, skip_existing=True)
     assert result.skipped == [str(out / "tile0.las")] and result.written == [str(out / "tile1.las")]
     assert (out / "tile0.las").read_bytes() == first
-    again = tiles.resample_files(paths, out, 0.2, method="ea", tile=TILE, skip_existing=True)
+    again = survey.resample_files(paths, out, 0.2, method="ea", tile=TILE, skip_existing=True)
     assert again.written == [] and len(again.skipped) == 2
-    changed = tiles.resample_files(paths, out, 0.3, method="ea", tile=TILE, skip_existing=True)
+    changed = survey.resample_files(paths, out, 0.3, method="ea", tile=TILE, skip_existing=True)
     assert len(changed.written) == 2
 
 
@@ -156,7 +156,7 @@ def test_cli_survey_on_two_workers(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     np.testing.assert_array_equal(_kept_ids(paths, out), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
-    assert (out / tiles.MANIFEST).exists()
+    assert (out / survey.MANIFEST).exists()
 
 
 @pytest.mark.parametrize("extra,message", [(["--workers", "0"], "--workers"),
@@ -187,7 +187,7 @@ def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
                                            ("gfr", {"variant": "reference", "mode": "top"})])
 def test_whole_cloud_methods_equal_the_concatenated_cloud(tmp_path, method, params):
     paths, cloud = _survey(tmp_path, n_files=2, n=1000)
-    tiles.resample_files(paths, tmp_path / "kept", 0.2, method=method, **params)
+    survey.resample_files(paths, tmp_path / "kept", 0.2, method=method, **params)
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.2, method=method, **params)))
     assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
@@ -196,10 +196,10 @@ def test_whole_cloud_methods_equal_the_concatenated_cloud(tmp_path, method, para
 def test_uniform_reads_no_coordinate_after_the_check(tmp_path, monkeypatch):
     paths, cloud = _survey(tmp_path, n_files=2, n=1000)
     read = []
-    chunks = tiles._chunks
-    monkeypatch.setattr(tiles, "_chunks", lambda path: read.append(path) or chunks(path))
+    chunks = io.chunks
+    monkeypatch.setattr(io, "chunks", lambda path: read.append(path) or chunks(path))
     key = jax.random.key(6)
-    tiles.resample_files(paths, tmp_path / "kept", 0.3, method="uniform", key=key, tile=30.0)
+    survey.resample_files(paths, tmp_path / "kept", 0.3, method="uniform", key=key, tile=30.0)
     assert sorted(read) == sorted(os.path.abspath(p) for p in paths)  # the check's one read of each file
     np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
                                   np.sort(hgjax.resample(cloud, 0.3, method="uniform", key=key)))
@@ -217,7 +217,7 @@ def test_copc_tiles_read_only_the_octree_nodes_they_meet(tmp_path, monkeypatch):
     decoded, fetch = [], laspy.copc.CopcReader._fetch_and_decompress_points_of_nodes
     monkeypatch.setattr(laspy.copc.CopcReader, "_fetch_and_decompress_points_of_nodes",
                         lambda reader, nodes: decoded.append(len(nodes)) or fetch(reader, nodes))
-    tiles.resample_files([path], tmp_path / "kept", 0.2, method="hkc", tile=100.0)
+    survey.resample_files([path], tmp_path / "kept", 0.2, method="hkc", tile=100.0)
     with laspy.copc.CopcReader.open(path) as reader:
         nodes = len(laspy.copc.load_octree_for_query(reader.source, reader.copc_info, reader.root_page))
     assert max(decoded) == nodes and min(decoded) < nodes  # the check reads every node, a tile only some
@@ -232,7 +232,7 @@ def test_copc_tiles_read_only_the_octree_nodes_they_meet(tmp_path, monkeypatch):
 def test_copc_among_las_tiles_on_a_local_cluster_keeps_global_ids_in_file_order(tmp_path, client):
     paths, cloud = _survey(tmp_path, ".laz", n_files=1, n=1500)
     copc = io.read_points(COPC).points
-    tiles.resample_files([COPC, *paths], tmp_path / "kept", 0.2, method="ea", tile=100.0, client=client)
+    survey.resample_files([COPC, *paths], tmp_path / "kept", 0.2, method="ea", tile=100.0, client=client)
     want = np.sort(hgjax.resample(np.concatenate([copc, cloud]), 0.2, method="ea"))
     kept = want[want < copc.shape[0]]
     out = laspy.read(tmp_path / "kept" / COPC.name)
@@ -264,7 +264,7 @@ def test_a_corrupt_copc_octree_is_named_before_any_output(tmp_path, what, messag
     bad.write_bytes(COPC.read_bytes())
     _corrupt_copc(bad, what)
     with pytest.raises(io.PointCloudReadError, match=message):
-        tiles.resample_files([*paths, bad], tmp_path / "kept", 0.2, method="ea", tile=100.0)
+        survey.resample_files([*paths, bad], tmp_path / "kept", 0.2, method="ea", tile=100.0)
     assert not os.path.exists(tmp_path / "kept") or os.listdir(tmp_path / "kept") == []
 
 
@@ -272,11 +272,11 @@ def test_copc_chunks_number_points_in_file_order(monkeypatch):
     monkeypatch.setattr(tiles, "PASS_ROWS", 500)  # several batches of nodes
     src = laspy.read(COPC)
     xyz = np.stack([np.asarray(src.x), np.asarray(src.y), np.asarray(src.z)], axis=1)
-    whole = list(tiles._chunks(str(COPC)))
+    whole = list(io.chunks(str(COPC)))
     np.testing.assert_array_equal(np.concatenate([s + np.arange(x.shape[0]) for s, x in whole]), np.arange(len(xyz)))
     np.testing.assert_array_equal(np.concatenate([x for _, x in whole]), xyz)
     lo, hi = xyz.min(axis=0) + 40.0, xyz.min(axis=0) + 90.0
-    part = list(tiles._chunks(str(COPC), (lo, hi)))
+    part = list(io.chunks(str(COPC), box=(lo, hi)))
     ids = np.concatenate([s + np.arange(x.shape[0]) for s, x in part])
     np.testing.assert_array_equal(np.concatenate([x for _, x in part]), xyz[ids])
     inside = np.flatnonzero(((xyz >= lo) & (xyz <= hi)).all(axis=1))

@@ -11,7 +11,8 @@ import pytest
 
 import hgjax
 from fixtures import backend_compiles, box_union, grid
-from hgjax import _stream, select, spatial, tiles
+from hgjax import _stream, _tiling, select, spatial, tiles
+from hgjax.scores import gfr
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
 VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
@@ -60,7 +61,7 @@ def test_the_grid_is_planned_by_a_stable_sort_of_keys_of_any_width():
     rng = np.random.default_rng(5)
     for top, dtype in ((3, np.uint32), (70_000, np.uint32), (1 << 32, np.uint32), (1 << 40, np.uint64)):
         key = rng.integers(0, top, 50_000, dtype=np.uint64).astype(dtype)  # ties at every width
-        np.testing.assert_array_equal(tiles._stable_order(key, top), np.argsort(key, kind="stable"), err_msg=str(top))
+        np.testing.assert_array_equal(_tiling.stable_order(key, top), np.argsort(key, kind="stable"), err_msg=str(top))
 
 
 def test_points_on_tile_edges_are_owned_once():
@@ -96,8 +97,8 @@ def test_halo_slabs_hold_every_point_of_the_box_and_no_other():
 @pytest.mark.parametrize("method,params", [("hkc", {}), ("gfr", {"mode": "top"})])
 def test_each_tile_is_gathered_once_per_halo(smooth, method, params, monkeypatch):
     seen = []
-    gather = tiles._Cloud.gather
-    monkeypatch.setattr(tiles._Cloud, "gather",
+    gather = _tiling.Cloud.gather
+    monkeypatch.setattr(_tiling.Cloud, "gather",
                         lambda self, cell, halo: seen.append((cell, halo)) or gather(self, cell, halo))
     tiles.resample(smooth, 0.2, method=method, tile=1.4, **params)
     assert len(seen) == len(set(seen)), sorted(seen)
@@ -114,7 +115,7 @@ def test_gfr_beyond_keep_points_spills_each_graph_between_passes(smooth, mode, d
     and that is gone at the end; with no room on the disk the second pass builds the graphs
     again, without their pair sums. The same indices as one process either way."""
     want = hgjax.resample(smooth, 0.2, method="gfr", mode=mode, key=jax.random.key(3))
-    alive, alive_at_build, with_sums, graph = [0], [], [], tiles._gfr_graph
+    alive, alive_at_build, with_sums, graph = [0], [], [], gfr._tile_graph
 
     def freed():
         alive[0] -= 1
@@ -127,11 +128,11 @@ def test_gfr_beyond_keep_points_spills_each_graph_between_passes(smooth, mode, d
         alive_at_build.append(alive[0])
         return g
 
-    monkeypatch.setattr(tiles, "KEEP_POINTS", 0)
-    monkeypatch.setattr(tiles, "_gfr_graph", counted)
+    monkeypatch.setattr(_tiling, "KEEP_POINTS", 0)
+    monkeypatch.setattr(gfr, "_tile_graph", counted)
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     if disk_free is not None:
-        monkeypatch.setattr(tiles.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1, 1, disk_free))
+        monkeypatch.setattr(gfr.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1, 1, disk_free))
     got = tiles.resample(smooth, 0.2, method="gfr", tile=1.4, mode=mode, key=jax.random.key(3))
     np.testing.assert_array_equal(got, want)
     cells = tiles.plan(smooth, 0.2, method="gfr", tile=1.4)[1].members

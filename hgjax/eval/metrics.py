@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from hgjax import _validate
 from hgjax.spatial import intrinsic_resolution
 
-__all__ = ["average_precision", "edge_metrics"]
+__all__ = ["average_precision", "edge_metrics", "feature_variation"]
 
 
 def average_precision(scores, labels) -> float:
@@ -126,3 +126,13 @@ def edge_metrics(points, edge_mask, kept, *, scores=None, edge_points=None, reso
         den = np.sqrt(float(tp + fp) * (tp + fn) * (tn + fp) * (tn + fn))
         out["mcc"] = float((tp * tn - fp * fn) / den) if den > 0 else 0.0
     return out
+
+
+def feature_variation(points: np.ndarray) -> np.ndarray:
+    """Surface variation (EA's score) of every point: 0 on planes, up to 1/3 at corners; all 0
+    for a cloud of fewer points than EA's neighbourhoods hold (the colour of ``hgjax compare``)."""
+    import hgjax
+
+    if len(points) < hgjax.scores.eigen.DEFAULT_K:
+        return np.zeros(len(points))
+    return np.asarray(hgjax.score(hgjax.neighbourhoods(hgjax.local_frame(points)[0], "ea"), "ea"), np.float64)

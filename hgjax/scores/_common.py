@@ -46,7 +46,7 @@ def centred_entries(x: jax.Array, valid: jax.Array | None = None):
 
     Summed per coordinate, with the scatter as its six entries in ``PAIRS`` order (scalars,
     not a stacked (3, 3)): XLA fuses these sums, where batched dots of this size and stacked
-    matrices are slow (:func:`hgjax.scores.ea.eigenvalues` takes the entries as they are).
+    matrices are slow (:func:`hgjax.scores.eigen.eigenvalues` takes the entries as they are).
 
     Args:
       x: (n, 3) rows.

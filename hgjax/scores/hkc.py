@@ -32,7 +32,7 @@ import functools
 
 import jax.numpy as jnp
 
-from hgjax import _registry, _stream, _validate
+from hgjax import _method, _stream, _validate
 from hgjax.scores import _common, voxel
 
 __all__ = ["beta", "score", "soft_beta", "soft_score"]
@@ -180,17 +180,26 @@ def tile_rows(index, rows, build: dict, dtype):
         yield part, idx, (scale.astype(dtype),), reach
 
 
+def cube_reach(build: dict) -> tuple[int, int]:
+    """(k, radii) of the cube's halo: its spacing estimate reads the k-nearest radius of each of the
+    point's k nearest neighbours (:func:`hgjax.spatial.local_spacing`), two radii, where the invariant
+    cube is sized by it (no fixed ``resolution``); one otherwise."""
+    adaptive = build["variant"] == "invariant" and build["resolution"] is None
+    return voxel.LOCAL_K + 1, 2 if adaptive else 1
+
+
 def _tile_kernel(params: dict):
     return _kernel(params["kernel_size"], params["variant"]), True
 
 
-CUBE_PARAMS = _registry.stages(build=("capacity", "d_factor", "dedupe", "kernel_size", "resolution", "variant"),
+CUBE_PARAMS = _method.stages(build=("capacity", "d_factor", "dedupe", "kernel_size", "resolution", "variant"),
                                score=("chunk_size", "kernel_size", "progress", "variant"),
                                soft_score=("kernel_size", "tau", "variant"))
 
-METHOD = _registry.Method(
+METHOD = _method.Method(
     "hkc", "cube", largest=False, needs_key=False,
     summary="hypergraph kernel convolution: keep the smallest high/low band ratio beta",
-    citation=f"{_registry.PAPER}, Alg. 1, Eq. (11)", build=voxel.neighbourhoods, score=score,
-    soft_score=soft_score, params=CUBE_PARAMS, tile_params=tile_params, resolve=resolve_build, rows=tile_rows,
-    kernel=_tile_kernel)
+    citation=f"{_method.PAPER}, Alg. 1, Eq. (11)", build=voxel.neighbourhoods, score=score,
+    soft_score=soft_score, params=CUBE_PARAMS,
+    tiling=_method.Tiling(params=tile_params, reach=cube_reach, resolve=resolve_build, rows=tile_rows,
+                          kernel=_tile_kernel))

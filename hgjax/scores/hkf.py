@@ -21,11 +21,12 @@ Lower sigma means sharper; resampling keeps the smallest. sigma is always finite
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax.numpy as jnp
 
-from hgjax import _registry, _stream, _validate
+from hgjax import _method, _stream, _validate
 from hgjax.scores import _common, hkc, voxel
 
 __all__ = ["score", "sigma"]
@@ -97,9 +98,9 @@ def _tile_kernel(params: dict):
     return _kernel(params["kernel_size"], params["variant"]), True
 
 
-METHOD = _registry.Method(
+METHOD = _method.Method(
     "hkf", "cube", largest=False, needs_key=False,
     summary="hypergraph kernel filtering: keep the smallest high-band share sigma",
-    citation=f"{_registry.PAPER}, Alg. 2, Eq. (12)", build=voxel.neighbourhoods, score=score,
-    soft_score=hkc.soft_score, params=hkc.CUBE_PARAMS, tile_params=hkc.tile_params, resolve=hkc.resolve_build,
-    rows=hkc.tile_rows, kernel=_tile_kernel)
+    citation=f"{_method.PAPER}, Alg. 2, Eq. (12)", build=voxel.neighbourhoods, score=score,
+    soft_score=hkc.soft_score, params=hkc.CUBE_PARAMS,
+    tiling=dataclasses.replace(hkc.METHOD.tiling, kernel=_tile_kernel))

@@ -59,8 +59,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _registry, _stream, _validate, select, spatial, spectrum
-from hgjax.scores import _common, ea
+from hgjax import _method, _stream, _validate, select, spatial, spectrum
+from hgjax.scores import _common, ea, eigen
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
 
@@ -128,7 +128,7 @@ def bands(s) -> Bands:
     # gamma is scale-free: scale s by a power of two to max|s| in [1/2, 1). Exact, so every
     # rounding below scales with it and no square under- or overflows.
     c, cov = _common.centred_entries(_common.unit_scale(s))  # c: the centroid offset
-    mu = jnp.maximum(jnp.stack(ea.eigenvalues(cov)), 0)
+    mu = jnp.maximum(jnp.stack(eigen.eigenvalues(cov)), 0)
     if n == 3:  # three centred rows span at most a plane
         mu = mu.at[0].set(0)
     r = _common.safe_div(mu, mu[2], 0.0)
@@ -480,12 +480,14 @@ def _mix_part(part, big_a: float, big_b: float):
     return gids, mix(g[:, 0], g[:, 1], g.dtype.type(big_a), g.dtype.type(big_b))
 
 
-METHOD = _registry.Method(
+METHOD = _method.Method(
     "lhf", "knn", largest=True, needs_key=False,
     summary="local hypergraph filtering: keep the largest two-length sharpness gamma",
-    citation=f"{_registry.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
+    citation=f"{_method.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_registry.stages(build=("capacity", "dedupe", "lengths", "variant"),
+    params=_method.stages(build=("capacity", "dedupe", "lengths", "variant"),
                             score=("chunk_size", "lengths", "progress", "solver", "variant"),
                             soft_score=("lengths", "tau")),
-    columns=2, combine=combine, tile_params=tile_params, rows=ea.tile_rows, kernel=_tile_kernel, tiled_select=tiled_select)
+    columns=2, combine=combine,
+    tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, rows=ea.tile_rows, kernel=_tile_kernel,
+                          select=tiled_select))

@@ -59,8 +59,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _registry, _stream, _validate, spatial
+from hgjax import _method, _stream, _validate, spatial
 from hgjax.scores import _common, _mss_weights, ea
+from hgjax.scores.eigen import jacobi
 
 __all__ = ["FEATURES", "HIDDEN", "LOW", "NOISE_K", "SCALES", "eigen", "features", "inputs", "mlp", "neighbourhoods",
            "noise_level", "score", "sharpness", "soft_score", "weights"]
@@ -82,10 +83,10 @@ def _prefix(offsets, valid, k: int):
 @jax.custom_jvp
 def eigen(cov):
     """Eigenvalues l0 <= l1 <= l2 and a unit eigenvector n (3,) of l0 (sign arbitrary) of a
-    symmetric 3 x 3 ``cov``, by one run of :mod:`hgjax.scores.ea` 's cyclic Jacobi.
+    symmetric 3 x 3 ``cov``, by one run of :mod:`hgjax.scores.eigen` 's cyclic Jacobi.
 
     The derivatives are first-order perturbation theory: dl_i = v_i^T dC v_i (as
-    :func:`hgjax.scores.ea.smallest_eigenvalue`) and dn = sum_j v_j (v_j^T dC n) / (l0 - l_j)
+    :func:`hgjax.scores.eigen.smallest_eigenvalue`) and dn = sum_j v_j (v_j^T dC n) / (l0 - l_j)
     over the other eigenpairs, with the terms of an eigenvalue within ``GAP`` x trace of l0
     left out: exact where l0 is simple, finite where it is degenerate (there n is one vector
     of its eigenspace, and the eigenspace, not n, is what varies smoothly).
@@ -103,7 +104,7 @@ def eigen(cov):
       >>> lam.tolist(), n.tolist()
       ([0.5, 1.0, 2.0], [0.0, 1.0, 0.0])
     """
-    lam, vec = ea._jacobi(cov, vectors=True)
+    lam, vec = jacobi(cov, vectors=True)
     order = _ascending(lam)
     return lam[order], vec[:, order[0]]
 
@@ -117,7 +118,7 @@ def _ascending(lam):
 @eigen.defjvp
 def _eigen_jvp(primals, tangents):
     (cov,), (dcov,) = primals, tangents
-    lam, vec = ea._jacobi(cov, vectors=True)
+    lam, vec = jacobi(cov, vectors=True)
     order = _ascending(lam)
     lam, vec = lam[order], vec[:, order]
     normal = vec[:, 0]
@@ -438,10 +439,18 @@ def tile_rows(index, rows, build: dict, dtype):
         yield part, idx, (np.full(idx.shape[0], build["noise"], dtype),), reach
 
 
-METHOD = _registry.Method(
+def _tile_kernel(params: dict):
+    """(row kernel, narrow) the tiles stream: :func:`sharpness` on full-width rows."""
+    del params  # the noise level comes per row
+    return sharpness, False
+
+
+METHOD = _method.Method(
     "mss", "knn", largest=True, needs_key=False,
     summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 6 to 32 neighbours and the cloud's noise level, trained on synthetic shapes",
     citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
-    soft_score=soft_score, params=_registry.stages(build=("capacity", "dedupe"), score=("chunk_size", "noise", "progress"),
+    soft_score=soft_score, params=_method.stages(build=("capacity", "dedupe"), score=("chunk_size", "noise", "progress"),
                                                    soft_score=("noise",)),
-    tile_params=tile_params, resolve=resolve, rows=tile_rows, kernel=lambda params: (sharpness, False))
+    bytes_per_sample=4096,
+    tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, resolve=resolve, rows=tile_rows,
+                          kernel=_tile_kernel))

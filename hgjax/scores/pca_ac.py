@@ -37,7 +37,7 @@ import heapq
 
 import numpy as np
 
-from hgjax import _registry, _validate, select
+from hgjax import _method, _validate, select
 from hgjax.scores import ea
 
 __all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
@@ -227,9 +227,10 @@ def _untiled(params: dict) -> tuple[str, str]:
     return "", "PCA-AC clusters the scores of the whole cloud at once (Ward), so its selection cannot be cut into tiles"
 
 
-METHOD = _registry.Method(
+METHOD = _method.Method(
     "pca_ac", "knn", largest=True, needs_key=False,
     summary="PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
-    citation=_registry.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
-    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select, untiled=_untiled,
-    whole_selection=True, tile_params=tile_params, rows=ea.tile_rows, kernel=ea.tile_kernel)
+    citation=_method.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
+    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select,
+    tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, rows=ea.tile_rows, kernel=ea.tile_kernel,
+                          whole_selection=True, refused=_untiled))

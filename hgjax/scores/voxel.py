@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate, spatial
-from hgjax.scores import _common, ea
+from hgjax.scores import _common, eigen
 
 __all__ = ["band_energies", "default_d_factor", "frame", "local_signal", "low_high", "neighbourhoods", "oriented",
            "soft_local_signal"]
@@ -230,13 +230,13 @@ def frame(entries) -> jax.Array:
       >>> bool(jnp.allclose(v.T @ v, jnp.eye(3), atol=1e-6))
       True
     """
-    return ea._rotations(entries, vectors=True)[1]
+    return eigen.rotations(entries, vectors=True)[1]
 
 
 @frame.defjvp
 def _frame_jvp(primals, tangents):
     (entries,), (dc,) = primals, tangents
-    lam, vec = ea._rotations(entries, vectors=True)
+    lam, vec = eigen.rotations(entries, vectors=True)
     tol = FRAME_GAP * jnp.abs(entries[0] + entries[1] + entries[2])
     cols = []
     for k in range(3):

@@ -1,0 +1,203 @@
+"""The two kinds of registry entry, scoring methods and samplers, and how a method tiles.
+
+Each method module declares its own entry (``METHOD`` in :mod:`hgjax.scores.hkc` and its
+siblings, ``SAMPLERS`` in :mod:`hgjax.samplers`), naming the parameters of each stage and
+its tiling capability explicitly; :data:`hgjax.METHODS` (:mod:`hgjax._registry`) collects them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+STAGES = ("build", "score", "soft_score", "select")
+PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
+DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
+
+
+def stages(**names) -> dict:
+    """{stage: frozenset of keyword parameters} for every stage of :data:`STAGES` (missing ones empty)."""
+    return {stage: frozenset(names.get(stage, ())) for stage in STAGES}
+
+
+@dataclasses.dataclass(frozen=True)
+class Tiling:
+    """How a scoring method runs in tiles, declared by the method (PDAL's ``Streamable``).
+
+    The engine (:mod:`hgjax.engine`) and the tiled grid (:mod:`hgjax._tiling`) ask a method
+    only through this object, never by name.
+
+    Attributes:
+      params: ``params(n, params) -> (build, score)``: the validated build and score
+        parameters of a run of ``n`` points, before any whole-cloud decision.
+      reach: ``reach(build) -> (k, radii)``: the k-nearest radius a core neighbourhood spans
+        and how many such radii it reaches (two for a neighbourhood sized by its neighbours'
+        spacing): the first halo tried, and the neighbours per point a Dask task holds.
+      resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
+        whole cloud, ``stats()`` giving the seeded sample's nearest distances and
+        neighbourhoods (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
+      halo: ``halo(build, first) -> halo``: the first halo once ``resolve`` has run (GFR's
+        graph needs twice its radius); None keeps ``first``.
+      rows: ``rows(index, rows, build, dtype)``: a tile's neighbourhoods of the sorted-frame
+        ``rows``, yielded batch by batch as ``(part, idx, row_args, reach)`` (a slice of
+        ``rows``, their neighbour rows, per-row kernel arguments and the radius each
+        neighbourhood reaches); with ``kernel``, what :func:`hgjax._tiling.tile_scores` streams.
+      kernel: ``kernel(score_params) -> (row kernel, narrow)``: the per-neighbourhood kernel
+        the tiles stream (:class:`hgjax._stream.Stream`, or :class:`hgjax._stream.NarrowStream`
+        when ``narrow``).
+      scores: ``scores(runner, plan, stream) -> parts``: every tile's (gids, scores), for a
+        method whose tiles are not independent rows (GFR's two passes over its graph); None
+        runs :func:`hgjax._tiling.tile_scores` on every tile.
+      select: ``select(runner, parts, plan, key) -> (parts, keyed parts, statistics,
+        largest)``: the global selection over the tiles' (gids, scores) parts, as order keys
+        for :func:`hgjax.select.top_pairs`; None keeps the top scores.
+      whole_selection: the selection ranks every score at once (PCA-AC's Ward clustering):
+        ``refused`` refuses a tile size, and a run without one scores the cloud as one tile
+        before the method's ``select`` takes all the scores. False for a method whose refused
+        parameters need the whole cloud to score it (GFR's reference radius).
+      refused: ``refused(params) -> (qualifier, reason) | None``: why these parameters need
+        the whole cloud at once (the tiled path refuses a tile size, naming the reason);
+        None when the method always tiles.
+    """
+
+    params: Callable
+    reach: Callable
+    resolve: Callable | None = None
+    halo: Callable | None = None
+    rows: Callable | None = None
+    kernel: Callable | None = None
+    scores: Callable | None = None
+    select: Callable | None = None
+    whole_selection: bool = False
+    refused: Callable | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A registered scoring method: neighbourhoods, a per-point score, a selection.
+
+    Attributes:
+      name: registry key.
+      kind: neighbourhood kind, ``"cube"``, ``"knn"`` or ``"graph"``.
+      largest: True when the largest scores are kept, False for the smallest.
+      needs_key: whether the default selection draws random numbers (explicit ``key``).
+      summary: one line for the README and ``--help``.
+      citation: where the method comes from.
+      build: ``build(points, **params) -> Neighbourhoods`` (host).
+      score: ``score(nb, **params) -> (N,)``, or (N, ``columns``), pure JAX; never depends on
+        the ratio.
+      soft_score: differentiable twin of ``score``, of the same shape.
+      params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
+        keyword parameters it accepts, as declared by the method's module.
+      tiling: how it runs in tiles (:class:`Tiling`).
+      bytes_per_sample: peak memory per point of a mesh sampled and resampled, rounded up (the
+        command line refuses ``--samples`` beyond the memory available): ~190 bytes to sample
+        fandisk.obj plus the method's own cost (measured: ~1700 for HKC; 2.9-3.7 KB in all for
+        GFR). HKF, LHF and EA peaked at or below HKC at 2e5 samples; PCA-AC and the samplers
+        were not measured beyond 5e4 and are given HKC's cost; MSS (32 neighbours, twice EA's)
+        is given GFR's, unmeasured.
+      columns: None for (N,) scores; C for (N, C) (LHF's two lengths, C = 2).
+      combine: ``combine(scores, m, *, count=None) -> (N,)``: the value each point is ranked
+        by, from its (N, ``columns``) scores and the kept count m (traced in
+        :func:`hgjax.soft_weights`; ``count`` the real rows of a padded cloud), LHF's
+        Eqs. (15)-(16); None ranks (N,) scores as they are.
+      select: ``select(scores, m, *, key, **params) -> (m,) indices`` (host); None keeps the
+        m top ranked values (:func:`hgjax.top_k`, ties by index).
+      check_key: ``check_key(key, params) -> key``: the validated key that the selection
+        with these parameters draws from (raising before any work when it is missing);
+        None for a method that never draws.
+
+    Examples:
+      >>> import hgjax
+      >>> entry = hgjax.METHODS["hkc"]
+      >>> entry.kind, entry.largest, entry.citation
+      ('cube', False, 'Deng, Zhang, Ding, IEEE TIP 31, 2022, Alg. 1, Eq. (11)')
+    """
+
+    name: str
+    kind: str
+    largest: bool
+    needs_key: bool
+    summary: str
+    citation: str
+    build: Callable
+    score: Callable
+    soft_score: Callable
+    params: dict
+    tiling: Tiling
+    bytes_per_sample: int = 2048
+    columns: int | None = None
+    combine: Callable | None = None
+    select: Callable | None = None
+    check_key: Callable | None = None
+
+    @property
+    def accepted(self) -> frozenset:
+        """Every keyword parameter of any stage."""
+        return frozenset().union(*self.params.values())
+
+    @property
+    def resample_params(self) -> frozenset:
+        """The parameters resampling uses: every stage's but the soft score's."""
+        return self.params["build"] | self.params["score"] | self.params["select"]
+
+    def refused(self, params: dict) -> tuple[str, str] | None:
+        """Why this method with ``params`` needs the whole cloud at once, or None (:attr:`Tiling.refused`)."""
+        return None if self.tiling.refused is None else self.tiling.refused(params)
+
+
+@dataclasses.dataclass(frozen=True)
+class Sampler:
+    """A registered sampler: it picks points from the points themselves, without scores.
+
+    Attributes:
+      name: registry key.
+      needs_key: whether it draws random numbers (explicit ``key``).
+      summary: one line for the README and ``--help``.
+      citation: where the method comes from.
+      sample: ``sample(points, ratio, *, key, **params) -> (M,) indices`` (host; ``key``
+        passed only when ``needs_key``).
+      params: the keyword parameters ``sample`` accepts (``key`` aside).
+      bytes_per_sample: as :attr:`Method.bytes_per_sample`.
+      untiled: ``untiled(params) -> (qualifier, reason) | None``: why it needs the whole cloud
+        at once (:attr:`Tiling.refused`); None when it always tiles.
+      tiled: ``tiled(points, ratio, tile, client, *, key=..., **params) -> (M,) indices``: its
+        own engine for tiles, a Dask client or a survey of files (``key`` passed only when
+        ``needs_key``); None samples the whole cloud in one process.
+      lazy: ``tiled`` reads no coordinate (a survey is sampled from its point count alone).
+
+    Examples:
+      >>> import hgjax
+      >>> entry = hgjax.METHODS["fps"]
+      >>> isinstance(entry, hgjax.Sampler), entry.needs_key, sorted(entry.params)
+      (True, False, ['backend', 'start'])
+    """
+
+    name: str
+    needs_key: bool
+    summary: str
+    citation: str
+    sample: Callable
+    params: frozenset
+    bytes_per_sample: int = 2048
+    untiled: Callable | None = None
+    tiled: Callable | None = None
+    lazy: bool = False
+
+    @property
+    def accepted(self) -> frozenset:
+        """Every keyword parameter of the sampler."""
+        return self.params
+
+    @property
+    def resample_params(self) -> frozenset:
+        """The parameters resampling uses (all of them)."""
+        return self.params
+
+    def refused(self, params: dict) -> tuple[str, str] | None:
+        """Why this sampler needs the whole cloud at once, or None."""
+        return None if self.untiled is None else self.untiled(params)
+
+    def draw(self, points, ratio, key, **params):
+        """``sample(points, ratio, **params)``, given ``key`` when the sampler draws random numbers."""
+        return self.sample(points, ratio, **({"key": key} if self.needs_key else {}), **params)

@@ -1,0 +1,206 @@
+"""The engine of every resample: plan -> tiles -> neighbourhoods -> score -> global selection.
+
+:func:`run` is the one composition behind :func:`hgjax.resample` (one tile),
+:func:`hgjax.tiles.resample` (a grid of tiles, here or on Dask workers),
+:func:`hgjax.survey.resample_files` and the command line. It asks a method only through its
+registry entry: a :class:`hgjax.Method`'s ``tiling`` (:class:`hgjax._method.Tiling`) or a
+:class:`hgjax.Sampler`'s own engine; it holds no method's name.
+
+1. **Plan** (:func:`hgjax._tiling.base`, :func:`hgjax._tiling.resolved`): every whole-cloud
+   decision made once.
+2. **Tiles**: each tile's neighbourhoods and scores on its core and a verified halo
+   (:func:`hgjax._tiling.tile_scores`, or the method's ``tiling.scores``).
+3. **Selection** (:func:`hgjax.select.top_pairs`): the top ceil(ratio N) by (score, global
+   id) over the whole cloud, exactly, from per-tile histograms of order-preserving integer
+   keys (or the method's ``tiling.select``: LHF's order statistics, GFR's keyed draw).
+
+A method whose parameters need the whole cloud (GFR's reference radius) runs
+``keep(score(neighbourhoods(points)))`` on it at once; PCA-AC (Ward clustering of every score)
+scores the cloud as one tile and selects from all its scores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from hgjax import _registry, _tiling, _validate, pipeline, select
+from hgjax._method import Method, Sampler
+
+__all__ = ["STAGES", "Run", "checked_tile", "planned", "resample", "run"]
+
+STAGES = {"sampler": ("sample",), "whole cloud": ("neighbourhoods", "score", "keep"), "tiles": ("plan", "tiles", "keep")}
+"""The stages ``on_stage`` reports, by path: a sampler; a method on the whole cloud at once; tiles."""
+
+
+class Clock:
+    """Reports each stage's seconds, from the end of the previous one, as ``on_stage(name, seconds)``."""
+
+    def __init__(self, on_stage):
+        self.on_stage, self.start = on_stage, time.perf_counter()
+
+    def __call__(self, name: str, value=None):
+        """``value`` unchanged, after reporting that stage ``name`` ended."""
+        if self.on_stage is not None:
+            now = time.perf_counter()
+            self.on_stage(name, now - self.start)
+            self.start = now
+        return value
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One run of the engine: the kept ids, and what decided them (for a survey's manifest).
+
+    Attributes:
+      idx: (M,) kept global ids, highest priority first.
+      scores: (N,) scores, or None unless asked for (and for the samplers).
+      plan: the :class:`hgjax.tiles.Plan`, or None for the samplers and a method run on the
+        whole cloud at once (GFR's reference).
+      selection: the global statistics of the selection: LHF's order statistics Gamma_a,
+        Gamma_b (Eqs. (15)-(16)), GFR's exact score sum; empty for the others.
+      threshold: the last kept (value, global id) pair, the value being the score (GFR's
+        random mode: the Gumbel-perturbed log weight), or None without a plan and for a
+        whole selection (PCA-AC's clusters).
+    """
+
+    idx: np.ndarray
+    scores: np.ndarray | None = None
+    plan: _tiling.Plan | None = None
+    selection: dict = dataclasses.field(default_factory=dict)
+    threshold: dict | None = None
+
+
+def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_scores=False, on_stage=None,
+        params: dict) -> Run:
+    """Resample ``points`` (an array, an ``np.memmap`` or a lazy :class:`hgjax._tiling.Source`) with ``method``.
+
+    Every argument is validated here, once (a method's own parameters by its ``tiling.params``).
+    ``on_stage(name, seconds)``, when given, is called as each stage ends (:data:`STAGES`).
+
+    Returns:
+      :class:`Run`.
+
+    Raises:
+      TypeError, ValueError: invalid arguments, or a tile size or client for a method that
+        cannot be tiled with these parameters.
+    """
+    clock = Clock(on_stage)
+    entry = _registry.entry(method)
+    return_scores = _validate.check_bool(return_scores, "return_scores")
+    refused, tile = checked_tile(entry, params, tile, client)
+    _registry.check_known(entry, params)
+    if isinstance(entry, Sampler):
+        return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
+    if "tau" in params:  # a soft-score parameter resample does not use: still checked
+        _validate.check_traced_positive(params["tau"], "tau")
+    if refused is not None and not entry.tiling.whole_selection:
+        idx, scores = _whole(points, ratio, entry, key, params, clock)
+        return Run(idx, scores if return_scores else None)
+    params = dict(params)
+    stream = {k: params.pop(k) for k in ("chunk_size", "progress") if k in params}
+    if entry.check_key is not None:
+        key = entry.check_key(key, params)
+    plan, runner = clock("plan", planned(points, ratio, entry, tile, params, client))
+    if entry.tiling.scores is None:
+        parts = runner.tiles(_tiling.tile_scores, plan, stream)
+    else:
+        parts = entry.tiling.scores(runner, plan, stream)
+    clock("tiles")
+    if entry.tiling.whole_selection:
+        scores = _tiling.gathered(runner, parts, plan)
+        idx = pipeline.kept(entry, scores, plan.m, key, _registry.split(entry, "select", params))
+        return Run(clock("keep", idx), scores if return_scores else None, plan)
+    if entry.tiling.select is None:
+        keyed, selection, largest = runner.each(select.part_keys, parts, entry.largest), {}, entry.largest
+    else:
+        parts, keyed, selection, largest = entry.tiling.select(runner, parts, plan, key)
+    idx, (last_key, last_gid) = select.top_pairs(keyed, plan.m, run=runner.run(keyed), boundary=True)
+    clock("keep")
+    threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
+    return Run(idx, _tiling.gathered(runner, parts, plan) if return_scores else None, plan, selection, threshold)
+
+
+def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> tuple[tuple[str, str] | None, float | None]:
+    """(why ``entry`` with ``params`` needs the whole cloud or None, the validated ``tile``).
+
+    Raises:
+      ValueError: a ``tile`` or ``client`` for a method that needs the whole cloud; an invalid ``tile``.
+    """
+    refused = entry.refused(params)
+    if refused is not None and (tile is not None or client is not None):
+        raise ValueError(f"method {entry.name!r}{refused[0]} cannot run in tiles (tile={tile!r}): {refused[1]};"
+                         " pass tile=None")
+    return refused, None if tile is None else _validate.check_positive(tile, "tile")
+
+
+def planned(points, ratio, entry: Method, tile, params: dict, client) -> tuple[_tiling.Plan, _tiling.Here]:
+    """(the resolved plan, the runner of its tiled cloud) of a scoring method's run (``tile`` validated)."""
+    pts = points if isinstance(points, _tiling.Source) else _validate.check_points(points)
+    n = pts.n if isinstance(pts, _tiling.Source) else pts.shape[0]
+    plan, cloud = _tiling.base(pts, _validate.n_keep(n, _validate.check_ratio(ratio)), entry, tile, params, client)
+    runner = _tiling.runner(cloud, client, entry.tiling.reach(plan.build)[0])
+    return _tiling.resolved(plan, runner), runner
+
+
+def _sample(entry: Sampler, points, ratio, tile, client, key, params: dict) -> np.ndarray:
+    """A sampler's indices: its own engine for tiles, a client or a lazy source, else on the whole cloud."""
+    if entry.tiled is not None and (tile is not None or client is not None or isinstance(points, _tiling.Source)):
+        return entry.tiled(points, ratio, tile, client, **({"key": key} if entry.needs_key else {}), **params)
+    return entry.draw(_validate.check_points(points), ratio, key, **params)
+
+
+def _whole(points, ratio, entry: Method, key, params: dict, clock: Clock) -> tuple[np.ndarray, np.ndarray]:
+    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference)."""
+    pts = _validate.check_points(points)
+    ratio = _validate.check_ratio(ratio)
+    nb = clock("neighbourhoods", pipeline.neighbourhoods(pts, entry.name, **params))
+    scores = clock("score", np.asarray(pipeline.score(nb, entry.name, **params)))
+    return clock("keep", pipeline.keep(scores, ratio, method=entry.name, key=key, **params)), scores
+
+
+def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None, return_scores: bool = False, on_stage=None,
+             **params):
+    """Indices of the ceil(ratio * N) points that a method keeps.
+
+    The one-tile case of :func:`hgjax.tiles.resample` (same signature, without ``tile`` and
+    ``client``): for a scoring method, ``keep(score(neighbourhoods(points, method)), ratio)``
+    streamed through one compiled kernel; samplers work on the points directly.
+
+    Args:
+      points: (N, 3) float32 or float64 (NumPy, JAX or ``np.memmap``); never modified.
+      ratio: fraction alpha of points to keep, in (0, 1]. ceil(ratio N) points are kept,
+        with ratio N first rounded to 1e-9 relative (and a float32 ratio read as the
+        decimal it prints as), so ``np.float32(0.2)`` of 1000 points keeps 200.
+      method: a key of :data:`hgjax.METHODS` (default ``"hkc"``).
+      key: ``jax.random`` key for methods that draw random numbers (ignored by the others).
+      return_scores: also return every point's score.
+      on_stage: ``on_stage(name, seconds)``, called as each stage ends: ``"sample"`` for a
+        sampler; ``"plan"`` (bounds, resolved parameters), ``"tiles"`` (neighbourhoods and
+        scores) and ``"keep"`` for a scoring method; ``"neighbourhoods"``, ``"score"`` and
+        ``"keep"`` for one run on the whole cloud at once (GFR's reference)
+        (:data:`hgjax.engine.STAGES`).
+      **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
+        ``chunk_size``, ``progress``).
+
+    Returns:
+      (M,) int64 unique indices into ``points``, M = ceil(ratio N), from the highest to the
+      lowest keep priority (ties broken by index), so ``points[idx]`` is the resampled cloud;
+      with ``return_scores``, (indices, scores) with scores (N,) in the working dtype: the
+      values ranked (LHF: its two lengths combined at the kept count, Eqs. (15)-(16)), or
+      None for the samplers.
+
+    Raises:
+      TypeError, ValueError: invalid points, ratio, method or parameters.
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> pts = hgjax.eval.box_union_cloud(seed=0, n_points=2000).points
+      >>> idx = hgjax.resample(pts, 0.2, method="hkc")
+      >>> idx.shape, len(set(idx.tolist()))
+      ((400,), 400)
+    """
+    done = run(points, ratio, method=method, key=key, return_scores=return_scores, on_stage=on_stage, params=params)
+    return (done.idx, done.scores) if return_scores else done.idx
