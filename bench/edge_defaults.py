@@ -31,8 +31,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import hgjax  # noqa: E402
-from hgjax import spatial  # noqa: E402
-from hgjax.scores import ea, gfr, lhf, voxel  # noqa: E402
+from hgjax import _graph, spatial  # noqa: E402
+from hgjax.scores import ea, lhf, voxel  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -61,7 +61,7 @@ RULES = {
            "the real clouds (6, 12); no irregularity rule separates them, since pced_abc_7033, the one "
            "lattice-like real cloud, favours short pairs while the synthetic grid favours long ones). Before "
            "this study the default was (6, 12), which missed the grid (by 0.099) and random (0.058) regimes.",
-    "gfr": "radius_factor = {gfr} resolutions (`gfr.RADIUS_FACTOR`, bench/results/gfr_radius.md: the largest "
+    "gfr": "radius_factor = {gfr} resolutions (`hgjax._graph.RADIUS_FACTOR`, bench/results/gfr_radius.md: the largest "
            "mean F1/best among the factors within 0.05 of the best in every synthetic setting, ties to the "
            "smallest graph).",
     "ea": "k = {ea} (`ea.DEFAULT_K`, shared with PCA-AC): the Bazazian et al. setting.",
@@ -71,7 +71,7 @@ RULES = {
 def rule_text(method):
     lo, hi = voxel.IRREGULARITY_RANGE
     return RULES[method].format(regular=voxel.REGULAR_D_FACTOR, irregular=voxel.IRREGULAR_D_FACTOR, lo=lo, hi=hi,
-                                lhf=lhf.DEFAULT_LENGTHS, gfr=gfr.RADIUS_FACTOR, ea=ea.DEFAULT_K)
+                                lhf=lhf.DEFAULT_LENGTHS, gfr=_graph.RADIUS_FACTOR, ea=ea.DEFAULT_K)
 
 
 def irregularity(points):

@@ -66,10 +66,10 @@ STAGES = [
     ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 2),
     ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 2),
     ("_tile_graph (GFR graph and exact pair sums)", "hgjax.scores.gfr", "_tile_graph", 1),
-    ("_kept (bounded kNN queries, k = max_nn + 9: what each location keeps, and cuts)", "hgjax.scores.gfr", "_kept",
+    ("_kept (bounded kNN queries, k = max_nn + 9: what each location keeps, and cuts)", "hgjax._graph", "_kept",
      2),
-    ("_kept_back (the kept lists read the other way)", "hgjax.scores.gfr", "_kept_back", 2),
-    ("_in_ball (0 < q < r from the tree's distances)", "hgjax.scores.gfr", "_in_ball", 3),
+    ("_kept_back (the kept lists read the other way)", "hgjax._graph", "_kept_back", 2),
+    ("_in_ball (0 < q < r from the tree's distances)", "hgjax._graph", "_in_ball", 3),
     ("pair_sums (exact sums of c, c q, c q^2: the moment kernel's row sums)", "hgjax.scores.gfr", "pair_sums", 2),
     ("pair_lengths (q kernel: float64 q)", "hgjax.scores.gfr", "pair_lengths", 3),
     ("ExactSum.of", "hgjax.select.ExactSum", "of", 3),
@@ -205,10 +205,10 @@ def main() -> None:
     methods = args.methods.split(",")
     p = _report.box_cloud(args.n, np.float32)
     q = p[hgjax.spatial_order(p)]
-    if "gfr" in methods:  # the default invariant radius (10 resolutions), bounded as gfr._kept bounds it
-        from hgjax.scores import gfr
+    if "gfr" in methods:  # the default invariant radius (10 resolutions), bounded as hgjax._graph._kept bounds it
+        from hgjax import _graph
         stats = hgjax.spatial.sample_stats(hgjax.spatial.SpatialIndex(q.astype(np.float64), dedupe=True))
-        gfr_bound = np.sqrt(gfr.squared_radius(gfr.RADIUS_FACTOR, stats)) * (1 + 1e-5)
+        gfr_bound = np.sqrt(_graph.squared_radius(_graph.RADIUS_FACTOR, stats)) * (1 + 1e-5)
     per = {m: collections.defaultdict(list) for m in methods}
     per_cpu = {m: collections.defaultdict(list) for m in methods}
     yard, yard_cpu = collections.defaultdict(list), collections.defaultdict(list)

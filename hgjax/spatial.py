@@ -467,14 +467,15 @@ class SpatialIndex:
             out = np.concatenate([out, np.full((r, k - k_eff), self.n, dtype=np.int32)], axis=1)
         return out, reach
 
-    def nearest(self, rows: slice | np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def nearest(self, rows: slice | np.ndarray, k: int, bound: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """The raw tree query of ``rows``: (R, k) distances and indices (sorted frame), k <= n.
 
         Sorted by distance, equal distances in the tree's order; :meth:`knn` and :meth:`cube`
-        turn it into their exact neighbourhoods, so one query can serve both.
+        turn it into their exact neighbourhoods, so one query can serve both. With ``bound``,
+        only points nearer than it: the missing ones at distance inf and index n (GFR's balls).
         """
         row_ids = self.row_ids(rows)
-        dist, idx = self.tree.query(self.points[row_ids], k=k, workers=-1)
+        dist, idx = self.tree.query(self.points[row_ids], k=k, distance_upper_bound=bound, workers=-1)
         return dist.reshape(row_ids.size, k), idx.reshape(row_ids.size, k)
 
     def cube(self, half_width, rows: slice | np.ndarray = slice(None), *, capacity: int = 32,
