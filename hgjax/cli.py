@@ -322,22 +322,40 @@ def _session(dtype: str):
 
 
 def _expand(paths: list[str]) -> list[str]:
-    """Input files: each path, or the supported files of a directory (sorted)."""
+    """Input files, each once (by its real path), in the order given: each path, the supported
+    files of a directory (sorted), or the matches of a glob pattern the shell left alone (quoted,
+    ``'survey/*.laz'``; sorted, a matched directory standing for its supported files)."""
+    import glob
+
+    def supported(directory: str) -> list[str]:
+        return sorted(entry.path for entry in os.scandir(directory)
+                      if entry.is_file() and os.path.splitext(entry.name)[1].lower() in INPUT_EXTENSIONS)
+
     files = []
     for path in paths:
         if path == "-":
             raise UsageError("reading standard input (-) is not supported; give a file or directory")
         if os.path.isdir(path):
-            found = sorted(entry.path for entry in os.scandir(path)
-                           if entry.is_file() and os.path.splitext(entry.name)[1].lower() in INPUT_EXTENSIONS)
+            found = supported(path)
             if not found:
                 raise UsageError(f"{path}: no point cloud or mesh files (expected {', '.join(INPUT_EXTENSIONS)})")
             files += found
-        elif not os.path.exists(path):
-            raise UsageError(f"cannot read {path}: no such file")
-        else:
+        elif os.path.exists(path):
             files.append(path)
-    return files
+        elif glob.has_magic(path):
+            found = [f for match in sorted(glob.glob(path)) for f in (supported(match) if os.path.isdir(match)
+                                                                      else [match])]
+            if not found:
+                raise UsageError(f"{path}: the pattern matches no point cloud or mesh file")
+            files += found
+        else:
+            raise UsageError(f"cannot read {path}: no such file")
+    unique = {}
+    for path in files:
+        first = unique.setdefault(os.path.realpath(path), path)
+        if first != path:
+            print(f"hgjax: {path} is {first} again; it is read once", file=sys.stderr)
+    return list(unique.values())
 
 
 def _refuse_stdout(output: str) -> None:
@@ -449,11 +467,35 @@ def _check_samples(samples: int | None, inputs: list[str], methods: list[str]) -
 
 
 def _load(path: str, args):
-    from hgjax import io
+    """Read one input as ``resample``, ``score`` or ``compare`` see it.
+
+    A ``score`` attribute read back from an earlier hgjax output is replaced by the new score
+    when the command writes one (a scoring method; one line on stderr says so, once per run);
+    a sampler's output carries it on as it is. A plain (N, 3 + C) ``.npy`` input gives a plain
+    ``.npy`` output of the kept rows, which has no score column (:func:`hgjax.io.holds_scores`;
+    said once per run by ``resample``, refused by ``score``).
+    """
+    import dataclasses
+
+    from hgjax import METHODS, Method, io
 
     start = time.perf_counter()
     data = io.read_points(path, samples=args.samples, seed=args.seed)
     _stage(args, f"read {path}", start)
+    if args.command not in ("resample", "score") or not isinstance(METHODS[args.method], Method):
+        return data
+    if "score" in data.attributes:
+        data = dataclasses.replace(data, attributes={k: v for k, v in data.attributes.items() if k != "score"})
+        if not getattr(args, "said_score_replaced", False):
+            args.said_score_replaced = True
+            print(f"hgjax {args.command}: the `score` attribute of {path} (and of any other input that has one) is"
+                  f" replaced by the new {args.method} score", file=sys.stderr)
+    out = f"out.{args.format}" if args.format else args.output
+    if args.command == "resample" and not io.holds_scores(out, header=data.header) and not getattr(
+            args, "said_no_score", False):
+        args.said_no_score = True
+        print(f"hgjax resample: {path} is a plain array, so its .npy output is one too (np.load gives the kept"
+              f" points) without the score; write another format to keep the score", file=sys.stderr)
     return data
 
 
@@ -699,6 +741,8 @@ def _finite_scores(scores: np.ndarray) -> np.ndarray:
 
 
 def cmd_score(args) -> None:
+    """``hgjax score``: every point with the method's ``score`` attribute (replacing one read from the
+    input); an output that has no column for it (a plain ``.npy`` array's) is refused before computing."""
     from hgjax import METHODS, io
 
     entry = METHODS[args.method]
@@ -707,6 +751,9 @@ def cmd_score(args) -> None:
     key, progress = _key(args), _progress(args)
 
     def check(path, target, data):
+        if not io.holds_scores(target, header=data.header):
+            raise UsageError(f"{path} is a plain array, so a .npy output of it is one too and has no column for the"
+                             f" score; write another format (-o {os.path.splitext(target)[0]}.ply, or --format)")
         io.check_format(target, data.points, attributes=data.attributes, header=data.header,
                         scores=_score_placeholder(entry, args, len(data)))
 

@@ -640,7 +640,15 @@ def _las_chunks(path: str, box: tuple | None):
             yield from _copc_nodes(path, box)
             return
         _las_size_check(path, f.header)
-        for chunk in f.chunk_iterator(CHUNK_ROWS):
+        points = f.chunk_iterator(CHUNK_ROWS)
+        while True:
+            try:
+                chunk = next(points, None)
+            except Exception as err:  # lazrs: "failed to fill whole buffer", ...
+                raise PointCloudReadError(f"cannot read {path}: the point data is truncated or corrupt"
+                                          f" ({type(err).__name__}: {err})") from err
+            if chunk is None:
+                return
             yield at, np.stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1)
             at += len(chunk)
 

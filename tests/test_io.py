@@ -422,3 +422,115 @@ def test_pcd_needs_its_extra(tmp_path, monkeypatch, pcd_cloud):
         io.read_points(path)
     with pytest.raises(ImportError, match=r'pip install "\.\[pcd\]"'):
         io.write_points(tmp_path / "d.pcd", np.eye(3))
+
+
+# ------------------------------------------------------------------ every output is an input (issue 47)
+
+def _cli(capsys, *args):
+    from hgjax.cli import main
+
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err, err
+    return code, err
+
+
+@pytest.mark.usefixtures("cli_cache")
+@pytest.mark.parametrize("ext", io.WRITE_EXTENSIONS)
+def test_outputs_chain_through_every_command(capsys, tmp_path, ext):
+    """resample -> score -> resample -> compare, each reading the file the previous one wrote."""
+    import hgjax
+    from fixtures import box_union
+
+    if ext in (".las", ".laz"):
+        pytest.importorskip("laspy")
+    rng = np.random.default_rng(3)
+    n = 400
+    attributes = {"colors": rng.integers(0, 256, (n, 3), dtype=np.uint8),
+                  "intensity": rng.integers(0, 2**16, n, dtype=np.uint16),
+                  "id": rng.integers(2**53, 2**62, n, dtype=np.int64)}
+    io.write_points(tmp_path / f"src{ext}", box_union(n) * 10.0, attributes=attributes)
+    kept, scored, again = (tmp_path / f"{stem}{ext}" for stem in ("kept", "scored", "again"))
+    code, err = _cli(capsys, "resample", tmp_path / f"src{ext}", "-o", kept, "--ratio", 0.5, "--dtype", "float64")
+    assert code == 0, err
+    code, err = _cli(capsys, "score", kept, "-o", scored, "--dtype", "float64")
+    assert code == 0, err
+    assert err.count("replaced by the new hkc score") == 1, err
+    code, err = _cli(capsys, "resample", scored, "-o", again, "--ratio", 0.5, "--dtype", "float64")
+    assert code == 0, err
+    assert err.count("replaced by the new hkc score") == 1, err
+    code, err = _cli(capsys, "compare", again, "--methods", "uniform", "--dtype", "float64")
+    assert code == 0, err
+
+    first, middle, last = (io.read_points(path) for path in (kept, scored, again))
+    assert set(first.attributes) == set(middle.attributes) == set(last.attributes)
+    assert {"colors", "intensity", "id", "score"} <= set(last.attributes)
+    np.testing.assert_array_equal(middle.points, first.points)
+    idx = np.sort(hgjax.resample(middle.points, 0.5, method="hkc"))
+    np.testing.assert_array_equal(last.points, middle.points[idx])
+    for name in ("colors", "intensity", "id"):
+        assert last.attributes[name].dtype == middle.attributes[name].dtype, name
+        np.testing.assert_array_equal(last.attributes[name], middle.attributes[name][idx])
+    # the score of one cloud by one method, once written by `score` and once by `resample`
+    np.testing.assert_allclose(last.attributes["score"], middle.attributes["score"][idx], rtol=1e-9)
+
+
+@pytest.mark.usefixtures("cli_cache")
+def test_a_plain_npy_stays_a_plain_npy(capsys, tmp_path):
+    from fixtures import box_union
+
+    points = box_union(300).astype(np.float32)
+    np.save(tmp_path / "plain.npy", points)
+    code, err = _cli(capsys, "resample", tmp_path / "plain.npy", "-o", tmp_path / "kept.npy", "--ratio", 0.5)
+    assert code == 0, err
+    assert err.count("without the score") == 1, err
+    kept = np.load(tmp_path / "kept.npy")
+    assert kept.dtype == np.float32 and kept.shape == (150, 3) and kept.dtype.names is None
+    assert {tuple(p) for p in kept} <= {tuple(p) for p in points}
+    code, err = _cli(capsys, "resample", tmp_path / "kept.npy", "-o", tmp_path / "again.npy", "--ratio", 0.5)
+    assert code == 0, err
+    assert np.load(tmp_path / "again.npy").shape == (75, 3)
+    code, err = _cli(capsys, "score", tmp_path / "kept.npy", "-o", tmp_path / "scored.npy")
+    assert code == 2 and "plain array" in err and "kept.npy" in err, err
+    assert not (tmp_path / "scored.npy").exists()
+    code, err = _cli(capsys, "score", tmp_path / "kept.npy", "-o", tmp_path / "scored.ply")
+    assert code == 0, err
+    assert io.read_points(tmp_path / "scored.ply").attributes["score"].shape == (150,)
+
+
+def test_a_plain_npy_layout_writes_back_exactly(tmp_path):
+    table = np.arange(20, dtype=np.int32).reshape(5, 4)
+    np.save(tmp_path / "a.npy", table)
+    data = io.read_points(tmp_path / "a.npy")
+    assert data.header == np.dtype(np.int32) and not io.holds_scores("b.npy", header=data.header)
+    kept = data.subset(np.array([4, 1]))
+    io.write_points(tmp_path / "b.npy", kept.points, attributes=kept.attributes, header=kept.header,
+                    scores=np.ones(2))  # a plain array has no column for the score: not written
+    np.testing.assert_array_equal(np.load(tmp_path / "b.npy"), table[[4, 1]])
+    assert np.load(tmp_path / "b.npy").dtype == np.int32
+    io.write_points(tmp_path / "c.npy", kept.points + 0.5, attributes=kept.attributes, header=kept.header)
+    np.testing.assert_array_equal(np.load(tmp_path / "c.npy")[:, :3], kept.points + 0.5)  # never rounded
+    with pytest.raises(ValueError, match="'label' has no column in a plain .npy"):
+        io.write_points(tmp_path / "d.npy", kept.points, attributes={"label": np.ones(2)}, header=kept.header)
+    io.write_points(tmp_path / "e.ply", kept.points, attributes=kept.attributes, header=kept.header,
+                    scores=np.ones(2))  # other formats ignore a plain array's layout
+    assert io.read_points(tmp_path / "e.ply").attributes["score"].tolist() == [1.0, 1.0]
+    io.write_points(tmp_path / "f.las", kept.points, attributes={}, header=kept.header)
+    np.testing.assert_array_equal(io.read_points(tmp_path / "f.las").points, kept.points)
+
+
+@pytest.mark.usefixtures("cli_cache")
+def test_quoted_globs_are_expanded_and_each_file_read_once(capsys, tmp_path):
+    from fixtures import box_union
+
+    (tmp_path / "survey").mkdir()
+    for name in ("b.xyz", "a.xyz", "c.ply"):
+        io.write_points(tmp_path / "survey" / name, box_union(300))
+    os.symlink(tmp_path / "survey" / "a.xyz", tmp_path / "link.xyz")
+    code, err = _cli(capsys, "resample", tmp_path / "survey" / "*.xyz", tmp_path / "link.xyz", "-o", tmp_path / "out",
+                     "--method", "uniform")
+    assert code == 0, err
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "b.ply"]
+    assert "link.xyz is" in err and "read once" in err
+    code, err = _cli(capsys, "resample", tmp_path / "survey" / "*.laz", "-o", tmp_path / "none")
+    assert code == 2 and "matches no point cloud" in err, err

@@ -155,3 +155,49 @@ def test_missing_las_packages_name_the_extra(tmp_path, monkeypatch):
     with pytest.raises(ImportError, match=r'pip install "\.\[las\]"'):
         io.check_writable(tmp_path / "out.laz")
     assert len(io.read_points(SCAN)) == 1771  # other formats do not need the extra
+
+
+# ------------------------------------------------------------------ chunked reading: io.chunks, io.header_count
+
+COPC = pathlib.Path(__file__).parent / "data" / "survey.copc.laz"  # written by tests/data/make_copc.py
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_chunks_cover_the_file_in_order(tmp_path, monkeypatch, ext):
+    path = tmp_path / f"scan{ext}"
+    _make_las(path, "1.4", 6, [], n=1000)
+    want = io.read_points(path).points
+    monkeypatch.setattr(io, "CHUNK_ROWS", 300)
+    parts = list(io.chunks(path))
+    assert [first for first, _ in parts] == [0, 300, 600, 900]
+    np.testing.assert_array_equal(np.concatenate([xyz for _, xyz in parts]), want)
+    assert io.header_count(path) == 1000
+
+
+def test_chunks_of_other_formats_are_the_whole_file(tmp_path):
+    path = tmp_path / "scan.xyz"
+    io.write_points(path, np.eye(3))
+    assert [(first, xyz.tolist()) for first, xyz in io.chunks(path)] == [(0, np.eye(3).tolist())]
+    assert io.header_count(path) is None
+    assert io.header_count(tmp_path / "missing.ply") is None  # no header to read: the file is not opened
+    with pytest.raises(io.PointCloudNotFoundError, match="missing.las"):
+        io.header_count(tmp_path / "missing.las")
+    (tmp_path / "junk.las").write_bytes(b"not a las file")
+    with pytest.raises(io.PointCloudReadError, match="junk.las"):
+        io.header_count(tmp_path / "junk.las")
+
+
+def test_copc_chunks_are_nodes_numbered_in_file_order(tmp_path):
+    path = tmp_path / "octree.laz"  # a COPC file is known by its COPC info VLR, not by its name
+    path.write_bytes(COPC.read_bytes())
+    whole = io.read_points(path).points
+    parts = list(io.chunks(path))
+    assert sum(xyz.shape[0] for _, xyz in parts) == whole.shape[0] == io.header_count(path)
+    for first, xyz in parts:
+        np.testing.assert_array_equal(xyz, whole[first:first + xyz.shape[0]])
+    lo, hi = whole.min(axis=0), (whole.min(axis=0) + whole.max(axis=0)) / 2
+    inside = np.flatnonzero(((whole >= lo) & (whole <= hi)).all(axis=1))
+    some = list(io.chunks(path, box=(lo, hi)))
+    assert len(some) < len(parts)
+    got = np.concatenate([np.arange(first, first + xyz.shape[0]) for first, xyz in some])
+    assert set(inside.tolist()) <= set(got.tolist())  # every point in the box is in a node that meets it
