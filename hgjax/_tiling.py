@@ -40,6 +40,7 @@ __all__ = ["Cloud", "Dask", "Here", "Plan", "Source", "tile_scores"]
 
 HALO_SPACINGS = 2  # the first halo, in mean sample spacings times sqrt(K) per k-nearest radius reached
 KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's index (or GFR graph) between passes
+MAX_TILES = 1 << 31  # grid cells of a tiled cloud (its (tile, sub-cell) keys stay within 64 bits)
 SUB = 16  # a tile's members are grouped in SUB^3 sub-cells, so that a halo reads slabs of its neighbours
 PASS_ROWS = 1 << 20  # points per chunk of a pass over the whole cloud
 GATHER_BATCH = 64  # per-tile summaries (65,536-bin histograms) a Dask client holds at once in a selection
@@ -85,8 +86,16 @@ class Plan:
 
 
 def grid_shape(lo: np.ndarray, hi: np.ndarray, tile: float) -> tuple:
-    """The number of tiles of edge ``tile`` along each axis of the box [lo, hi]."""
-    return tuple(int(c) for c in np.floor((hi - lo) / tile).astype(np.int64) + 1)
+    """The number of tiles of edge ``tile`` along each axis of the box [lo, hi].
+
+    Raises:
+      ValueError: the grid would have more than MAX_TILES cells (``tile`` too small for the extent).
+    """
+    along = np.floor((hi - lo) / tile) + 1  # float: no integer overflow for any tile
+    if float(np.prod(along)) > MAX_TILES:
+        raise ValueError(f"tile={tile!r} cuts the cloud's extent {(hi - lo).tolist()} into {float(np.prod(along)):.3g}"
+                         f" tiles ({' x '.join(f'{a:.3g}' for a in along)}); at most {MAX_TILES}: pass a larger tile")
+    return tuple(int(c) for c in along)
 
 
 def stable_order(key: np.ndarray, top: int) -> np.ndarray:
@@ -440,7 +449,7 @@ def base(points, m: int, entry, tile: float | None, params: dict, client=None) -
     else:
         n, (bmin, bmax), dtype = points.shape[0], bounds(points), spatial.working_dtype(points.dtype)
     build, score = entry.tiling.params(n, params)
-    origin = (bmin + bmax) / 2
+    origin = spatial.frame_origin(bmin, bmax, dtype)  # ValueError where dtype cannot represent the cloud
     lo, hi = bmin - origin, bmax - origin
     if isinstance(points, Source):
         cloud = points.cloud(origin, lo, hi, tile, client)

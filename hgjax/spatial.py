@@ -100,6 +100,11 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
       (local, origin): local (N, 3) float64 with ``local + origin == points`` up to
       rounding, and origin (3,) float64.
 
+    Raises:
+      ValueError: the working dtype (:func:`working_dtype`) cannot represent the cloud's
+        geometry: its extent overflows, or its resolved spacing underflows, when squared
+        (:func:`hgjax._validate.check_extent`).
+
     Examples:
       >>> import numpy as np, hgjax
       >>> local, origin = hgjax.local_frame(np.array([[500000.0, 4e6, 0], [500002, 4e6, 1]]))
@@ -108,8 +113,26 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
     """
     p = np.asarray(points, dtype=np.float64)
     lo, hi = axis_bounds(p)
-    origin = (lo + hi) / 2
+    origin = frame_origin(lo, hi, _computed_in(getattr(points, "dtype", np.float64)))
     return p - origin, origin
+
+
+def _computed_in(dtype) -> np.dtype:
+    """:func:`working_dtype` of ``dtype``, without its warning."""
+    return np.dtype(np.float64 if np.dtype(dtype) != np.float32 and jax.config.jax_enable_x64 else np.float32)
+
+
+def frame_origin(lo: np.ndarray, hi: np.ndarray, dtype) -> np.ndarray:
+    """The local frame's origin: the centre (3,) float64 of the bounding box [``lo``, ``hi``] (3,) each.
+
+    First checks that ``dtype``, the dtype the geometry is computed in, represents the cloud
+    (:func:`hgjax._validate.check_extent`: a clear ValueError naming ``points`` otherwise).
+    Where lo + hi overflows (a cloud near the largest float64) the centre is lo / 2 + hi / 2.
+    """
+    _validate.check_extent(lo, hi, dtype)
+    with np.errstate(over="ignore"):
+        twice = lo + hi
+    return np.where(np.isfinite(twice), twice / 2, lo / 2 + hi / 2)
 
 
 def axis_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -431,7 +454,8 @@ class SpatialIndex:
         Returns:
           (idx, reach): idx (R, k) int32 indices (sorted frame), column 0 the point itself,
           padded with n when the index holds fewer than k points; reach (R,) float64 the
-          distance of the k-th point (every point at most this far is in the index's reach).
+          distance of the k-th point (every point at most this far is in the index's reach),
+          inf when the index holds fewer than k points (a tile too small for the neighbourhood).
         """
         row_ids = self.row_ids(rows)
         r = len(row_ids)
@@ -463,8 +487,9 @@ class SpatialIndex:
             done = (d[:, -1] > d[:, last]) | (width == self.n)
             out[todo[done]], reach[todo[done]] = i[done, :k_eff], np.maximum(d[done, last], 0.0)
             todo = todo[~done]
-        if k_eff < k:
+        if k_eff < k:  # the k-th point lies beyond the index, however far: no radius holds the neighbourhood
             out = np.concatenate([out, np.full((r, k - k_eff), self.n, dtype=np.int32)], axis=1)
+            reach = np.full(r, np.inf)
         return out, reach
 
     def nearest(self, rows: slice | np.ndarray, k: int, bound: float = np.inf) -> tuple[np.ndarray, np.ndarray]:

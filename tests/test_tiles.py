@@ -257,3 +257,30 @@ def test_a_streamed_run_holds_a_tile_and_a_few_bytes_per_point(monkeypatch, tmp_
     bigger = _streamed_peak(large, 0.125)
     assert tiled < 0.4 * whole
     assert bigger - tiled < 64 * (800_000 - 200_000)
+
+
+TINY = [("ea", {}), ("lhf", {}), ("mss", {}), ("hkc", {}), ("gfr", {"mode": "top"}), ("voxel", {})]
+
+
+@pytest.mark.parametrize("method,params", TINY, ids=[m for m, _ in TINY])
+def test_tiles_smaller_than_the_spacing_equal_one_process(method, params):
+    """A tile holding fewer points than a neighbourhood grows its halo until it holds the whole
+    neighbourhood (its k-th point is beyond the tile: no radius is known to hold it)."""
+    p = hgjax.eval.box_union_cloud(seed=5, n_points=200).points
+    np.testing.assert_array_equal(tiles.resample(p, 0.2, method=method, tile=0.05, **params),
+                                  hgjax.resample(p, 0.2, method=method, **params))
+
+
+@pytest.mark.parametrize("method", ["ea", "lhf"])
+def test_float32_far_from_the_origin_tiles_as_one_process(method):
+    """At +1e7 float32 rounds the cloud to a unit grid: many duplicates and ties, the same kept set."""
+    p = (hgjax.eval.box_union_cloud(seed=5, n_points=600).points + 1e7).astype(np.float32)
+    np.testing.assert_array_equal(tiles.resample(p, 0.2, method=method, tile=0.5),
+                                  hgjax.resample(p, 0.2, method=method))
+
+
+@pytest.mark.parametrize("tile,scale", [(1e-9, 1.0), (0.5, 1e12)])
+def test_too_many_tiles_is_an_error_naming_tile(tile, scale):
+    p = hgjax.eval.box_union_cloud(seed=0, n_points=300).points * scale
+    with pytest.raises(ValueError, match=r"tile=.* cuts the cloud's extent .* into .* tiles .*; at most \d+: pass a larger tile"):
+        tiles.resample(p, 0.2, method="ea", tile=tile)
