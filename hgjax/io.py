@@ -600,9 +600,11 @@ def _las_size_check(path: str, header) -> None:
     need = header.offset_to_point_data + header.point_count * header.point_format.size
     size = os.path.getsize(path)
     if size < need:
-        raise PointCloudReadError(f"cannot read {path}: the file is truncated: its header announces"
-                                  f" {header.point_count} points of {header.point_format.size} bytes ({need} bytes"
-                                  f" in all); the file holds {size} bytes")
+        whole, rest = divmod(max(size - header.offset_to_point_data, 0), header.point_format.size)
+        partial = f" and {rest} bytes of one more" if rest else ""
+        raise PointCloudReadError(f"cannot read {path}: the file is truncated: it holds {whole} points{partial}; its"
+                                  f" header announces {header.point_count} ({header.point_format.size} bytes each,"
+                                  f" {need} bytes in all; the file holds {size} bytes)")
 
 
 def _read_las(path: str, samples: int = 0, seed: int = 0) -> tuple[dict[str, np.ndarray], Any, bool]:
