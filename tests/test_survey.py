@@ -269,7 +269,7 @@ def test_a_corrupt_copc_octree_is_named_before_any_output(tmp_path, what, messag
 
 
 def test_copc_chunks_number_points_in_file_order(monkeypatch):
-    monkeypatch.setattr(tiles, "PASS_ROWS", 500)  # several batches of nodes
+    monkeypatch.setattr(io, "CHUNK_ROWS", 500)  # several batches of nodes
     src = laspy.read(COPC)
     xyz = np.stack([np.asarray(src.x), np.asarray(src.y), np.asarray(src.z)], axis=1)
     whole = list(io.chunks(str(COPC)))

@@ -247,8 +247,8 @@ def test_a_streamed_run_holds_a_tile_and_a_few_bytes_per_point(monkeypatch, tmp_
     where one process grows by about 150. Above KEEP_POINTS no tile's index outlives it; the
     planning pass reads PASS_ROWS points at a time (both lowered to this size, as at 1e8). NumPy's
     and Python's allocations are counted (XLA's buffers and the k-d tree's nodes are not)."""
-    monkeypatch.setattr(tiles, "KEEP_POINTS", 0)
-    monkeypatch.setattr(tiles, "PASS_ROWS", 1 << 16)
+    monkeypatch.setattr(_tiling, "KEEP_POINTS", 0)
+    monkeypatch.setattr(_tiling, "PASS_ROWS", 1 << 16)
     small, large = tmp_path / "small.npy", tmp_path / "large.npy"
     np.save(small, hgjax.eval.box_surface(200_000, seed=0).astype(np.float32))
     np.save(large, hgjax.eval.box_surface(800_000, seed=0).astype(np.float32))

@@ -129,8 +129,15 @@ def edge_metrics(points, edge_mask, kept, *, scores=None, edge_points=None, reso
 
 
 def feature_variation(points: np.ndarray) -> np.ndarray:
-    """Surface variation (EA's score) of every point: 0 on planes, up to 1/3 at corners; all 0
-    for a cloud of fewer points than EA's neighbourhoods hold (the colour of ``hgjax compare``)."""
+    """Surface variation (EA's score) of every point, the colour of ``hgjax compare``.
+
+    Args:
+      points: (N, 3) float32 or float64.
+
+    Returns:
+      (N,) float64 in [0, 1/3]: 0 on planes, up to 1/3 at corners; all 0 for a cloud of fewer
+      points than EA's neighbourhoods hold.
+    """
     import hgjax
 
     if len(points) < hgjax.scores.eigen.DEFAULT_K:
