@@ -35,7 +35,7 @@ a two-hidden-layer perceptron of ``HIDDEN`` = 32 units (19 x 32 + 32 + 32 x 32 +
 point lies within a spacing of a sharp edge; softplus keeps S >= 0 and strictly increasing in
 f without rounding large logits to ties. Higher is sharper; resampling keeps the largest.
 
-The model was trained by ``bench/train_edges.py`` (plain JAX, Adam written out) on synthetic
+The model was trained by ``bench/mss_training/train_edges.py`` (plain JAX, Adam written out) on synthetic
 shapes only: random polytopes, chamfered and filleted boxes, star-shaped prisms, cylinders
 and cones, spheres and box unions, sampled at random and on grids, noise 0 to 1 spacing
 isotropic and along the normals, randomly rotated, with the generators' exact sharp-edge
