@@ -59,14 +59,14 @@ import hgjax
 import hgjax.io
 
 if stage == "read":
-    read_npy = hgjax.io._read_npy
+    read_npy = hgjax.io._npy._read_npy
 
     def _read_npy(path):
         columns = read_npy(path)
         fire()
         return columns
 
-    hgjax.io._read_npy = _read_npy
+    hgjax.io._npy._read_npy = _read_npy
 elif stage == "score":
     collect = hgjax._stream.NarrowStream.collect  # the stream of HKC's per-row kernel in every tile
 

@@ -139,12 +139,12 @@ def test_ply_scan_to_las_picks_format_scale_and_offset(tmp_path):
 
 
 def test_las_scale_rule():
-    assert io._las_scale(0.0) == 0.001
-    assert io._las_scale(1.5) == 1e-6
-    assert io._las_scale(950.0) == 1e-4
-    assert io._las_scale(20000.0) == 1e-3  # at most 1 mm
-    assert io._las_scale(5e7) == 0.1  # coarser only when int32 would overflow
-    assert 5e7 / io._las_scale(5e7) < 2**31 - 1
+    assert io._las._las_scale(0.0) == 0.001
+    assert io._las._las_scale(1.5) == 1e-6
+    assert io._las._las_scale(950.0) == 1e-4
+    assert io._las._las_scale(20000.0) == 1e-3  # at most 1 mm
+    assert io._las._las_scale(5e7) == 0.1  # coarser only when int32 would overflow
+    assert 5e7 / io._las._las_scale(5e7) < 2**31 - 1
 
 
 def test_missing_las_packages_name_the_extra(tmp_path, monkeypatch):
