@@ -58,6 +58,58 @@ def check_points(points: Any, name: str = "points") -> np.ndarray:
     return view
 
 
+EXTENT_HEADROOM = 2.0**16  # squared distances, and sums of up to 2^16 of them, stay finite
+
+
+def extent_range(dtype) -> tuple[float, float]:
+    """(smallest, largest) non-zero extent of a cloud whose geometry ``dtype`` represents (:func:`check_extent`)."""
+    info = np.finfo(dtype)
+    return float(np.sqrt(info.tiny) / info.eps), float(np.sqrt(info.max / EXTENT_HEADROOM))
+
+
+def check_extent(lo, hi, dtype, name: str = "points") -> float:
+    """The cloud's extent, max(hi - lo) over the axes, after checking that ``dtype`` represents its geometry.
+
+    Every method forms squared distances (the k-d tree on the host in float64, the kernels
+    in the working dtype ``dtype``). They stay finite, with room for sums of 2^16 of them,
+    when the extent E (the widest axis of the bounding box, i.e. of the local frame) has
+    E^2 <= max / 2^16; and the squared distance of the finest spacing ``dtype`` resolves
+    at that extent, (eps E)^2, is a normal number when E >= sqrt(tiny) / eps. So E is 0
+    (every point equal) or within :func:`extent_range`: about [9.1e-13, 7.2e16] in float32
+    and [6.7e-139, 5.2e151] in float64. Beyond it scores would be NaN, inf or silently
+    those of a collapsed cloud.
+
+    Args:
+      lo, hi: (3,) float64 per-axis minimum and maximum of the cloud.
+      dtype: the dtype the geometry is computed in (:func:`hgjax.working_dtype`).
+      name: argument name quoted in error messages.
+
+    Returns:
+      The extent E as a Python float.
+
+    Raises:
+      ValueError: E is neither 0 nor within the range of ``dtype`` (float32 for float64
+        input while JAX's x64 mode is off: the message then says so).
+    """
+    dtype = np.dtype(dtype)
+    with np.errstate(over="ignore", invalid="ignore"):
+        extent = float(np.max(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))
+    smallest, largest = extent_range(dtype)
+    if extent == 0 or smallest <= extent <= largest:
+        return extent
+    what = ("its squared distances would overflow" if not extent <= largest else
+            "the squared distances it resolves would underflow to 0")
+    if not np.isfinite(extent):
+        extent, what = "more than float64 holds", "max - min overflows"
+    else:
+        extent = f"{extent:.3g}"
+    hint = (' (or jax.config.update("jax_enable_x64", True): float64 input is computed in float32 while it is off)'
+            if dtype == np.float32 and not jax.config.jax_enable_x64 else "")
+    raise ValueError(f"{name} span {extent} along their widest axis, which {dtype} cannot represent:"
+                     f" {what}; the extent must be 0 or in [{smallest:.2g}, {largest:.2g}] in {dtype}:"
+                     f" rescale the points{hint}")
+
+
 def check_ratio(ratio: Any, name: str = "ratio") -> float:
     """Return ``ratio`` as a float after checking 0 < ratio <= 1.
 

@@ -362,7 +362,7 @@ def voxel_grid(pts: np.ndarray, m: int | None, voxel_size) -> VoxelGrid:
     """The grid :func:`voxel_sample` uses: ``voxel_size`` (checked), or the count-targeted search for m voxels."""
     cols = np.asarray(pts, dtype=np.float64).T  # (3, N): the compiled passes read the caller's rows in place
     origin, top = _axis_bounds(cols)
-    extent = float((top - origin).max()) or 1.0
+    extent = _validate.check_extent(origin, top, np.float64) or 1.0  # squared distances in float64 on the host
     if voxel_size is None:
         size, voxel, v = _voxel_search(cols, origin, extent, m)
         return VoxelGrid(origin, extent, size, voxel, v)
@@ -592,7 +592,7 @@ def _tiled_voxel(points, ratio, tile, client, *, voxel_size=None) -> np.ndarray:
         raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
     grid = dataclasses.replace(voxel_grid(pts, m, voxel_size), voxel=None)
     bmin, bmax = _tiling.bounds(pts)
-    origin = (bmin + bmax) / 2
+    origin = spatial.frame_origin(bmin, bmax, np.float64)  # the extent already checked by voxel_grid
     source = points if isinstance(points, np.memmap) else None
     runner = _tiling.runner(_tiling.Cloud(pts, origin, bmin - origin, bmax - origin, tile, source), client, DEFAULT_K)
     parts = runner.tiles(_voxel_part, grid)

@@ -1,0 +1,114 @@
+"""Extreme coordinates and refused parameters (issue 47's faults): a right result or a clear
+ValueError naming the argument and the accepted range, raised before any work; never a crash,
+a hang, NaN scores or a repeated index.
+
+The rule (hgjax._validate.check_extent): the dtype the geometry is computed in represents a
+cloud whose extent E (its widest axis) is 0 or has finite squared distances (E^2 <= max / 2^16)
+and a resolved spacing whose square is normal ((eps E)^2 >= tiny): E in about [9.1e-13, 7.2e16]
+in float32 (float64 input while x64 is off included) and [6.7e-139, 5.2e151] in float64.
+Inside it every method is scale-invariant: a cloud scaled by a power of two keeps the same points.
+"""
+
+import warnings
+
+import jax
+import numpy as np
+import pytest
+
+import hgjax
+from hgjax import _validate
+
+KEY = jax.random.key(0)
+SCORING = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    """B(200): box_union_cloud(seed=0, n_points=200), extent 6 (float64)."""
+    return hgjax.eval.box_union_cloud(seed=0, n_points=200).points
+
+
+def _resample(points, method, **params):
+    """``hgjax.resample`` with x64 as set by the caller, float64 input's PrecisionWarning silenced."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", hgjax.PrecisionWarning)
+        return hgjax.resample(points, 0.2, method=method, key=KEY, **params)
+
+
+def _same(got, want):
+    """The same kept points (ties of equal scores may come in another order)."""
+    assert sorted(got.tolist()) == sorted(want.tolist())
+
+
+def _refused(points, method, match, **params):
+    """The ValueError naming ``points``, raised before any stage of the run ends."""
+    stages = []
+    with pytest.raises(ValueError, match=match):
+        _resample(points, method, on_stage=lambda name, seconds: stages.append(name), **params)
+    assert stages == []
+
+
+def test_extent_range():
+    assert _validate.extent_range(np.float32) == pytest.approx((9.09e-13, 7.21e16), rel=1e-3)
+    assert _validate.extent_range(np.float64) == pytest.approx((6.72e-139, 5.24e151), rel=1e-3)
+    assert _validate.check_extent(np.zeros(3), np.zeros(3), np.float32) == 0.0  # every point equal
+    with pytest.raises(ValueError, match=r"points span 1e\+17 .* overflow; the extent must be 0 or in \[9.1e-13, 7.2e\+16\]"):
+        _validate.check_extent(np.zeros(3), np.array([1e17, 0, 0]), np.float32)
+    with pytest.raises(ValueError, match=r"span more than float64 holds"):
+        _validate.check_extent(np.array([-1.7e308, 0, 0]), np.array([1.7e308, 0, 0]), np.float64)
+
+
+# ------------------------------------------------------------------------------------------ GFR
+def test_gfr_beyond_float32_is_refused(cloud):
+    # was: OverflowError: cannot convert float infinity to integer (B(800) x 1e19, x64 off)
+    with jax.enable_x64(False):
+        _refused(cloud * 1e19, "gfr", r"points span 6e\+19 .* float32 .*jax_enable_x64")
+        _refused(cloud.astype(np.float32) * np.float32(1e19), "gfr", r"float32 cannot represent")
+        _same(_resample(cloud * 2.0**53, "gfr", mode="top"), _resample(cloud, "gfr", mode="top"))  # extent 5.4e16
+
+
+def test_gfr_spacing_underflow_is_refused(cloud):
+    # was: ZeroDivisionError (B(800) x 1e-150, x64 on)
+    with jax.enable_x64(True):
+        _refused(cloud * 1e-150, "gfr", r"points span 6e-150 .* float64 .* underflow .* \[6.7e-139, 5.2e\+151\]")
+
+
+# ------------------------------------------------------------------------------------ MSS, HKC
+def test_mss_beyond_float32_is_refused_and_right_in_float64(cloud):
+    # was: 800 NaN scores and indices without an error (B(800) x 1e150, x64 off)
+    with jax.enable_x64(False):
+        _refused(cloud * 1e150, "mss", r"points span 6e\+150 .* float32")
+    with jax.enable_x64(True):
+        _same(_resample(cloud * 2.0**500, "mss"), _resample(cloud, "mss"))
+
+
+def test_hkc_beyond_float64_squares_is_refused(cloud):
+    # was: IndexError: index 800 is out of bounds (the k-d tree's squared distances overflow)
+    with jax.enable_x64(True):
+        _refused(cloud * 1e155, "hkc", r"points span 6e\+155 .* float64 .* overflow")
+        with pytest.raises(ValueError, match="points span 6e\\+155"):
+            hgjax.tiles.resample(cloud * 1e155, 0.2, method="hkc", tile=1e155)
+        with pytest.raises(ValueError, match="points span"):
+            hgjax.neighbourhoods(cloud * 1e155, "hkc")
+        _same(_resample(cloud * 2.0**500, "hkc"), _resample(cloud, "hkc"))
+
+
+@pytest.mark.parametrize("method", SCORING)
+def test_every_method_at_the_ends_of_the_float32_range(cloud, method):
+    p = cloud.astype(np.float32)
+    with jax.enable_x64(False):
+        want = _resample(p, method)
+        for scale in (2.0**-40, 2.0**53):  # extents 5.5e-12 and 5.4e16: inside
+            _same(_resample(p * np.float32(scale), method), want)
+        for scale in (2.0**-43, 2.0**54):  # extents 6.8e-13 and 1.1e17: outside
+            _refused(p * np.float32(scale), method, r"points span .* float32 cannot represent")
+
+
+# ------------------------------------------------------------------------------------- samplers
+def test_voxel_beyond_float64_squares_is_refused(cloud):
+    # was: 156 duplicates of 160 (B(800) x 1e200); the sampler computes in float64 on the host
+    for x64 in (False, True):
+        with jax.enable_x64(x64):
+            _refused(cloud * 1e200, "voxel", r"points span 6e\+200 .* float64")
+            with pytest.raises(ValueError, match="points span"):
+                hgjax.voxel_sample(cloud * 1e200, 0.2)
