@@ -30,6 +30,7 @@ import dataclasses
 import json
 import sys
 import threading
+import time
 
 import jax
 import numpy as np
@@ -284,16 +285,66 @@ class Source:
 
 
 class Ticker:
-    """Writes one line on stderr per finished tile task of a pass: ``hgjax tiles: <pass> 3/12 tile (i, j, k)``."""
+    """The progress of one pass of tasks of known sizes on stderr (a survey's, ``progress``).
 
-    def __init__(self, fn, total: int):
-        self.what, self.total = fn.__name__.strip("_").replace("_", " "), total
-        self.done, self.lock = 0, threading.Lock()
+    A tqdm bar of the points done where stderr is a terminal and tqdm is installed; else a
+    first line as the pass starts (``hgjax tiles: tile scores: 12 tiles, 1.2M points``), then,
+    at most one a :attr:`PERIOD` and at the last task, the tasks and points done, the rate and
+    the time left (``hgjax tiles: tile scores 3/12 tiles, 210k/1.2M points, 53k points/s, ETA
+    19 s``). Called with a task's key as it ends, from any thread.
 
-    def __call__(self, cell) -> None:
+    Args:
+      what: the pass's name, or its task function (named by it: ``_tile_scores`` is "tile scores").
+      sizes: {task key: its size in ``unit``}.
+      task, unit, prefix: the words of the lines.
+    """
+
+    PERIOD = 1.0
+
+    def __init__(self, what, sizes: dict, *, task: str = "tile", unit: str = "points", prefix: str = "hgjax tiles"):
+        self.what = what if isinstance(what, str) else what.__name__.strip("_").replace("_", " ")
+        self.sizes, self.total, self.task, self.unit, self.prefix = sizes, sum(sizes.values()), task, unit, prefix
+        self.done, self.amount, self.lock = 0, 0, threading.Lock()
+        self.start = self.said = time.perf_counter()
+        self.bar = None
+        if sys.stderr.isatty():
+            try:
+                from tqdm import tqdm
+            except ImportError:  # tqdm is optional (the progress extra): plain lines then
+                pass
+            else:
+                self.bar = tqdm(total=self.total, unit=f" {unit}", unit_scale=True, file=sys.stderr,
+                                desc=f"{prefix}: {self.what} ({len(sizes)} {task}s)", dynamic_ncols=True)
+        if self.bar is None:
+            print(f"{prefix}: {self.what}: {len(sizes)} {task}s, {self.si(self.total)} {unit}", file=sys.stderr,
+                  flush=True)
+
+    def __call__(self, key) -> None:
         with self.lock:
             self.done += 1
-            print(f"hgjax tiles: {self.what} {self.done}/{self.total} tile {tuple(cell)}", file=sys.stderr, flush=True)
+            self.amount += self.sizes[key]
+            last = self.done == len(self.sizes)
+            if self.bar is not None:
+                self.bar.update(self.sizes[key])
+                if last:
+                    self.bar.close()
+                return
+            now = time.perf_counter()
+            if now - self.said < self.PERIOD and not last:
+                return
+            self.said, rate = now, self.amount / max(now - self.start, 1e-9)
+            left = f"{(self.total - self.amount) / rate:.0f} s" if rate > 0 else "unknown"
+            print(f"{self.prefix}: {self.what} {self.done}/{len(self.sizes)} {self.task}s, {self.si(self.amount)}/"
+                  f"{self.si(self.total)} {self.unit}, {self.si(rate)} {self.unit}/s, ETA {left}", file=sys.stderr,
+                  flush=True)
+
+    @staticmethod
+    def si(value: float) -> str:
+        """``value`` in at most 3 significant digits with an SI prefix: 950, 3.2k, 12M."""
+        for prefix, scale in (("T", 1e12), ("G", 1e9), ("M", 1e6), ("k", 1e3)):
+            if value >= scale:
+                return f"{value / scale:.3g}{prefix}"
+        return f"{value:.3g}"
 
 
 def map_tasks(client, fn, items, *args) -> list:
@@ -317,7 +368,7 @@ class Here:
 
     def tiles(self, fn, *args, cells=None) -> list:
         cells = cells or self.cloud.occupied()
-        tick = Ticker(fn, len(cells)) if self.cloud.progress else None
+        tick = Ticker(fn, {cell: self.cloud.core_size(cell) for cell in cells}) if self.cloud.progress else None
         out = []
         for cell in cells:
             out.append(fn(self.cloud, cell, *args))
@@ -365,7 +416,7 @@ class Dask(Here):
                                       priority=-self.cloud.core_size(cell)) for cell in cells]
         self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
         if self.cloud.progress:
-            tick = Ticker(fn, len(cells))
+            tick = Ticker(fn, {cell: self.cloud.core_size(cell) for cell in cells})
             for f, cell in zip(futures, cells):
                 f.add_done_callback(lambda _, cell=cell: tick(cell))
         return futures
