@@ -179,8 +179,10 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--quiet", "--no-progress", dest="progress", action="store_false",
                         help="no progress bar (shown only when stderr is a terminal)")
     common.add_argument("-v", "--verbose", action="store_true",
-                        help="print the seconds of each stage (read; plan, tiles: every tile's neighbourhoods and"
-                        " scores, keep; write; GFR's reference: neighbourhoods, score, keep)")
+                        help="print the seconds of each stage: per file read, the engine's stages (plan, tiles:"
+                        " every tile's neighbourhoods and scores, keep; a method on the whole cloud at once:"
+                        " neighbourhoods, score, keep; a sampler: sample), write; a survey (--tile, --workers,"
+                        " --scheduler): check, copy (a whole-cloud method), the engine's stages, write, total")
 
     def with_inputs(p, several):
         if several:
@@ -193,7 +195,12 @@ def build_parser() -> argparse.ArgumentParser:
                            help="write every input that can be processed, list the others, exit 1 (default:"
                            " any unreadable input stops the run before anything is computed, exit 2)")
             p.add_argument("--skip-existing", action="store_true",
-                           help="leave out inputs whose output exists (resume an interrupted batch)")
+                           help="resume: keep an output only where hgjax-manifest.json in its directory records"
+                           " it as it is, written with the same method, ratio or count, parameters, key (random"
+                           " methods), options and hgjax version from the same inputs (path, size, modification"
+                           " time); one line per output says it was skipped or why it is recomputed. The manifest"
+                           " is written beside the outputs of -o DIR, of a survey, and of any run with"
+                           " --skip-existing")
         else:
             p.add_argument("inputs", nargs=1, metavar="IN", help="point cloud or mesh file")
         p.add_argument("--samples", type=_positive(int), default=None,
@@ -568,22 +575,67 @@ def count_ratio(count: int, n: int) -> float:
     return count / n
 
 
-def _prepare(args) -> list[tuple[str, str]]:
-    """(input, output) pairs, outputs checked, before anything is read or computed; with
-    ``--skip-existing``, the pairs whose output exists are left out (and said so)."""
+def _prepare(args) -> list[tuple[str, str, dict | None]]:
+    """(input, output, run record or None) triples, outputs checked, before anything is read or computed.
+
+    The outputs of ``-o DIR``, and every output with ``--skip-existing``, are recorded in the
+    manifest of their directory (:data:`hgjax.survey.MANIFEST`) as each is written, with their
+    run record (:func:`_record`). With ``--skip-existing``, an output is left out where
+    :func:`hgjax.survey.reusable` says its manifest records it as this run would write it, the
+    rule of a survey too; one line per output says it was skipped or why it is recomputed.
+
+    Raises:
+      hgjax.survey.ManifestError: with ``--skip-existing``, a manifest that is not one.
+    """
+    from hgjax import METHODS, survey
+
     inputs = _expand(args.inputs)
     _check_samples(args.samples, inputs, [args.method])
-    jobs = list(zip(inputs, _targets(inputs, args.output, args.format)))
-    if args.skip_existing:
-        for path, target in jobs:
-            if os.path.exists(target):
-                print(f"skipped {path}: {target} exists (--skip-existing)", file=sys.stderr)
-        jobs = [(path, target) for path, target in jobs if not os.path.exists(target)]
+    targets = _targets(inputs, args.output, args.format)
+    if not (args.skip_existing or os.path.isdir(args.output)):
+        return [(path, target, None) for path, target in zip(inputs, targets)]
+    params, key, manifests, jobs = _method_params(args, METHODS[args.method]), _key(args), {}, []
+    for path, target in zip(inputs, targets):
+        record = _record(args, path, params, key)
+        if args.skip_existing:
+            where = _manifest_of(target)
+            if where not in manifests:
+                manifests[where] = survey.read_manifest(where)
+            reuse, line = survey.reusable(manifests[where], target, record)
+            print(line, file=sys.stderr)
+            if reuse:
+                continue
+        jobs.append((path, target, record))
     return jobs
 
 
-def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str]], dict[str, str], object]:
-    """Read every input and run ``check(path, target, data)`` on it before any computation.
+def _manifest_of(target: str) -> str:
+    """The manifest that records ``target``: :data:`hgjax.survey.MANIFEST` in its directory."""
+    from hgjax import survey
+
+    return os.path.join(os.path.dirname(os.path.abspath(target)), survey.MANIFEST)
+
+
+def _record(args, path: str, params: dict, key) -> dict:
+    """The run record (:func:`hgjax.survey.run_record`) of the output of ``path``: the command, method, ratio
+    or count, parameters, key, and every option that changes the output (dtype, samples, the seed of a
+    sampled input; ``resample``'s voxel size and order)."""
+    from hgjax import survey
+
+    sampled = args.samples is not None or _is_mesh(path)
+    options = {"command": args.command, "dtype": args.dtype, "samples": args.samples,
+               "seed": args.seed if sampled else None}
+    ratio = args.ratio
+    if args.command == "resample":
+        options.update(count=args.count, voxel_size=args.voxel_size, order=args.order)
+        if ratio is None and args.count is None and args.voxel_size is None:
+            ratio = DEFAULT_RATIO
+    return survey.run_record([path], method=args.method, ratio=ratio, key=key, params=params, **options)
+
+
+def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str, dict | None]], dict[str, str], object]:
+    """Read every input of ``jobs`` (:func:`_prepare`) and run ``check(path, target, data)`` on it before any
+    computation.
 
     Returns:
       The jobs that passed, the message of each input that failed, and the data of the
@@ -593,14 +645,14 @@ def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str]], dict[str, s
       UsageError: an input failed and ``--keep-going`` is not set (all failures listed).
     """
     good, failed, data = [], {}, None
-    for path, target in jobs:
+    for path, target, record in jobs:
         try:
             data = _load(path, args)
             check(path, target, data)
         except (UsageError, ValueError, TypeError, OSError) as err:
             failed[path] = str(err) if path in str(err) else f"{path}: {err}"
         else:
-            good.append((path, target))
+            good.append((path, target, record))
     if failed and not args.keep_going:
         raise UsageError(f"{len(failed)} of {len(jobs)} inputs cannot be processed, nothing was written"
                          " (--keep-going writes the others):\n  " + "\n  ".join(failed.values()))
@@ -610,14 +662,20 @@ def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str]], dict[str, s
 
 
 def _run_batch(args, jobs, check, process) -> None:
-    """Check every input, then ``process(path, target, data)`` each good one.
+    """Check every input, then ``process(path, target, data)`` each good one, and record its output in its
+    manifest (where :func:`_prepare` gave it a run record) as soon as it is written.
 
     With ``--keep-going`` an input that fails (when checked or computed) is listed and
     skipped, the others are written, and the run ends with exit code 1."""
+    from hgjax import survey
+
     good, failed, data = _check_inputs(args, jobs, check)
-    for path, target in good:
+    for path, target, record in good:
         try:
             process(path, target, data if data is not None else _load(path, args))
+            if record is not None:
+                survey.write_manifest(_manifest_of(target), [{"output": target, "input": os.path.abspath(path),
+                                                              "run": record}])
         except (ValueError, TypeError, OSError, RuntimeError, MemoryError) as err:
             if not args.keep_going:
                 raise
@@ -679,9 +737,18 @@ def cmd_resample(args) -> None:
     _run_batch(args, jobs, check, process)
 
 
+WORKER_CLOSE_SECONDS = 60.0
+"""How long a ``--workers`` process may take to close at the end of a run before it is killed (Dask's own
+default, 4 s, is shorter than a loaded machine takes to stop a worker that ran JAX: it kills it and warns)."""
+
+
 @contextlib.contextmanager
 def _dask_client(args):
-    """The Dask client of ``--workers`` (a local cluster, closed at the end) or ``--scheduler``."""
+    """The Dask client of ``--workers`` (a local cluster, closed at the end) or ``--scheduler``.
+
+    After a run that ends normally the local cluster's worker processes are asked to close and
+    given :data:`WORKER_CLOSE_SECONDS` to do so, so none is killed and Dask prints no warning;
+    after an error or an interruption the cluster is closed as Dask closes it, at once."""
     try:
         import distributed
     except ImportError:
@@ -691,14 +758,29 @@ def _dask_client(args):
         with distributed.Client(args.scheduler) as client:
             yield client
         return
+    if args.progress:
+        print(f"hgjax resample: starting a local Dask cluster of {args.workers} worker processes", file=sys.stderr,
+              flush=True)
     with distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                                  dashboard_address=":0", host="127.0.0.1") as cluster, distributed.Client(cluster) as client:
-        yield client
+                                  dashboard_address=":0", host="127.0.0.1") as cluster:
+        with distributed.Client(cluster) as client:
+            yield client
+
+        async def close_workers():
+            import asyncio
+
+            workers = list(cluster.workers.values())
+            await asyncio.gather(*(worker.close(timeout=WORKER_CLOSE_SECONDS) for worker in workers))
+
+        cluster.sync(close_workers)
 
 
 def _resample_survey(args, params: dict) -> None:
-    """``resample`` with --tile, --workers or --scheduler: every input one cloud (:func:`hgjax.survey.resample_files`)."""
-    from hgjax import survey
+    """``resample`` with --tile, --workers or --scheduler: every input one cloud (:func:`hgjax.survey.resample_files`).
+
+    Unless ``--quiet``, a first line at once, then the survey's progress (a tqdm bar per stage where stderr is
+    a terminal, plain lines otherwise); ``--verbose`` prints each stage's seconds and the total."""
+    from hgjax import io, survey
 
     if args.workers is not None and args.scheduler is not None:
         raise UsageError("give --workers (a local cluster) or --scheduler (an existing one), not both")
@@ -711,17 +793,24 @@ def _resample_survey(args, params: dict) -> None:
     _refuse_stdout(args.output)
     if os.path.splitext(args.output)[1] and not os.path.isdir(args.output):
         raise UsageError(f"-o {args.output}: with --tile/--workers/--scheduler, -o is a directory")
+    start = time.perf_counter()
     inputs = _expand(args.inputs)
     ratio = DEFAULT_RATIO if args.ratio is None else args.ratio
-    start = time.perf_counter()
+    if args.progress:  # within a second of the start; progress lines follow (a tqdm bar per stage on a terminal)
+        print(f"hgjax resample: {args.method} keeps {ratio:g} of a survey of {len(inputs)} files as one cloud"
+              f"{'' if args.tile is None else f' in tiles of {args.tile:g}'} -> {args.output}", file=sys.stderr,
+              flush=True)
+    if os.path.isdir(args.output):
+        for temp in io.remove_stale_temporaries(args.output):
+            print(f"hgjax: removed {temp}, left by a killed run", file=sys.stderr)
     with contextlib.ExitStack() as stack:
         client = None if args.workers is None and args.scheduler is None else stack.enter_context(_dask_client(args))
         result = survey.resample_files(inputs, args.output, ratio, method=args.method, tile=args.tile, client=client,
                                        key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
-                                       progress=_progress(args), **params)
-    _stage(args, "survey", start)
-    for target in result.skipped:
-        print(f"skipped {target}: it exists and the manifest matches (--skip-existing)", file=sys.stderr)
+                                       progress=args.progress,
+                                       on_stage=lambda name, seconds: _seconds(args, name, seconds),
+                                       on_resume=lambda line: print(line, file=sys.stderr, flush=True), **params)
+    _stage(args, "total", start)
     for message in result.failures.values():
         print(f"hgjax resample: failed: {message}", file=sys.stderr)
     print(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs to {args.output}"

@@ -5,24 +5,240 @@ its exact bounds, then each tile reads its core and halo from the files its box 
 COPC file only the octree nodes that meet it: :func:`hgjax.io.chunks`) and runs the engine
 (:func:`hgjax.engine.run`) on them as one cloud, so the kept points are exactly those of
 :func:`hgjax.tiles.resample` on the concatenated cloud.
+
+The manifest (:data:`MANIFEST`, one per output directory) is the one resume rule of every
+mode, a survey's and the command line's file by file: :func:`run_record` says what decides an
+output, :func:`reusable` whether an output can be kept and why not, :func:`write_manifest`
+records the outputs written, :func:`read_manifest` refuses a file that is not a manifest.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import glob
 import json
 import os
-import tempfile
+import re
+import secrets
+import socket
+import time
 
 import numpy as np
 
 from hgjax import _registry, _tiling, _validate, engine, io, spatial
 from hgjax._method import Method
 
-__all__ = ["MANIFEST", "SurveyResult", "resample_files"]
+__all__ = ["MANIFEST", "ManifestError", "SurveyResult", "read_manifest", "resample_files", "reusable", "run_record",
+           "write_manifest"]
 
 MANIFEST = "hgjax-manifest.json"
+"""The file name of the manifest in a directory of outputs."""
+
+_LABELS = {"hgjax": "the hgjax version", "command": "the command", "method": "the method", "ratio": "the ratio",
+           "count": "the count", "voxel_size": "the voxel size", "params": "the parameters", "key": "the key",
+           "tile": "the tile", "dtype": "the dtype", "order": "the order", "samples": "the samples",
+           "seed": "the seed"}
+"""How :func:`reusable` names a field of a run record that changed."""
+_STREAM = ("chunk_size", "progress")
+"""Parameters of the kernel stream, which never change a result (not recorded)."""
+
+
+class ManifestError(ValueError):
+    """Raised when a manifest file is not one hgjax wrote (invalid JSON, or not a manifest's shape)."""
+
+
+def run_record(inputs, *, method: str, ratio, key=None, params=None, **options) -> dict:
+    """What decides an output, as a manifest records it (JSON data).
+
+    Args:
+      inputs: the input files the output is made from (a survey's output: every input of the
+        survey, since all of them decide its kept points).
+      method: the method's name.
+      ratio: the fraction kept (None where ``options`` say how many instead: ``count``).
+      key: the ``jax.random.key``, recorded by its data, for a method that draws random numbers
+        (its registry entry's ``needs_key``); None otherwise, so another key keeps the outputs of a
+        deterministic method.
+      params: the method's parameters (the kernel stream's ``chunk_size`` and ``progress`` left out:
+        they never change a result).
+      **options: anything else that changes the output (a survey's ``tile`` and working
+        ``dtype``; the command line's command, count, voxel size, order, samples and seed).
+
+    Returns:
+      {"hgjax": version, "method", "ratio", "key", "params", **options, "inputs": [{"path" (absolute),
+      "bytes", "mtime_ns"} per input, None where missing]}.
+
+    Examples:
+      >>> record = run_record([], method="hkc", ratio=0.2, params={"k": 10})
+      >>> record["method"], record["ratio"], record["key"], record["params"], record["inputs"]
+      ('hkc', 0.2, None, {'k': 10}, [])
+    """
+    from hgjax import __version__
+
+    inputs = [os.fspath(p) for p in inputs]
+    stats = [os.stat(p) if os.path.exists(p) else None for p in inputs]
+    params = {k: v for k, v in (params or {}).items() if k not in _STREAM}
+    record = {"hgjax": __version__, "method": method, "ratio": ratio,
+              "key": key if _registry.entry(method).needs_key else None, "params": params, **options,
+              "inputs": [{"path": os.path.abspath(p), "bytes": None if st is None else st.st_size,
+                          "mtime_ns": None if st is None else st.st_mtime_ns} for p, st in zip(inputs, stats)]}
+    return json.loads(json.dumps(record, default=_tiling.jsonable))
+
+
+def read_manifest(path) -> dict:
+    """The manifest at ``path``, checked to be one; {} where there is none.
+
+    Args:
+      path: the manifest file (:data:`MANIFEST` in a directory of outputs).
+
+    Returns:
+      The manifest: {"hgjax", "outputs": [{"output" (absolute path), "bytes", "mtime_ns", "run"
+      (the output's :func:`run_record`, else the manifest's own "run"), ...}], ...}.
+
+    Raises:
+      ManifestError: the file is not valid JSON or not the shape of a manifest (named, with how
+        to go on).
+
+    Examples:
+      >>> read_manifest("no-such-folder/hgjax-manifest.json")
+      {}
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        return {}
+    advice = "remove it to recompute every output, or write to another directory"
+    try:
+        with open(path, "rb") as fh:
+            data = json.loads(fh.read().decode("utf-8"))
+    except ValueError as err:  # JSONDecodeError and UnicodeDecodeError
+        raise ManifestError(f"{path} is not an hgjax manifest: invalid JSON ({err}); {advice}") from None
+    problem = _misshapen(data)
+    if problem:
+        raise ManifestError(f"{path} is not an hgjax manifest: {problem}; {advice}")
+    return data
+
+
+def _misshapen(data) -> str | None:
+    """What keeps ``data`` from being a manifest's shape, or None."""
+    if not isinstance(data, dict):
+        return f"a JSON {type(data).__name__}, not an object"
+    if not isinstance(data.get("outputs"), list):
+        return 'no "outputs" list'
+    if "run" in data and not isinstance(data["run"], dict):
+        return 'its "run" is not an object'
+    for entry in data["outputs"]:
+        if not (isinstance(entry, dict) and isinstance(entry.get("output"), str)):
+            return 'an entry of "outputs" is not an object with an "output" path'
+        run = entry.get("run", data.get("run"))
+        if not (isinstance(run, dict) and isinstance(run.get("inputs"), list)):
+            return f'the entry of {entry["output"]} has no "run" object with "inputs"'
+    return None
+
+
+def reusable(manifest: dict, output, record: dict) -> tuple[bool, str]:
+    """Whether ``output`` can be kept as it is, and the line that says so or why it is recomputed.
+
+    It is kept only when it exists as ``manifest`` recorded it (same size and modification
+    time) and its recorded run equals ``record``: method, ratio or count, parameters, key,
+    hgjax version, every option and each input's path, size and modification time.
+
+    Args:
+      manifest: a manifest (:func:`read_manifest`; {} where there is none).
+      output: the output path, as the line names it.
+      record: the run that would write it now (:func:`run_record`).
+
+    Returns:
+      (True, "skipped OUTPUT: ... (--skip-existing)") or (False, "recomputing OUTPUT: why").
+
+    Examples:
+      >>> reusable({}, "no-such-file.ply", run_record([], method="hkc", ratio=0.2))
+      (False, 'recomputing no-such-file.ply: it does not exist')
+    """
+    output = os.fspath(output)
+    if not os.path.exists(output):
+        return False, f"recomputing {output}: it does not exist"
+    entry = {e["output"]: e for e in manifest.get("outputs", [])}.get(os.path.abspath(output))
+    if entry is None:
+        return False, f"recomputing {output}: {MANIFEST} does not record it"
+    st = os.stat(output)
+    if (entry.get("bytes"), entry.get("mtime_ns")) != (st.st_size, st.st_mtime_ns):
+        return False, f"recomputing {output}: it changed since {MANIFEST} recorded it"
+    changes = _changes(entry.get("run", manifest.get("run")), record)
+    if changes:
+        return False, f"recomputing {output}: {'; '.join(changes)}"
+    return True, (f"skipped {output}: {MANIFEST} records the same method, ratio, parameters, key, version and"
+                  " inputs (--skip-existing)")
+
+
+def _changes(old: dict, new: dict) -> list[str]:
+    """What differs between two run records, one phrase per field, in the order of ``new``."""
+    said = []
+    for name in [*new, *(n for n in old if n not in new)]:
+        if name == "inputs" or old.get(name) == new.get(name):
+            continue
+        label = _LABELS.get(name, f"the {name}")
+        if name == "key":
+            said.append(f"{label} changed")
+        else:
+            said.append(f"{label} changed ({json.dumps(old.get(name))} -> {json.dumps(new.get(name))})")
+    was = {i["path"]: i for i in old.get("inputs", []) if isinstance(i, dict) and "path" in i}
+    now = {i["path"]: i for i in new.get("inputs", [])}
+    gone, added = [p for p in was if p not in now], [p for p in now if p not in was]
+    if gone or added:
+        said.append("the inputs changed (" + ", ".join([*(f"{p} added" for p in added), *(f"{p} gone" for p in gone)])
+                    + ")")
+    for p, identity in now.items():
+        if p in was and was[p] != identity:
+            said.append(f"the input {p} changed (size or modification time)")
+    return said
+
+
+def write_manifest(path, entries: list, *, run: dict | None = None, **fields) -> None:
+    """Record the outputs ``entries`` in the manifest at ``path``, atomically.
+
+    Each entry replaces the one of the same output; the entries of the other outputs already
+    recorded are kept (each with its run written out), so runs into one directory share its
+    manifest. A manifest that cannot be read is replaced.
+
+    Args:
+      path: the manifest file.
+      entries: one {"output": path, "run": :func:`run_record` (or none: ``run``), ...} per output
+        written or kept; the output's size and modification time are recorded here.
+      run: the run record of every entry without one (a survey's).
+      **fields: more of the run to record (a survey's resolved plan, counts and failures).
+
+    Returns:
+      None.
+
+    Examples:
+      >>> import os, tempfile
+      >>> folder = tempfile.mkdtemp()
+      >>> out = os.path.join(folder, "kept.ply")
+      >>> open(out, "w").close()
+      >>> record = run_record([], method="hkc", ratio=0.2)
+      >>> write_manifest(os.path.join(folder, MANIFEST), [{"output": out, "run": record}])
+      >>> reusable(read_manifest(os.path.join(folder, MANIFEST)), out, record)[0]
+      True
+    """
+    from hgjax import __version__
+
+    path = os.fspath(path)
+    try:
+        old = read_manifest(path)
+    except ManifestError:
+        old = {}
+    recorded = {}
+    for entry in old.get("outputs", []):
+        if os.path.exists(entry["output"]):
+            recorded[entry["output"]] = {**entry, "run": entry.get("run", old.get("run"))}
+    for entry in entries:
+        output = os.path.abspath(entry["output"])
+        st = os.stat(output)
+        recorded[output] = {**entry, "output": output, "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+    body = {"hgjax": __version__, **({} if run is None else {"run": run}), **fields,
+            "outputs": list(recorded.values())}
+    text = json.dumps(body, indent=2, default=_tiling.jsonable).encode()
+    io._atomic_write(os.path.abspath(path), lambda fh: fh.write(text))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +270,7 @@ class _Sources(_tiling.Source):
         """Per-axis float64 min and max of the whole survey (the exact reduction of the files' bounds)."""
         return np.min([f.lo for f in self.files], axis=0), np.max([f.hi for f in self.files], axis=0)
 
-    def cloud(self, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile, client) -> "_Survey":
+    def cloud(self, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile, client) -> _Survey:
         """The survey tiled by the grid of ``tile`` (its census runs on ``client``)."""
         return _Survey(self, origin, lo, hi, tile, client)
 
@@ -77,7 +293,8 @@ class _Survey(_tiling.Cloud):
         self.shape = (1, 1, 1) if tile is None else _tiling.grid_shape(lo, hi, tile)
         wanted = spatial.sample_ids(self.n)
         counts, self._owners = {}, {}
-        for codes, sizes, gids, owner in _tiling.map_tasks(client, _census, range(len(self.files)), self, wanted):
+        tick = _ticker("census", {i: f.count for i, f in enumerate(self.files)}) if self.progress else None
+        for codes, sizes, gids, owner in _each(client, _census, range(len(self.files)), self, wanted, tick=tick):
             for c, r in zip(codes.tolist(), sizes.tolist()):
                 counts[c] = counts.get(c, 0) + r
             self._owners.update(zip(gids.tolist(), owner.tolist()))
@@ -149,19 +366,50 @@ class SurveyResult:
 
 
 def _survey_paths(paths) -> list[str]:
-    """Files of ``paths`` (files or glob patterns), in the order given, each once."""
+    """Files of ``paths`` (files or glob patterns), in the order given, each once: a file reached again (the same
+    path, a symlink to it, another spelling) is left out, by its real path."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
-    found = []
+    found = {}
     for p in paths:
         p = os.fspath(p)
         matches = sorted(glob.glob(p)) if glob.has_magic(p) else [p]
         if not matches:
             raise ValueError(f"paths: the pattern {p!r} matches no file")
-        found += [m for m in matches if m not in found]
+        for m in matches:
+            found.setdefault(os.path.realpath(m), m)
     if not found:
         raise ValueError("paths must name at least one file; got none")
-    return found
+    return list(found.values())
+
+
+def _ticker(what: str, sizes: dict, unit: str = "points") -> _tiling.Ticker:
+    """The progress of one stage of a survey's files (:class:`hgjax._tiling.Ticker`)."""
+    return _tiling.Ticker(what, sizes, task="file", unit=unit, prefix="hgjax survey")
+
+
+def _each(client, fn, items, *args, tick=None) -> list:
+    """``[fn(item, *args) for item in items]``, as :func:`hgjax._tiling.map_tasks` runs it; ``tick(i)`` as the
+    i-th ends."""
+    if tick is None:
+        return _tiling.map_tasks(client, fn, items, *args)
+    if client is None:
+        out = []
+        for i, item in enumerate(items):
+            out.append(fn(item, *args))
+            tick(i)
+        return out
+    futures = [client.submit(fn, item, *args, pure=False) for item in items]
+    for i, f in enumerate(futures):
+        f.add_done_callback(lambda _, i=i: tick(i))
+    return client.gather(futures)
+
+
+def _temporary(directory: str, name: str) -> str:
+    """A new temporary file's path in ``directory``, named as :mod:`hgjax.io` names the temporaries of its writes
+    (``.NAME.HOST.PID.HEX.tmp``), so that :func:`hgjax.io.remove_stale_temporaries` removes one a killed run left."""
+    host = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())
+    return os.path.join(directory, f".{name}.{host}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
 
 
 def _scan(entry: tuple):
@@ -194,21 +442,15 @@ def _stage(disk: np.memmap, start: int, path: str) -> None:
         disk[start + first:start + first + xyz.shape[0]] = xyz
 
 
-def _run_record(paths, method, ratio, tile, key, params) -> dict:
-    """The part of the manifest that decides whether an earlier run's outputs can be kept."""
-    inputs = [{"path": os.path.abspath(p), "bytes": os.path.getsize(p) if os.path.exists(p) else None,
-               "mtime_ns": os.stat(p).st_mtime_ns if os.path.exists(p) else None} for p in paths]
-    return json.loads(json.dumps({"method": method, "ratio": ratio, "tile": tile, "key": key, "params": params,
-                                  "inputs": inputs}, default=_tiling.jsonable))
-
-
 def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFAULT, tile: float | None = None, client=None,
                    key=None, keep_going: bool = False, skip_existing: bool = False, progress: bool = False,
-                   **params) -> SurveyResult:
+                   on_stage=None, on_resume=None, **params) -> SurveyResult:
     """Resample a survey of files as one cloud, writing the kept points of each file beside the others.
 
     Global ids run in file order, then point order within each file, and the kept ids are
-    exactly those of :func:`resample` on the concatenated cloud. The survey is read lazily:
+    exactly those of :func:`resample` on the concatenated cloud. A file reached twice (the
+    same path, a symlink to it, a glob matching it again) is read once, where it first comes.
+    The survey is read lazily:
     the LAS/LAZ headers first (point counts), then one task per file reads its coordinates
     (LAS/LAZ in chunks of :data:`hgjax.io.CHUNK_ROWS` points, through laspy) for its exact bounds and checks
     them, so every input is checked before any output is written; one census task per file
@@ -221,8 +463,10 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
     survey's coordinates. Tasks read the inputs by absolute path, so Dask workers must see
     them. ``uniform`` reads no coordinate after that check (a point's draw comes from the key
     and its global id). The methods that need the whole cloud at once read it from a float64
-    memmap (24 bytes a point, on disk) in a hidden temporary directory of ``out_dir`` instead,
-    and hold what they need per point in memory: ``voxel`` (its count-targeted edge search
+    memmap (24 bytes a point, on disk) in a hidden temporary file of ``out_dir`` instead
+    (``.hgjax-survey-xyz.f8.HOST.PID.HEX.tmp``: removed when the run ends, interrupted included,
+    and by the next run where a killed one left it, as :func:`hgjax.io.remove_stale_temporaries`
+    does), and hold what they need per point in memory: ``voxel`` (its count-targeted edge search
     assigns every point of the cloud to a voxel, pass after pass, until the kept count is
     reached), GFR's ``variant="reference"`` (its squared radius comes from the min and max nearest
     distance of the whole cloud) and those :func:`resample` runs untiled (``fps``, ``pca_ac``).
@@ -235,30 +479,51 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
       method, tile, client, key, **params: as :func:`resample`.
       keep_going: an unreadable input is reported in the result and left out of the survey
         instead of raising; an output that cannot be written is reported likewise.
-      skip_existing: keep outputs that exist when the manifest in ``out_dir`` records the
-        same method, ratio, tile, key, parameters and inputs (paths, sizes, modification
-        times); only missing outputs are written.
-      progress: write one line on stderr as each tile task of each pass finishes
-        (``hgjax tiles: tile scores 3/12 tile (0, 1, 0)``).
+      skip_existing: keep an output only where :func:`reusable` says so: the manifest in
+        ``out_dir`` records it as it is, written by a run of the same method, ratio, tile,
+        key (random methods), parameters, working dtype and hgjax version from the same
+        inputs (paths, sizes, modification times); the others are written. With every
+        output kept, nothing is read or computed.
+      progress: report on stderr, a tqdm bar per stage where stderr is a terminal (and tqdm is
+        installed), else plain lines: a first line as each stage starts (the check of the files,
+        their census, each pass over the tiles, the copy to disk of a whole-cloud method, the
+        writes), then the files or tiles done, the points done of the total, the rate and the
+        time left (``hgjax tiles: tile scores 3/12 tiles, 210k/1.2M points, 53k points/s, ETA
+        19 s``), at most one line a second.
+      on_stage: ``on_stage(name, seconds)``, called as each stage ends: ``"check"`` (headers and
+        the read of every input), ``"copy"`` (a whole-cloud method's memmap), the engine's stages
+        (:data:`hgjax.engine.STAGES`), ``"write"``.
+      on_resume: ``on_resume(line)``, with ``skip_existing``: called once per output, before
+        anything is read, with the line of :func:`reusable` saying it is kept or why it is
+        recomputed.
 
     Returns:
       :class:`SurveyResult`. Each output holds its input's kept points in input order, with
       every attribute, and a LAS/LAZ output keeps its input's header (point format, scale,
       offset, extra dimensions); the output of a COPC input is a plain LAZ file of the same
-      name (its octree VLRs are dropped: nothing here writes COPC). ``out_dir/hgjax-manifest.json`` records the run, the
-      number of points N and kept M, each output's count, and under ``resolved`` what
+      name (its octree VLRs are dropped: nothing here writes COPC). The outputs carry the
+      fields of :func:`hgjax.cli`'s file-by-file outputs: with a scoring method, a ``score``
+      column holding each kept point's score from this run (the value it was ranked by, as
+      :func:`hgjax.tiles.resample` with ``return_scores`` gives it on the concatenated cloud;
+      LHF's two lengths combined at the kept count), replacing a ``score`` attribute read from
+      the input; a sampler's outputs carry the input's attributes as they are; a plain ``.npy``
+      array's output is a plain array, without the score (:func:`hgjax.io.holds_scores`).
+      ``out_dir/hgjax-manifest.json`` records the run (:func:`run_record`), the
+      number of points N and kept M, each output's count, size and modification time, and under ``resolved`` what
       decided the kept set: the :class:`Plan` (origin, bounds, resolved build and score
       parameters, halo), the selection's global statistics (LHF's Gamma_a and Gamma_b,
       GFR's score sum) and the threshold (the last kept score and its global id), so a
-      rerun can be checked against it; outputs and manifest are written atomically.
+      rerun can be checked against it; outputs and manifest are written atomically
+      (:func:`write_manifest`: outputs of other runs recorded there are kept).
 
     Raises:
       ValueError: ``paths`` matches no file, or an output would be one of the inputs.
+      ManifestError: with ``skip_existing``, the manifest in ``out_dir`` is not one.
       hgjax.io.PointCloudReadError: an input cannot be read (without ``keep_going``), before
         any output is written.
       TypeError, ValueError: as :func:`resample`.
     """
-    from hgjax import __version__
+    import jax
 
     keep_going = _validate.check_bool(keep_going, "keep_going")
     skip_existing = _validate.check_bool(skip_existing, "skip_existing")
@@ -271,16 +536,25 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
     clash = [p for p in files if os.path.abspath(targets[p]) == os.path.abspath(p)]
     if clash:
         raise ValueError(f"out_dir: the output of {clash[0]} would overwrite it; choose another directory")
-    record = _run_record(files, method, ratio, tile, key, params)
+    entry = _registry.entry(method)
+    engine.checked_tile(entry, params, tile, client)  # a method that cannot be tiled is refused before any read
+    record = run_record(files, method=method, ratio=ratio, key=key, params=params, tile=tile,
+                        dtype="float64" if jax.config.jax_enable_x64 else "float32")
     manifest = os.path.join(out_dir, MANIFEST)
+    if os.path.isdir(out_dir):
+        io.remove_stale_temporaries(out_dir)
     done = set()
-    if skip_existing and os.path.isfile(manifest):
-        with open(manifest) as fh:
-            old = json.load(fh)
-        if old.get("run") == record:
-            done = {p for p in files if os.path.exists(targets[p])}
+    if skip_existing:
+        old = read_manifest(manifest)
+        for p in files:
+            reuse, line = reusable(old, targets[p], record)
+            if on_resume is not None:
+                on_resume(line)
+            if reuse:
+                done.add(p)
     if done and len(done) == len(files):
         return SurveyResult([], [targets[p] for p in files], {}, manifest)
+    clock = time.perf_counter()
     failures, announced = {}, {}
     for p in files:  # headers first: a LAS/LAZ file whose header cannot be read fails before any coordinate is
         try:
@@ -290,7 +564,9 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
                 raise
             failures[p] = str(err)
     sources, counts = [], {}
-    for p, got in zip(announced, _tiling.map_tasks(client, _scan, [(os.path.abspath(p), c) for p, c in announced.items()])):
+    tick = _ticker("check", {i: os.path.getsize(p) for i, p in enumerate(announced)}, "bytes") if progress else None
+    checked = _each(client, _scan, [(os.path.abspath(p), c) for p, c in announced.items()], tick=tick)
+    for p, got in zip(announced, checked):
         if isinstance(got, str):
             if not keep_going:
                 raise io.PointCloudReadError(got)
@@ -303,20 +579,36 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
     survey, n = _Sources(tuple(sources), progress), sum(counts.values())
     starts = {p: f.start for p, f in zip(counts, sources)}
     os.makedirs(out_dir, exist_ok=True)
-    entry = _registry.entry(method)
-    lazily = entry.refused(params) is None if isinstance(entry, Method) else entry.lazy
+    clock = _ended(on_stage, "check", clock)
+    scoring = isinstance(entry, Method)
+    lazily = entry.refused(params) is None if scoring else entry.lazy
     if lazily:
-        run = engine.run(survey, ratio, method=method, tile=tile, client=client, key=key, params=dict(params))
+        run = engine.run(survey, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
+                         on_stage=on_stage, params=dict(params))
     else:  # the methods that need the whole cloud at once read it from a float64 memmap
-        with tempfile.TemporaryDirectory(dir=out_dir, prefix=".hgjax-survey-") as work:
-            disk = np.memmap(os.path.join(work, "xyz.f8"), dtype=np.float64, mode="w+", shape=(n, 3))
-            for f in sources:
+        work = _temporary(out_dir, "hgjax-survey-xyz.f8")
+        io.OPEN_TEMPORARIES.add(work)  # the command line removes it when a signal ends the process at once
+        try:
+            disk = np.memmap(work, dtype=np.float64, mode="w+", shape=(n, 3))
+            tick = _ticker("copy", dict(enumerate(counts.values()))) if progress else None
+            for i, f in enumerate(sources):
                 _stage(disk, f.start, f.path)
+                if tick:
+                    tick(i)
             disk.flush()
-            run = engine.run(disk, ratio, method=method, tile=tile, client=client, key=key, params=dict(params))
+            _ended(on_stage, "copy", clock)
+            run = engine.run(disk, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
+                             on_stage=on_stage, params=dict(params))
             del disk
+        finally:
+            io.OPEN_TEMPORARIES.discard(work)
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(work)
+    clock = time.perf_counter()
     kept = np.sort(run.idx)
+    scores = None if run.scores is None else np.asarray(run.scores)
     written, skipped, outputs = [], [], {}
+    tick = _ticker("write", {p: counts[p] for p in starts if p not in done}) if progress else None
     for p, start in starts.items():
         local = kept[np.searchsorted(kept, start):np.searchsorted(kept, start + counts[p])] - start
         outputs[p] = {"output": os.path.abspath(targets[p]), "points": counts[p], "kept": int(local.size)}
@@ -328,17 +620,32 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
             if len(data) != counts[p]:
                 raise io.PointCloudReadError(f"cannot read {p}: it changed while being resampled")
             kept_data = data.subset(local)
-            io.write_points(targets[p], kept_data.points, attributes=kept_data.attributes, header=kept_data.header)
+            attributes = kept_data.attributes
+            if scores is not None:  # the new score replaces one read back from an earlier output
+                attributes = {k: v for k, v in attributes.items() if k != "score"}
+            io.write_points(targets[p], kept_data.points, attributes=attributes, header=kept_data.header,
+                            scores=None if scores is None else scores[start + local])
         except (io.PointCloudReadError, io.PointCloudWriteError, OSError, ValueError) as err:
             if not keep_going:
                 raise
             failures[p] = str(err)
+            del outputs[p]
             continue
+        finally:
+            if tick:
+                tick(p)
         written.append(targets[p])
     resolved = {"plan": None if run.plan is None else run.plan.record(), "selection": run.selection,
                 "threshold": run.threshold}
-    body = {"hgjax": __version__, "run": record, "resolved": resolved, "n": n, "m": int(kept.size),
-            "outputs": list(outputs.values()), "failures": failures}
-    text = json.dumps(body, indent=2, default=_tiling.jsonable).encode()
-    io._atomic_write(os.path.abspath(manifest), lambda fh: fh.write(text))
+    write_manifest(manifest, list(outputs.values()), run=record, resolved=resolved, n=n, m=int(kept.size),
+                   failures=failures)
+    _ended(on_stage, "write", clock)
     return SurveyResult(written, skipped, failures, manifest)
+
+
+def _ended(on_stage, name: str, start: float) -> float:
+    """Report that stage ``name``, begun at ``start``, ended (``on_stage(name, seconds)``); the time now."""
+    now = time.perf_counter()
+    if on_stage is not None:
+        on_stage(name, now - start)
+    return now
