@@ -1,0 +1,772 @@
+"""Traced neighbour search: the host builder's neighbour sets, in pure JAX (issue 45, phase 1).
+
+The host builder (:mod:`hgjax.spatial`) answers every query with SciPy's k-d tree, which JAX
+cannot trace. This module answers the same queries with sorted cells, a static capacity and an
+honest overflow flag, so that a search runs under ``jax.jit``, ``jax.vmap`` (equal-N clouds, or a
+padded batch with a per-cloud ``count``) and inside ``jax.grad`` (the choice of neighbours is
+discrete: no gradient flows through it), on any backend.
+
+Algorithm (jax-md's cell list without its dense grid of the box; pytorch3d's ``ball_query``
+with a capacity):
+
+1. Cells of a traced edge e: ``floor((p - lo) / e)`` per axis, three int32 coordinates; the
+   points are sorted by (z, y, x) cell (lexicographic ``lax.sort`` on the three int32 keys, so
+   no 64-bit key and no dense grid: a 2 km x 2 km tile costs what a unit box costs).
+2. Sorted by (z, y, x), the three cells x - 1, x, x + 1 of one (z, y) row are one contiguous
+   run. A query's 27 neighbouring cells are 9 runs, located by binary searches on the sorted
+   keys and read, laid end to end, through a STATIC number of slots: ``capacity``, the most
+   points a query's 27-cell block may hold.
+3. Exact host keys (below) for the candidates; the first columns by (key, global id), the point
+   itself first. ``lax.top_k`` preselects the columns plus ``PRESELECT_EXTRA`` by a float32 key
+   that never decreases where the exact key grows, and those are ranked exactly; where a block
+   of rows cannot be certain of that (more ties at the cut than the margin: lattices, exact
+   duplicates), one exact multi-key ``lax.sort`` of every candidate decides (``lax.cond``).
+   Rows are processed in blocks of ``chunk`` rows (``lax.map``): memory is about
+   chunk x capacity candidates, never (N, N).
+4. Honest overflow: a query whose block holds more points than the capacity, or whose reach
+   (the k-th distance, or the radius) passes the boundary of its 27-cell block (less a
+   rounding margin), could be wrong; the result says so (:attr:`Found.overflow`) with the
+   capacity and the edge that would do (:attr:`Found.needed`, :attr:`Found.edge_needed`).
+   :func:`grown` re-runs eagerly until no overflow: a neighbourhood is never silently
+   truncated.
+
+Same answers as the host, bit for bit:
+
+* Under x64 (``jax.enable_x64``) the search computes exactly what the host computes: the float64
+  local frame of :func:`hgjax.spatial.local_frame` (the bounding-box centre subtracted in
+  float64, whatever the input dtype), squared distances summed x, y, z in order and rooted as
+  cKDTree does (``sqrt((dx*dx + dy*dy) + dz*dz)``), ties by (distance, global id), the point
+  itself first. Same bits, hence the same sets and order.
+* Without x64, float64 does not exist in JAX. Coordinate differences are then made exact with
+  TwoSum, and the squared distance is carried as a normalised float32 pair (hi, lo), about 46
+  bits, summed over the axes in a canonical order (by magnitude) so that equal distances made
+  of the same components are equal to the last bit. The order equals the host's float64 order
+  except where two distances that the host tells apart differ by less than about 2^-44
+  relative, or where float64 rounding itself breaks an exact tie: not seen on any test cloud.
+
+Why not a library: ``jax-md``'s ``partition.cell_list`` allocates a dense grid of the box
+(a 2 km tile at 0.5 m cells is 6e10 cells), answers radius queries only, and breaks ties by
+memory order; ``jaxkd`` (a JAX k-d tree) has no (distance, index) tie order, computes in the
+working dtype (not the host's float64), has no capacity or overflow report and measured 10-25x
+the cKDTree floor here (issue 45). Neither gives the host's neighbour sets.
+
+Sizes that set shapes are static and recompile: ``k``, ``columns``, ``capacity``, ``chunk``,
+``dedupe``, ``metric``, ``max_count`` and N. Float parameters (``edge``, ``radius``) and
+``count`` are traced.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+__all__ = ["Found", "grown", "knn", "within"]
+
+SENTINEL_CELL = np.iinfo(np.int32).max  # cell of a padding row or of a point that is no candidate
+MAX_CELL = 1 << 30  # cell coordinates are clipped here (never reached by a sensible edge)
+SAMPLES = 64  # points whose brute-force k-th distance sets the default edge
+SAMPLE_BLOCK = 4096  # columns per block of that brute force
+EDGE_MARGIN = 1.1  # default edge: the largest sampled reach times this
+CHUNK = 256  # rows per block of the search
+METRICS = ("l2", "l2sq", "linf")
+
+
+@functools.partial(jax.tree_util.register_dataclass,
+                   data_fields=["idx", "dist", "reach", "needed", "columns_needed", "uncovered", "edge",
+                                "edge_needed"],
+                   meta_fields=["capacity"])
+@dataclasses.dataclass(frozen=True)
+class Found:
+    """The result of a traced search: padded neighbour rows and an honest overflow report.
+
+    A registered pytree: under ``jax.vmap`` every field gains the batch axis (the scalars
+    become (B,)).
+
+    Attributes:
+      idx: (N, K) int32 neighbour indices into the caller's points, sorted by (distance,
+        global id), the point itself first (with ``dedupe``: the first copy of its location);
+        padded with the sentinel N. Rows of padding points (``count``) are all N.
+      dist: (N, K) the distances of ``idx`` (0 for the point itself; inf at padding): the
+        host's float64 values under x64, float32 approximations without it. Squared for
+        ``metric="l2sq"``, Chebyshev for ``"linf"``.
+      reach: (N,) per row: the k-th distance (:func:`knn`; inf where fewer than k points
+        exist) or the radius used (:func:`within`, shrunk by ``max_count``).
+      needed: int32 scalar, the most points any query's 27-cell block held: the capacity
+        that holds every block.
+      columns_needed: int32 scalar, the widest row (:func:`within`; ``k`` or fewer for knn).
+      uncovered: bool scalar, True when some row's reach passed the boundary of its 27-cell
+        block (points outside the block may belong to it).
+      edge: scalar, the cell edge used.
+      edge_needed: scalar, an edge that covers every row seen (inf when some row found
+        fewer than k points and its block is not the whole cloud: grow the edge).
+      capacity: the static capacity used (candidate slots per query).
+    """
+
+    idx: jax.Array
+    dist: jax.Array
+    reach: jax.Array
+    needed: jax.Array
+    columns_needed: jax.Array
+    uncovered: jax.Array
+    edge: jax.Array
+    edge_needed: jax.Array
+    capacity: int = 0
+
+    @property
+    def overflow(self):
+        """bool (scalar, or (B,) under vmap): the result may be wrong (a block over capacity, a
+        row wider than ``idx``, or a reach outside its block); re-run with :func:`grown`."""
+        return (self.needed > self.capacity) | (self.columns_needed > self.idx.shape[-1]) | self.uncovered
+
+
+# ----------------------------------------------------------------------------- exact arithmetic
+# XLA does not reassociate floating-point operations, but its CPU backend contracts a product
+# feeding an addition into one fused multiply-add (one rounding instead of two: measured, 21%
+# of ``(dx*dx + dy*dy) + dz*dz`` differ from NumPy's and cKDTree's in float64). Every product
+# whose rounding matters goes through :func:`_mul`, whose select stops the contraction.
+
+
+def _mul(a, b):
+    """a * b rounded on its own, as NumPy and C compute it (never fused into a later addition)."""
+    return jnp.where(a == a, a * b, a)
+
+
+# Error-free transformations (Knuth's TwoSum, Dekker's product) for the float32 pairs.
+
+def _two_sum(a, b):
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+def _fast_two_sum(a, b):  # |a| >= |b| or a == 0
+    s = a + b
+    return s, b - (s - a)
+
+
+def _split(a):
+    c = _mul(a, 4097.0)
+    hi = c - (c - a)
+    return hi, a - hi
+
+
+def _two_prod(a, b):
+    p = _mul(a, b)
+    ah, al = _split(a)
+    bh, bl = _split(b)
+    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
+
+
+def _pair_add(ah, al, bh, bl):
+    """(ah + al) + (bh + bl) as a normalised pair (accurate double-float addition)."""
+    s, e = _two_sum(ah, bh)
+    t, f = _two_sum(al, bl)
+    s, e = _fast_two_sum(s, e + t)
+    return _fast_two_sum(s, e + f)
+
+
+def _pair_square(h, l):
+    """(h + l)^2 as a normalised pair, for |l| <= ulp(h) / 2."""
+    p, e = _two_prod(h, h)
+    m, f = _two_prod(h, l)
+    return _fast_two_sum(p, e + (2 * m + (2 * f + _mul(l, l))))
+
+
+def _pair_less(ah, al, bh, bl):
+    return (ah < bh) | ((ah == bh) & (al < bl))
+
+
+def _abs_diffs(q, c):
+    """Per axis |q - c| as exact normalised pairs (hi, lo), each (..., 3)."""
+    h, l = _two_sum(q, -c)
+    neg = h < 0
+    return jnp.where(neg, -h, h), jnp.where(neg, -l, l)
+
+
+def _sorted3(h, l):
+    """The three pairs (..., 3) sorted ascending (a compare-exchange network): a canonical order."""
+    hs, ls = [h[..., a] for a in range(3)], [l[..., a] for a in range(3)]
+    for i, j in ((0, 1), (1, 2), (0, 1)):
+        swap = _pair_less(hs[j], ls[j], hs[i], ls[i])
+        hs[i], hs[j] = jnp.where(swap, hs[j], hs[i]), jnp.where(swap, hs[i], hs[j])
+        ls[i], ls[j] = jnp.where(swap, ls[j], ls[i]), jnp.where(swap, ls[i], ls[j])
+    return hs, ls
+
+
+def _pair_keys(q, c, metric):
+    """float32 pair keys (hi, lo) of the distances from queries q (..., 1, 3) to candidates c (..., C, 3)."""
+    h, l = _abs_diffs(q, c)
+    hs, ls = _sorted3(h, l)
+    if metric == "linf":
+        return hs[2], ls[2]
+    sq = [_pair_square(hs[a], ls[a]) for a in range(3)]
+    s = _pair_add(*sq[2], *sq[1])
+    return _pair_add(*s, *sq[0])
+
+
+def _host_keys(q, c, metric):
+    """float64 keys exactly as cKDTree computes them on the local frame (query minus point)."""
+    d = q - c
+    if metric == "linf":
+        return jnp.max(jnp.abs(d), axis=-1), None
+    sq = _mul(d, d)
+    s = (sq[..., 0] + sq[..., 1]) + sq[..., 2]
+    return (s if metric == "l2sq" else jnp.sqrt(s)), None
+
+
+def _in_units(hi, metric):
+    """A key's leading part in the metric's units (the pair key of "l2" is a squared distance)."""
+    return jnp.sqrt(jnp.maximum(hi, 0)) if metric == "l2" and not _x64() else jnp.maximum(hi, 0)
+
+
+def _as_distance(value, metric):
+    """A value in the metric's units as a distance (the coverage test compares distances)."""
+    return jnp.sqrt(value) if metric == "l2sq" else value
+
+
+def _below(hi, lo, h, metric):
+    """Whether keys (B, W) lie strictly below the radii ``h`` (B,), in the metric's units."""
+    h = h[:, None]
+    if lo is None:
+        return hi < h
+    if metric == "l2":  # the squared radius as an exact pair
+        hh, hl = _fast_two_sum(*_two_prod(h, h))
+        return _pair_less(hi, lo, hh, hl)
+    return _pair_less(hi, lo, h, jnp.zeros_like(h))
+
+
+def _x64() -> bool:
+    return bool(jax.config.jax_enable_x64)
+
+
+# ----------------------------------------------------------------------------- the cell structure
+
+@dataclasses.dataclass(frozen=True)
+class _Cloud:
+    """Everything a block of queries reads (all in the search's coordinates)."""
+
+    coords: jax.Array  # (N, 3) computation coordinates (caller order)
+    real: jax.Array  # (N,) bool
+    gid: jax.Array  # (N,) int32 tie key
+    qorder: jax.Array  # (N,) caller index of each query position (cells, then coordinates)
+    qcell: jax.Array  # (N, 3) int32 cell of each caller point (0 for padding)
+    keys: tuple  # 3 x (N,) int32 sorted candidate cells (z, y, x), SENTINEL_CELL for non-candidates
+    cpoint: jax.Array  # (N, 3) candidate coordinates in that order
+    cgid: jax.Array  # (N,) candidate tie keys
+    cidx: jax.Array  # (N,) candidate caller indices
+    n_cand: jax.Array  # int32 scalar, the number of candidates
+    lo: jax.Array  # (3,) the cells' origin
+    edge: jax.Array  # scalar
+    delta: jax.Array  # scalar rounding margin, in edges
+
+
+def _coordinates(points, real):
+    """The search's coordinates: the host's float64 local frame under x64, else the float32 input."""
+    if _x64():
+        p = points.astype(jnp.float64)
+        lo = jnp.min(jnp.where(real[:, None], p, jnp.inf), axis=0)
+        hi = jnp.max(jnp.where(real[:, None], p, -jnp.inf), axis=0)
+        return p - (lo + hi) / 2
+    return points.astype(jnp.float32)
+
+
+def _eligible(coords, real, cell, dedupe):
+    """(qorder, candidate mask): query order (cells, then coordinates, then index) and which
+    points are candidates (every real point, or with ``dedupe`` the first copy of each location)."""
+    n = coords.shape[0]
+    iota = jnp.arange(n, dtype=jnp.int32)
+    cz, cy, cx = cell[:, 2], cell[:, 1], cell[:, 0]
+    if not dedupe:
+        qorder = lax.sort((cz, cy, cx, iota), num_keys=4)[-1]
+        return qorder, real
+    out = lax.sort((cz, cy, cx, coords[:, 0], coords[:, 1], coords[:, 2], iota), num_keys=7)
+    qorder = out[-1]
+    p = coords[qorder]
+    same = jnp.concatenate([jnp.zeros(1, bool), jnp.all(p[1:] == p[:-1], axis=1)])
+    first = ~same & real[qorder]
+    return qorder, jnp.zeros(n, bool).at[qorder].set(first)
+
+
+def _cloud(points, count, gid, edge, dedupe) -> _Cloud:
+    n = points.shape[0]
+    iota = jnp.arange(n, dtype=jnp.int32)
+    real = iota < (n if count is None else count)
+    coords = _coordinates(lax.stop_gradient(points), real)
+    gid = iota if gid is None else jnp.asarray(gid, jnp.int32)
+    lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
+    t = (coords - lo) / edge
+    top = jnp.max(jnp.where(real[:, None], t, 0))
+    eps = jnp.finfo(coords.dtype).eps / 2
+    delta = 16 * eps * (jnp.minimum(top, MAX_CELL) + 4)
+    cell = jnp.floor(jnp.clip(t, 0, MAX_CELL)).astype(jnp.int32)
+    cell = jnp.where(real[:, None], cell, SENTINEL_CELL)
+    qorder, cand = _eligible(coords, real, cell, dedupe)
+    ccell = jnp.where(cand[:, None], cell, SENTINEL_CELL)
+    corder = lax.sort((ccell[:, 2], ccell[:, 1], ccell[:, 0], iota), num_keys=4)[-1]
+    keys = tuple(ccell[corder, a] for a in (2, 1, 0))
+    return _Cloud(coords, real, gid, qorder, jnp.where(real[:, None], cell, 0), keys, coords[corder], gid[corder],
+                  corder, jnp.sum(cand, dtype=jnp.int32), lo, edge, delta)
+
+
+def _lower_bound(keys, q):
+    """The number of sorted triples ``keys`` (3 x (N,)) lexicographically below each ``q`` (3 x (...)).
+
+    A binary search by halving steps in a ``fori_loop`` (unrolled, XLA's fusion would copy each
+    step into every later one).
+    """
+    n = keys[0].shape[0]
+    steps = max(n.bit_length(), 1)
+
+    def step(i, pos):
+        cand = pos + (1 << (steps - 1)) // (1 << i)
+        probe = jnp.minimum(cand, n) - 1
+        kz, ky, kx = (k[probe] for k in keys)
+        less = (kz < q[0]) | ((kz == q[0]) & ((ky < q[1]) | ((ky == q[1]) & (kx < q[2]))))
+        return jnp.where((cand <= n) & less, cand, pos)
+
+    return lax.fori_loop(0, steps, step, jnp.zeros(q[0].shape, jnp.int32))
+
+
+_ROWS = tuple(itertools.product((-1, 0, 1), repeat=2))  # (dz, dy) of the 9 runs
+
+
+def _candidates(cloud: _Cloud, qi, capacity: int, metric: str):
+    """The candidates of the queries ``qi`` (B,) (caller indices) and their exact keys.
+
+    The 9 runs of a query's 27-cell block are read through ``capacity`` compact slots: slot j
+    is the j-th point of the runs laid end to end, so the capacity bounds the block's points,
+    not each run's.
+
+    Returns:
+      dict of (B, C) ``hi``, ``lo`` (None under x64), ``gid`` and ``cidx`` (caller index, -1
+      where no candidate), and (B,) ``slack`` (the distance the block is known to cover),
+      ``complete`` (the block holds every candidate of the cloud) and ``count`` (the
+      block's points: the capacity needed).
+    """
+    n = cloud.coords.shape[0]
+    b = qi.shape[0]
+    cell = cloud.qcell[qi]  # (B, 3) x, y, z
+    dz = jnp.array([r[0] for r in _ROWS], jnp.int32)
+    dy = jnp.array([r[1] for r in _ROWS], jnp.int32)
+    z, y = cell[:, 2:3] + dz, cell[:, 1:2] + dy  # (B, 9)
+    x = jnp.broadcast_to(cell[:, 0:1], z.shape)
+    begin = _lower_bound(cloud.keys, (z, y, x - 1))
+    length = _lower_bound(cloud.keys, (z, y, x + 2)) - begin
+    ends = jnp.cumsum(length, axis=1)  # (B, 9) where each run ends among the slots
+    slot = jnp.arange(capacity, dtype=jnp.int32)
+    run = jnp.sum(slot[None, :, None] >= ends[:, None, :], axis=2)  # (B, C) which run a slot reads
+    valid = run < len(_ROWS)
+    run = jnp.minimum(run, len(_ROWS) - 1)
+    start = jnp.take_along_axis(ends - length, run, axis=1)
+    pos = jnp.minimum(jnp.take_along_axis(begin, run, axis=1) + slot - start, n - 1)
+    cand = cloud.cpoint[pos]  # (B, C, 3)
+    q = cloud.coords[qi][:, None, :]
+    cidx = cloud.cidx[pos]
+    me = cidx == qi[:, None]
+    if _x64():
+        hi, lo = _host_keys(q, cand, metric)
+    else:
+        hi, lo = _pair_keys(q, cand, metric)
+        lo = jnp.where(valid & ~me, lo, 0)
+    hi = jnp.where(valid, jnp.where(me, -1, hi), jnp.inf)
+    gid = jnp.where(valid, cloud.gid[cidx], np.iinfo(np.int32).max)
+    # The block [c - 1, c + 2) per axis, in edges from the query, less the rounding margin.
+    t = (cloud.coords[qi] - cloud.lo) / cloud.edge
+    c = cell.astype(t.dtype)
+    room = jnp.min(jnp.minimum(t - (c - 1), (c + 2) - t), axis=1)
+    count = ends[:, -1]
+    return dict(hi=hi, lo=lo, gid=gid, cidx=jnp.where(valid, cidx, -1), slack=cloud.edge * (room - cloud.delta),
+                complete=count == cloud.n_cand, count=count)
+
+
+def _exact_less(a, b):
+    """Strict order of candidates by (hi, lo, gid, slot) between two dicts of broadcastable arrays."""
+    lt = a["gid"] < b["gid"]
+    eq = a["gid"] == b["gid"]
+    lt = lt | (eq & (a["slot"] < b["slot"]))
+    if a["lo"] is not None:
+        lt = (a["lo"] < b["lo"]) | ((a["lo"] == b["lo"]) & lt)
+    return (a["hi"] < b["hi"]) | ((a["hi"] == b["hi"]) & lt)
+
+
+PRESELECT_EXTRA = 16  # candidates preselected beyond the columns kept (the fast path's margin for ties)
+RANK_LIMIT = 64  # preselections up to this size are ordered by pairwise ranks, larger ones by a sort
+
+
+def _fields(c):
+    return [name for name in ("hi", "lo", "gid", "cidx") if c[name] is not None]
+
+
+def _sorted_exact(c, width: int):
+    """The first ``width`` candidates (B, C) by (hi, lo, gid): one exact multi-key sort of every candidate."""
+    names = _fields(c)
+    out = lax.sort(tuple(c[name] for name in names), num_keys=len(names) - 1)
+    got = {name: x[:, :width] for name, x in zip(names, out)}
+    got.setdefault("lo", None)
+    return got
+
+
+def _sorted_fast(c, width: int):
+    """The first ``width`` candidates by (hi, lo, gid), and (B,) whether that is certain.
+
+    ``lax.top_k`` preselects ``width + PRESELECT_EXTRA`` candidates by a float32 key that is
+    monotone in the exact one (never decreasing where the exact key grows); they are then
+    ordered exactly. Certain where the preselection's last key exceeds its ``width``-th (every
+    candidate up to the ``width``-th exact one is then inside), or where the row holds fewer
+    candidates than that.
+    """
+    cap = c["hi"].shape[1]
+    p = min(width + PRESELECT_EXTRA, cap)
+    approx = c["hi"].astype(jnp.float32)  # RN to float32 is monotone
+    top, at = lax.top_k(-approx, p)
+    pick = {name: (None if c[name] is None else jnp.take_along_axis(c[name], at, axis=1))
+            for name in ("hi", "lo", "gid", "cidx")}
+    pick["slot"] = at
+    w = min(width, p)
+    certain = (-top[:, -1] > -top[:, w - 1]) | jnp.isinf(top[:, w - 1]) | (p == cap)
+    if p <= RANK_LIMIT:
+        a = {name: (None if x is None else x[:, :, None]) for name, x in pick.items()}
+        bb = {name: (None if x is None else x[:, None, :]) for name, x in pick.items()}
+        rank = jnp.sum(_exact_less(a, bb), axis=1)  # (B, P): how many candidates precede each
+        where = jnp.argmax(rank[:, None, :] == jnp.arange(w)[None, :, None], axis=2)  # (B, W) the one at each rank
+        got = {name: (None if x is None else jnp.take_along_axis(x, where, axis=1)) for name, x in pick.items()}
+    else:
+        got = _sorted_exact(pick, w)
+    got.pop("slot", None)
+    return got, certain
+
+
+def _select(c, width: int, force_exact=None):
+    """The first ``width`` candidates of every row (pads with inf keys): the fast path where it is
+    certain for the whole block of rows, else one exact sort (``lax.cond``)."""
+    cap = c["hi"].shape[1]
+    if width > cap:  # fewer slots than columns: pad the candidates
+        pad = width - cap
+        c = dict(c, hi=jnp.pad(c["hi"], ((0, 0), (0, pad)), constant_values=jnp.inf),
+                 lo=None if c["lo"] is None else jnp.pad(c["lo"], ((0, 0), (0, pad))),
+                 gid=jnp.pad(c["gid"], ((0, 0), (0, pad)), constant_values=np.iinfo(np.int32).max),
+                 cidx=jnp.pad(c["cidx"], ((0, 0), (0, pad)), constant_values=-1))
+    keys = {name: c[name] for name in ("hi", "lo", "gid", "cidx")}
+    fast, certain = _sorted_fast(dict(keys), width)
+    ok = jnp.all(certain) if force_exact is None else jnp.all(certain) & ~force_exact
+    names = [name for name in ("hi", "lo", "gid", "cidx") if keys[name] is not None]
+    out = lax.cond(ok, lambda: tuple(fast[name] for name in names),
+                   lambda: tuple(_sorted_exact(dict(keys), width)[name] for name in names))
+    got = dict(zip(names, out))
+    got.setdefault("lo", None)
+    return got
+
+
+def _map_rows(cloud: _Cloud, chunk: int, fn):
+    """``fn(qi)`` over the query order in blocks of ``chunk`` rows; outputs scattered to caller rows."""
+    n = cloud.coords.shape[0]
+    chunk = max(1, min(chunk, n))
+    blocks = -(-n // chunk)
+    order = jnp.concatenate([cloud.qorder, jnp.full(blocks * chunk - n, cloud.qorder[0], jnp.int32)])
+    out = lax.map(fn, order.reshape(blocks, chunk))
+    out = jax.tree.map(lambda x: x.reshape((blocks * chunk,) + x.shape[2:])[:n], out)
+    return jax.tree.map(lambda x: jnp.zeros_like(x).at[cloud.qorder].set(x), out)
+
+
+def _default_edge(coords, real, cand_mask, k: int, metric_k: int):
+    """A traced edge: EDGE_MARGIN x the largest k-th distance over SAMPLES points (brute force)."""
+    n = coords.shape[0]
+    count = jnp.sum(real, dtype=jnp.int32)
+    s = min(SAMPLES, n)
+    rows = (jnp.arange(s, dtype=jnp.int32) * jnp.maximum(count, 1)) // s
+    q = coords[rows]
+    kk = min(metric_k, n)
+    block = min(SAMPLE_BLOCK, n)
+    blocks = -(-n // block)
+    pad = blocks * block - n
+    c = jnp.concatenate([coords, jnp.zeros((pad, 3), coords.dtype)]).reshape(blocks, block, 3)
+    ok = jnp.concatenate([cand_mask, jnp.zeros(pad, bool)]).reshape(blocks, block)
+
+    def step(best, xs):
+        cb, okb = xs
+        d = q[:, None, :] - cb[None]
+        sq = jnp.where(okb[None], jnp.sum(d * d, axis=-1), jnp.inf)
+        both = jnp.concatenate([best, sq], axis=1)
+        return -lax.top_k(-both, kk)[0], None
+
+    best, _ = lax.scan(step, jnp.full((s, kk), jnp.inf, coords.dtype), (c, ok))
+    reach = jnp.sqrt(best[:, -1])
+    lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
+    hi = jnp.max(jnp.where(real[:, None], coords, -jnp.inf), axis=0)
+    extent = jnp.max(hi - lo)
+    floor = extent * (2.0 ** (-16 if coords.dtype == jnp.float32 else -28))
+    finite = jnp.where(jnp.isfinite(reach), reach, 0)
+    edge = jnp.maximum(EDGE_MARGIN * jnp.max(finite), floor)
+    # no finite reach (fewer than k candidates anywhere): one cell holds the whole cloud
+    edge = jnp.where(jnp.all(jnp.isfinite(reach)), edge, 2 * extent)
+    return jnp.where(edge > 0, edge, 1.0)
+
+
+def _edge(points, count, edge, dedupe, k):
+    """The given edge in the computation dtype, or the default from the data."""
+    n = points.shape[0]
+    real = jnp.arange(n) < (n if count is None else count)
+    coords = _coordinates(lax.stop_gradient(points), real)
+    if edge is not None:
+        return jnp.asarray(edge, coords.dtype)
+    cand = real
+    if dedupe:
+        iota = jnp.arange(n, dtype=jnp.int32)
+        out = lax.sort((coords[:, 0], coords[:, 1], coords[:, 2], iota), num_keys=4)
+        p = jnp.stack(out[:3], axis=1)
+        same = jnp.concatenate([jnp.zeros(1, bool), jnp.all(p[1:] == p[:-1], axis=1)])
+        cand = jnp.zeros(n, bool).at[out[3]].set(~same) & real
+    return _default_edge(coords, real, cand, k, k)
+
+
+def _check(points, k_or_columns: int, capacity: int, chunk: int, metric: str):
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"points must have shape (N, 3); got {points.shape}")
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        raise TypeError(f"points must be floating point; got {points.dtype}")
+    if points.shape[0] < 1:
+        raise ValueError("points must hold at least one point")
+    for name, value in (("k", k_or_columns), ("capacity", capacity), ("chunk", chunk)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"{name} must be a positive int; got {value!r}")
+    if metric not in METRICS:
+        raise ValueError(f"unknown metric {metric!r}; expected one of {sorted(METRICS)}")
+
+
+def _summary(cloud: _Cloud, out, reach_dist, ok, capacity, columns_needed):
+    """Found's scalar report from per-row results."""
+    real = cloud.real
+    needed = jnp.max(jnp.where(real, out["needed"], 0))
+    bad = real & ~ok
+    grow = jnp.where(jnp.isfinite(reach_dist), reach_dist * (1 + 4 * cloud.delta) * 1.0001, jnp.inf)
+    edge_needed = jnp.maximum(cloud.edge, jnp.max(jnp.where(bad, grow, 0)))
+    return dict(needed=needed, columns_needed=columns_needed, uncovered=jnp.any(bad), edge=cloud.edge,
+                edge_needed=edge_needed, capacity=capacity)
+
+
+# ----------------------------------------------------------------------------- public queries
+
+def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None, count=None, gid=None,
+        radius=None, metric: str = "l2", chunk: int = CHUNK) -> Found:
+    """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.spatial.knn`, traced.
+
+    Pure JAX: runs under ``jax.jit`` and ``jax.vmap``; no gradient flows through the choice.
+
+    Args:
+      points: (N, 3) float points (any frame: distances are translation-invariant; under
+        x64 they are computed in the host's float64 local frame).
+      k: neighbourhood size counting the point itself (static).
+      dedupe: count exact duplicates once, as the host's ``dedupe`` (static): every copy gets
+        the row of its location, whose first column is the location's first copy.
+      capacity: candidate slots per query, the most points its 27-cell block may hold
+        (static); too small is reported, never silently truncated.
+      edge: the cell edge (traced), or None for a default from the data (the largest k-th
+        distance of 64 sampled points, brute force, times 1.1).
+      count: int32 scalar, the number of real points (the first ``count`` rows; traced), or
+        None (all). Padding rows are neither neighbours nor queried.
+      gid: (N,) int32 global ids that break ties (default the row numbers).
+      radius: optional upper bound (traced, scalar or (N,)): only points closer than it
+        (in the key of ``metric``) are listed: GFR's capped radius graph with
+        ``metric="l2sq"``.
+      metric: ``"l2"`` (the host's k-nearest: rank by the rooted distance), ``"l2sq"`` (rank
+        by squared distances, as GFR) or ``"linf"`` (Chebyshev) (static).
+      chunk: rows per block (static): memory is about chunk x capacity candidates.
+
+    Returns:
+      :class:`Found` with idx (N, k) int32 padded with N (fewer than k candidates, or beyond
+      ``radius``), dist (N, k), reach (N,) the k-th distance.
+
+    Raises:
+      TypeError, ValueError: invalid shapes or static arguments.
+
+    Examples:
+      >>> import numpy as np, jax
+      >>> from hgjax import _search_jax
+      >>> p = np.random.default_rng(0).random((200, 3)).astype(np.float32)
+      >>> found = jax.jit(lambda p: _search_jax.knn(p, 8, capacity=256))(p)
+      >>> found.idx.shape, bool(found.overflow), bool((found.idx[:, 0] == np.arange(200)).all())
+      ((200, 8), False, True)
+    """
+    points = jnp.asarray(points)
+    _check(points, k, capacity, chunk, metric)
+    n = points.shape[0]
+    e = _edge(points, count, edge, dedupe, k)
+    cloud = _cloud(points, count, gid, e, dedupe)
+    bound = None if radius is None else jnp.broadcast_to(jnp.asarray(radius, cloud.coords.dtype), (n,))
+
+    def rows(qi):
+        c = _candidates(cloud, qi, capacity, metric)
+        s = _select(c, k)
+        hi, lo = s["hi"], s["lo"]
+        found = hi < jnp.inf
+        if bound is not None:
+            found = found & _below(hi, lo, bound[qi], metric)
+        value = _in_units(hi, metric)
+        reach = jnp.where(found[:, -1], value[:, -1], jnp.inf)
+        limit = _as_distance(reach if bound is None else jnp.minimum(reach, bound[qi]), metric)
+        ok = c["complete"] | (limit < c["slack"])
+        return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
+                    limit=limit, ok=ok, needed=c["count"])
+
+    out = _map_rows(cloud, chunk, rows)
+    real = cloud.real
+    idx = jnp.where(real[:, None], out["idx"], n).astype(jnp.int32)
+    dist = jnp.where(real[:, None], out["dist"], jnp.inf)
+    report = _summary(cloud, out, out["limit"], out["ok"], capacity, jnp.int32(k))
+    return Found(idx, dist, jnp.where(real, out["reach"], jnp.inf), **report)
+
+
+def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int = 128, edge=None, count=None,
+           gid=None, metric: str = "l2", max_count: int | None = None, chunk: int = CHUNK) -> Found:
+    """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
+    :meth:`hgjax.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
+    variant; ``"l2"``: the ball of their invariant variant), traced.
+
+    Args:
+      points: (N, 3) float points.
+      radius: traced scalar or (N,) per-point radius (half-width), > 0, in the search's
+        float dtype (float64 under x64).
+      columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
+      dedupe, capacity, edge, count, gid, chunk: as :func:`knn`. The default edge is the
+        largest radius times 1.1 (traced).
+      metric: ``"l2"``, ``"l2sq"`` (``radius`` is then a squared radius) or ``"linf"`` (static).
+      max_count: the host's ``max_count`` (static): a row whose ball holds ``max_count``
+        points or more shrinks its radius to the distance of its ``max_count``-th nearest
+        point, so it holds fewer, all of them.
+
+    Returns:
+      :class:`Found` with idx (N, K) int32 padded with N, dist (N, K), reach (N,) the radius
+      used (shrunk where ``max_count`` applies).
+
+    Raises:
+      TypeError, ValueError: invalid shapes or static arguments.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax import _search_jax
+      >>> p = np.array([[0., 0, 0], [1, 0, 0], [5, 0, 0]], np.float32)
+      >>> found = _search_jax.within(p, 1.5, columns=4, metric="linf")
+      >>> (np.asarray(found.idx) < 3).sum(axis=1).tolist(), bool(found.overflow)
+      ([2, 2, 1], False)
+    """
+    points = jnp.asarray(points)
+    _check(points, columns, capacity, chunk, metric)
+    if max_count is not None and (not isinstance(max_count, int) or max_count < 1):
+        raise ValueError(f"max_count must be a positive int or None; got {max_count!r}")
+    n = points.shape[0]
+    real = jnp.arange(n) < (n if count is None else count)
+    dtype = _coordinates(jnp.zeros((1, 3), points.dtype), jnp.ones(1, bool)).dtype
+    bound = jnp.broadcast_to(jnp.asarray(radius, dtype), (n,))
+    if edge is None:
+        top = jnp.max(jnp.where(real, bound, 0))
+        edge = EDGE_MARGIN * (jnp.sqrt(top) if metric == "l2sq" else top)
+    cloud = _cloud(points, count, gid, jnp.asarray(edge, dtype), dedupe)
+
+    def rows(qi):
+        c = _candidates(cloud, qi, capacity, metric)
+        h = bound[qi]
+        inside = _below(c["hi"], c["lo"], h, metric)  # (B, C) every candidate, exactly
+        used = h
+        cut = None
+        if max_count is not None:  # a full ball shrinks to exclude its max_count-th point
+            full = jnp.sum(inside, axis=1) >= max_count
+            m = max_count - 1
+
+            def kth():
+                s = _sorted_exact(c, max_count)
+                return jnp.maximum(s["hi"][:, m], 0), (jnp.zeros_like(h) if s["lo"] is None else
+                                                       jnp.where(s["hi"][:, m] < 0, 0, s["lo"][:, m]))
+
+            cut = lax.cond(jnp.any(full), kth, lambda: (jnp.zeros_like(c["hi"][:, 0]),) * 2)
+            below_cut = _pair_less(c["hi"], jnp.zeros_like(c["hi"]) if c["lo"] is None else c["lo"],
+                                   cut[0][:, None], cut[1][:, None])
+            inside = jnp.where(full[:, None], below_cut, inside)
+            used = jnp.where(full, _in_units(cut[0], metric), h)
+        s = _select(c, columns)
+        take = _below(s["hi"], s["lo"], h, metric)
+        if cut is not None:
+            below_cut = _pair_less(s["hi"], jnp.zeros_like(s["hi"]) if s["lo"] is None else s["lo"],
+                                   cut[0][:, None], cut[1][:, None])
+            take = jnp.where(full[:, None], below_cut, take)
+        ok = c["complete"] | (_as_distance(used, metric) < c["slack"])
+        return dict(idx=jnp.where(take, s["cidx"], n), dist=jnp.where(take, _in_units(s["hi"], metric), jnp.inf),
+                    reach=used, limit=_as_distance(used, metric), ok=ok, needed=c["count"],
+                    width=jnp.sum(inside, axis=1))
+
+    out = _map_rows(cloud, chunk, rows)
+    idx = jnp.where(real[:, None], out["idx"], n).astype(jnp.int32)
+    dist = jnp.where(real[:, None], out["dist"], jnp.inf)
+    columns_needed = jnp.max(jnp.where(real, out["width"], 0)).astype(jnp.int32)
+    report = _summary(cloud, out, out["limit"], out["ok"], capacity, columns_needed)
+    return Found(idx, dist, jnp.where(real, out["reach"], 0), **report)
+
+
+# ----------------------------------------------------------------------------- eager regrowth
+
+def bucket(width: int) -> int:
+    """The next power of two of ``width``, at least 8 (few distinct capacities, few compilations)."""
+    return max(8, 1 << max(0, int(width) - 1).bit_length())
+
+
+def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int = 12, **kwargs) -> Found:
+    """Run ``query`` (:func:`knn` or :func:`within`) eagerly until it does not overflow (host loop, not jittable).
+
+    Each round is one jitted call; a round that overflows is run again with the capacity
+    (and, for :func:`within`, the columns) that it reports needed, rounded up to a power of
+    two, and with the edge it reports needed (twice the edge where a row found too few
+    points). Nothing is ever truncated: the result is the traced query's exact answer.
+
+    Args:
+      query: :func:`knn` or :func:`within`.
+      points, *args, **kwargs: the query's arguments (``k`` of :func:`knn` and ``radius`` of
+        :func:`within` may be positional).
+      capacity: the first round's capacity.
+      edge: the first round's edge (default: the query's own default).
+      max_rounds: rounds before giving up.
+
+    Returns:
+      :class:`Found` with ``overflow`` False.
+
+    Raises:
+      RuntimeError: still overflowing after ``max_rounds`` rounds.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax import _search_jax
+      >>> p = np.random.default_rng(0).random((300, 3))
+      >>> found = _search_jax.grown(_search_jax.knn, p, 16, capacity=8)
+      >>> bool(found.overflow), found.capacity >= 8
+      (False, True)
+    """
+    first = "k" if query is knn else "radius"
+    if args:
+        kwargs[first] = args[0]
+    static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk")
+              if name in kwargs}
+    found = None
+    for _ in range(max_rounds):
+        found = _jitted(query, tuple(sorted(static.items())), capacity)(points, edge=edge, **kwargs)
+        if not bool(found.overflow):
+            return found
+        capacity = max(capacity, bucket(int(found.needed)))
+        if "columns" in static and int(found.columns_needed) > static["columns"]:
+            static["columns"] = bucket(int(found.columns_needed))
+        edge = found.edge
+        if bool(found.uncovered):
+            need = float(found.edge_needed)
+            edge = need if math.isfinite(need) else 2 * float(found.edge)
+    raise RuntimeError(f"the traced search still overflows after {max_rounds} rounds (capacity {capacity}, "
+                       f"edge {float(found.edge)!r})")
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted(query, static: tuple, capacity: int):
+    """``query`` jitted with its static arguments bound: one compiled program per (static, capacity, shape)."""
+    return jax.jit(functools.partial(query, capacity=capacity, **dict(static)))
