@@ -124,11 +124,16 @@ class ExactSum:
     terms: tuple = ()  # sorted (exponent, integer) pairs: the sum is sum(t * 2**(e - 53))
 
     @classmethod
-    def of(cls, values) -> "ExactSum":
+    def of(cls, values, exponents=None) -> "ExactSum":
+        """The exact sum of finite ``values``, each times 2^``exponents`` (integers of the same
+        shape, default 0): a sum of squares q^2 = (m^2) 2^(2 e) of q = m 2^e beyond float64's range."""
         v = np.asarray(values, dtype=np.float64).ravel()
+        extra = None if exponents is None else np.asarray(exponents, dtype=np.int64).ravel()
         total = cls()
         for start in range(0, v.size, EXACT_PART):
             mant, exp = np.frexp(v[start:start + EXACT_PART])  # v = mant 2^exp, mant 2^53 an integer
+            if extra is not None:
+                exp = exp + extra[start:start + EXACT_PART]
             high = np.floor(mant * 2.0**27)  # mant 2^53 = high 2^26 + low, 0 <= low < 2^26, all exact
             low = mant * 2.0**53 - high * 2.0**26
             at = exp - exp.min()  # exponents span at most about 2100 values: a bincount, not a sort
@@ -145,13 +150,19 @@ class ExactSum:
             out[e] = out.get(e, 0) + t
         return ExactSum(tuple(sorted(out.items())))
 
-    def value(self) -> float:
-        """The sum rounded once to float64."""
+    def value(self, scale: int = 0) -> float:
+        """The sum times 2^``scale`` rounded once to float64 (:meth:`exponent` picks a ``scale``
+        that keeps a sum beyond float64's range representable)."""
         if not self.terms:
             return 0.0
         low = min(e for e, _ in self.terms)
         whole = sum(t << (e - low) for e, t in self.terms)
-        return float(fractions.Fraction(whole) * fractions.Fraction(2) ** (low - 53))
+        return float(fractions.Fraction(whole) * fractions.Fraction(2) ** (low - 53 + scale))
+
+    def exponent(self) -> int:
+        """The binary exponent of the largest term (0 for an empty sum): the sum of values of
+        one sign times 2^-exponent lies in [1/2, 2 x the number of values]."""
+        return max((e - 53 + abs(t).bit_length() for e, t in self.terms), default=0)
 
 
 def key_value(key: int, *, largest: bool) -> float:

@@ -67,6 +67,14 @@ def test_gfr_beyond_float32_is_refused(cloud):
         _same(_resample(cloud * 2.0**53, "gfr", mode="top"), _resample(cloud, "gfr", mode="top"))  # extent 5.4e16
 
 
+@pytest.mark.parametrize("scale", [2.0**500, 2.0**-332, 2.0**-432])  # about 3e150, 1e-100, 9e-131
+def test_gfr_float64_squares_beyond_float64(cloud, scale):
+    # q^2 over- or underflows float64 here (was: NaN to int at 1e150); the moments are scaled exactly
+    with jax.enable_x64(True):
+        _same(_resample(cloud * scale, "gfr", mode="top"), _resample(cloud, "gfr", mode="top"))
+        _same(_resample(cloud * scale, "gfr"), _resample(cloud, "gfr"))
+
+
 def test_gfr_spacing_underflow_is_refused(cloud):
     # was: ZeroDivisionError (B(800) x 1e-150, x64 on)
     with jax.enable_x64(True):

@@ -356,11 +356,12 @@ def pair_sums(points, own, nbr, wdtype, counts_ext, tie_ext, *, ext=None, chunk_
         q = pair_lengths(points, own, nbr, wdtype, **stream)
         counted = (nbr < tie_ext.size - 1) & (tie_ext[nbr] > tie_ext[own][:, None])
         qq = q[counted].astype(np.float64)
+        # q^2 = (m^2) 2^(2 e) of q = m 2^e: the bits of qq * qq (w qq * qq), without over- or underflow
+        mant, exp = np.frexp(qq)
         if not c:  # c_i c_j = 1: the same sums
-            return select.ExactSum.of([qq.size]), select.ExactSum.of(qq), select.ExactSum.of(qq * qq)
+            return select.ExactSum.of([qq.size]), select.ExactSum.of(qq), select.ExactSum.of(mant * mant, 2 * exp)
         w = c[0][counted]
-        wq = w * qq
-        return select.ExactSum.of(w), select.ExactSum.of(wq), select.ExactSum.of(wq * qq)
+        return select.ExactSum.of(w), select.ExactSum.of(w * qq), select.ExactSum.of(w * mant * mant, 2 * exp)
     with jax.enable_x64(True):
         sums, qmin, qmax, cmax = _stream.map_rows(_moment_kernel(bool(c)), points, own, nbr, row_args=c,
                                                   dtype=wdtype, **stream)
@@ -426,12 +427,18 @@ def summed(parts) -> tuple:
 
 
 def moments(sums) -> tuple[float, float]:
-    """(mean q, 2 var z) of z = q / mean q from :func:`pair_sums` (summed over tiles); 0 without pairs."""
-    count, sum_q, sum_q2 = (x.value() for x in sums)
+    """(mean q, 2 var z) of z = q / mean q from :func:`pair_sums` (summed over tiles); 0 without pairs.
+
+    The sums are read scaled by powers of two that bring the sum of q near 1 (exact, so the
+    bits are those of the unscaled formulas), so that the sum of q^2 and mean q^2 of a cloud
+    whose q^2 over- or underflows float64 (x64, extents beyond about 1e±77) stay representable.
+    """
+    shift = -sums[1].exponent()
+    count, sum_q, sum_q2 = sums[0].value(), sums[1].value(shift), sums[2].value(2 * shift)
     mean_q = sum_q / count if count else 0.0
     mean_z = sum_q / count / mean_q if mean_q > 0 else 0.0
     z_sq = sum_q2 / count / mean_q**2 if mean_q > 0 else 0.0
-    return mean_q, 2 * max(z_sq - mean_z * mean_z, 0.0)
+    return float(np.ldexp(mean_q, -shift)), 2 * max(z_sq - mean_z * mean_z, 0.0)
 
 
 def laplacian_norms(points, own, nbr, q, counts_ext, tie_ext, mean_q, two_var, dtype, wdtype, *, ext=None,
