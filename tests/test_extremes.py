@@ -81,6 +81,34 @@ def test_gfr_spacing_underflow_is_refused(cloud):
         _refused(cloud * 1e-150, "gfr", r"points span 6e-150 .* float64 .* underflow .* \[6.7e-139, 5.2e\+151\]")
 
 
+def test_keep_takes_infinite_scores_alike():
+    # gfr's random mode raised OverflowError on +inf, PCA-AC's keep refused it: now every
+    # method's keep takes +inf (check_scores: NaN is the only refused value)
+    rng = np.random.default_rng(0)
+    scores = rng.random(20)
+    scores[[3, 7]] = np.inf
+    for method in ("gfr", "pca_ac", "ea", "mss", "hkc"):
+        idx = hgjax.keep(scores, count=5, method=method, key=KEY)
+        assert len(set(idx.tolist())) == 5 and idx.min() >= 0 and idx.max() < 20
+    np.testing.assert_array_equal(hgjax.keep(scores, count=5, method="pca_ac"), hgjax.keep(scores, count=5, method="ea"))
+    assert set(hgjax.keep(scores, count=2, method="gfr", mode="top").tolist()) == {3, 7}
+    scores[0] = -np.inf
+    np.testing.assert_array_equal(hgjax.keep(scores, count=20, method="pca_ac"), hgjax.keep(scores, count=20, method="ea"))
+
+
+def test_gfr_random_weights_of_infinite_and_huge_scores():
+    # pi's limit: the c infinite scores share 0.8 (0.8 / c + 0.2 / N each), the others 0.2 / N
+    scores = np.array([1.0, np.inf, 2.0, np.inf, 0.0])
+    weights = np.where(np.isinf(scores), 0.8 / 2, 0.0) + 0.2 / 5
+    np.testing.assert_array_equal(hgjax.keep(scores, count=3, method="gfr", key=KEY),
+                                  hgjax.select.weighted_sample(KEY, weights, 3))
+    huge = np.array([1e308, 1e308, 1.0, 0.0])  # a sum beyond float64: pi = (0.4 + 0.05, 0.45, 0.05, 0.05)
+    np.testing.assert_array_equal(hgjax.keep(huge, count=2, method="gfr", key=KEY),
+                                  hgjax.select.weighted_sample(KEY, np.array([0.45, 0.45, 0.05, 0.05]), 2))
+    with pytest.raises(ValueError, match=r"scores must be >= 0 .* got -1.0"):
+        hgjax.keep(np.array([1.0, -1.0]), count=1, method="gfr", key=KEY)
+
+
 # ------------------------------------------------------------------------------------ MSS, HKC
 def test_mss_beyond_float32_is_refused_and_right_in_float64(cloud):
     # was: 800 NaN scores and indices without an error (B(800) x 1e150, x64 off)
@@ -120,3 +148,13 @@ def test_voxel_beyond_float64_squares_is_refused(cloud):
             _refused(cloud * 1e200, "voxel", r"points span 6e\+200 .* float64")
             with pytest.raises(ValueError, match="points span"):
                 hgjax.voxel_sample(cloud * 1e200, 0.2)
+
+
+# ----------------------------------------------------------------------------------- parameters
+def test_pca_ac_n_clusters_range(cloud):
+    with pytest.raises(ValueError, match=r"n_clusters must be in \[1, N\] = \[1, 200\] for N = 200 points; got 1000000000"):
+        _resample(cloud, "pca_ac", n_clusters=10**9)
+    with pytest.raises(ValueError, match=r"n_clusters must be in \[1, N\] = \[1, 3\]"):
+        hgjax.keep(np.array([0.1, 0.2, 0.3]), count=1, method="pca_ac", n_clusters=4)
+    assert hgjax.keep(np.array([0.3]), count=1, method="pca_ac").tolist() == [0]  # the default 2, capped at N = 1
+    assert len(_resample(cloud, "pca_ac", n_clusters=200)) == 40

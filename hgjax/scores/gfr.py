@@ -668,13 +668,28 @@ def _soft(points, idx, first, *, weights_dtype):
 
 
 def _select(scores, m: int, *, key=None, mode: str = "random") -> np.ndarray:
-    """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores."""
+    """GFR selection: weighted sampling with pi = 0.8 score / sum + 0.2 / N, or the top scores.
+
+    The random mode takes scores >= 0 (the high-pass norms are; a negative score raises
+    ValueError) and, as every method's :func:`hgjax.keep`, +inf: pi is then its limit as
+    those scores grow alike, the infinite scores sharing 0.8 equally (0.8 / count + 0.2 / N;
+    0.2 / N for the others). Finite sums beyond float64 are scaled by a power of two first.
+    """
     mode = _validate.check_choice(mode, "mode", MODES)
     if mode == "top":
         return select.top_k(scores, m, largest=True)
     check_key(key, {"mode": mode})
     values = np.asarray(scores, dtype=np.float64)
-    return select.weighted_sample(key, inclusion(values, select.ExactSum.of(values).value(), values.shape[0]), m)
+    n = values.shape[0]
+    if values.min() < 0:
+        raise ValueError(f"scores must be >= 0 (or +inf) for GFR's random mode, pi = 0.8 score / sum + 0.2 / N;"
+                         f" got {float(values.min())!r} (mode='top' ranks any scores)")
+    infinite = np.isinf(values)
+    if infinite.any():
+        return select.weighted_sample(key, np.where(infinite, 0.8 / infinite.sum(), 0.0) + 0.2 / n, m)
+    total = select.ExactSum.of(values)
+    shift = -total.exponent()  # exact: pi keeps its bits, and a sum beyond float64 stays finite
+    return select.weighted_sample(key, inclusion(np.ldexp(values, shift), total.value(shift), n), m)
 
 
 def _untiled(params: dict) -> tuple[str, str] | None:

@@ -121,21 +121,39 @@ def _equal_runs(x):
     return size.astype(np.float64), total, heads + size - 1
 
 
+def _check_n_clusters(n_clusters, n: int) -> int:
+    """``n_clusters`` after checking it is an integer in [1, N] for ``n`` = N values (the default,
+    DEFAULT_N_CLUSTERS, is also taken for fewer values); it is capped at N where it is used."""
+    k = _validate.check_int(n_clusters, "n_clusters", minimum=1)
+    if k > max(n, DEFAULT_N_CLUSTERS):
+        raise ValueError(f"n_clusters must be in [1, N] = [1, {n}] for N = {n} points; got {k}")
+    return k
+
+
 def _checked(values, n_clusters) -> tuple[np.ndarray, int]:
     """(values as float64 (N,), n_clusters capped at N), or ValueError / TypeError naming the bad one."""
     v = np.asarray(values, dtype=np.float64)
-    if v.ndim != 1 or v.size == 0 or not np.isfinite(v).all():
-        raise ValueError(f"values must be a non-empty finite array of shape (N,); got shape {v.shape}")
-    return v, min(_validate.check_int(n_clusters, "n_clusters", minimum=1), v.size)
+    if v.ndim != 1 or v.size == 0 or np.isnan(v).any():
+        raise ValueError(f"values must be a non-empty array of shape (N,) without NaN; got shape {v.shape}"
+                         f"{' holding NaN' if v.ndim == 1 and v.size else ''}")
+    return v, min(_check_n_clusters(n_clusters, v.size), v.size)
 
 
 def _ward_sorted(v: np.ndarray, n_clusters: int) -> tuple[np.ndarray, np.ndarray]:
     """(order, labels): the stable ascending order (N,) of ``v`` and the cluster number (N,) of each
-    sorted value (non-decreasing: every cluster is an interval of the sorted values)."""
+    sorted value (non-decreasing: every cluster is an interval of the sorted values).
+
+    Infinite values merge with their equals at cost 0 and with anything else at an infinite
+    cost: the boundaries of the -inf and +inf runs are cut first, the finite values clustered
+    between them."""
     order = np.argsort(v, kind="stable")
+    ascending = v[order]
+    lo, hi = np.searchsorted(ascending, -np.inf, "right"), np.searchsorted(ascending, np.inf, "left")
     heights = np.zeros(max(v.size - 1, 0))  # heights[j]: cost of the merge across j | j + 1
-    rest = _merge_rounds(*_equal_runs(v[order]), heights)
-    _merge_heap(*rest, heights)
+    if hi - lo > 1:  # the finite values ascending[lo:hi]; a view writes their heights in place
+        rest = _merge_rounds(*_equal_runs(ascending[lo:hi]), heights[lo:hi - 1])
+        _merge_heap(*rest, heights[lo:hi - 1])
+    heights[[j for j in {lo - 1, hi - 1} if 0 <= j < heights.size]] = np.inf
     cut = np.zeros(heights.size, dtype=np.int64)
     if n_clusters > 1:
         cut[select.top_k(heights, n_clusters - 1)] = 1
@@ -146,8 +164,9 @@ def ward_1d(values, n_clusters: int) -> np.ndarray:
     """Ward agglomerative clustering of one-dimensional values, O(N log N).
 
     Args:
-      values: (N,) finite floats.
-      n_clusters: number of clusters, >= 1 (capped at N).
+      values: (N,) floats without NaN; -inf and +inf values form clusters of their own
+        (cut first: their merge cost with any finite value is infinite).
+      n_clusters: number of clusters, in [1, N] (the default 2 also for N = 1, capped at N).
 
     Returns:
       (N,) int64 cluster numbers 0 .. n_clusters - 1, increasing with the cluster's values
@@ -173,9 +192,10 @@ def keep(variation, m: int, *, n_clusters: int = DEFAULT_N_CLUSTERS) -> np.ndarr
     """PCA-AC selection: the m points of the sharpest Ward clusters of the surface variation.
 
     Args:
-      variation: (N,) surface variation (:func:`hgjax.scores.ea.score`).
+      variation: (N,) surface variation (:func:`hgjax.scores.ea.score`), without NaN; +inf
+        (-inf) values, as every method's :func:`hgjax.keep` takes them, are kept first (last).
       m: number of points to keep, 1 <= m <= N.
-      n_clusters: number of Ward clusters (default 2: sharp and smooth; capped at N).
+      n_clusters: number of Ward clusters, in [1, N] (default 2: sharp and smooth; capped at N).
 
     Returns:
       (m,) int64 indices: the highest cluster numbers first, then the largest variation,
@@ -219,7 +239,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
       TypeError, ValueError: invalid parameters (``n_clusters`` included, before any work),
         or fewer than k points.
     """
-    _validate.check_int(params.get("n_clusters", DEFAULT_N_CLUSTERS), "n_clusters", minimum=1)
+    _check_n_clusters(params.get("n_clusters", DEFAULT_N_CLUSTERS), n)
     return ea.tile_params(n, params)
 
 
