@@ -87,13 +87,21 @@ def test_keep_takes_infinite_scores_alike():
     rng = np.random.default_rng(0)
     scores = rng.random(20)
     scores[[3, 7]] = np.inf
-    for method in ("gfr", "pca_ac", "ea", "mss", "hkc"):
-        idx = hgjax.keep(scores, count=5, method=method, key=KEY)
-        assert len(set(idx.tolist())) == 5 and idx.min() >= 0 and idx.max() < 20
+    for method in SCORING:
+        columns = hgjax.METHODS[method].columns  # LHF: two columns (Eq. (16) weighs them)
+        for count in (2, 5):
+            idx = hgjax.keep(scores if columns is None else np.stack([scores, scores[::-1]], axis=1), count=count,
+                             method=method, key=KEY)
+            assert len(set(idx.tolist())) == count and idx.min() >= 0 and idx.max() < 20
     np.testing.assert_array_equal(hgjax.keep(scores, count=5, method="pca_ac"), hgjax.keep(scores, count=5, method="ea"))
     assert set(hgjax.keep(scores, count=2, method="gfr", mode="top").tolist()) == {3, 7}
     scores[0] = -np.inf
     np.testing.assert_array_equal(hgjax.keep(scores, count=20, method="pca_ac"), hgjax.keep(scores, count=20, method="ea"))
+    assert hgjax.keep(np.stack([scores, scores], axis=1), count=2, method="lhf").tolist() == [3, 7]
+    both = np.stack([rng.random(20), rng.random(20)], axis=1)
+    both[3] = np.inf, -np.inf  # both columns weighted (0 < eps < 1): no rank
+    with pytest.raises(ValueError, match="scores holds \\+inf and -inf in one row"):
+        hgjax.keep(both, count=5, method="lhf")
 
 
 def test_gfr_random_weights_of_infinite_and_huge_scores():

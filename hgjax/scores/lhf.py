@@ -283,7 +283,32 @@ def combine(gamma, m, *, count=None):
     # padding rows below every gamma in [0, 1]: sorted first, never an order statistic
     real = g if count is None else xp.where((xp.arange(n) < count)[:, None], g, -1)
     big = xp.sort(real, axis=0)[n - m]  # (2,) Gamma_a, Gamma_b
+    if xp is np and np.isinf(g).any():  # keep's +-inf (LHF's own gammas lie in [0, 1])
+        return _mix_infinite(g[:, 0], g[:, 1], big[0], big[1])
     return mix(g[:, 0], g[:, 1], big[0], big[1])
+
+
+def _mix_infinite(gamma_a, gamma_b, big_a, big_b):
+    """:func:`mix` (NumPy) of gammas or order statistics that may be infinite, as every method's
+    :func:`hgjax.keep` takes them: eps is the limit of Gamma_b / (Gamma_a + Gamma_b) (0 or 1 when
+    one of them is infinite, 0.5 when both are) and a column of weight 0 adds 0, so an infinite
+    gamma of a weighted column ranks its point at that end.
+
+    Raises:
+      ValueError: a row holds +inf and -inf in weighted columns (no rank).
+    """
+    infinite_a, infinite_b = np.isinf(big_a), np.isinf(big_b)
+    if infinite_a or infinite_b:
+        eps = np.asarray(0.5 if infinite_a and infinite_b else 1.0 * bool(infinite_b), gamma_a.dtype)
+    else:
+        total = big_a + big_b
+        eps = np.asarray(big_b / total if total > 0 else 0.5, gamma_a.dtype)
+    with np.errstate(invalid="ignore"):
+        out = np.where(eps > 0, eps * gamma_a, 0) + np.where(eps < 1, (1 - eps) * gamma_b, 0)
+    if np.isnan(out).any():
+        raise ValueError(f"scores holds +inf and -inf in one row at {int(np.isnan(out).sum())} point(s);"
+                         " LHF's combination (Eq. (16)) cannot rank them")
+    return out.astype(gamma_a.dtype)
 
 
 def mix(gamma_a, gamma_b, big_a, big_b):
