@@ -10,7 +10,7 @@ import pytest
 
 import hgjax
 from fixtures import box_union
-from hgjax import io
+from hgjax import io, survey
 from hgjax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -45,7 +45,7 @@ def test_directory_of_scans_to_a_directory(capsys, tmp_path):
     code, _, err = run_here(capsys, "resample", src, "-o", tmp_path / "out", "--format", "pcd", "--count", 500,
                             "--dtype", "float64")  # the suite runs with x64
     assert code == 0, err
-    assert sorted(os.listdir(tmp_path / "out")) == ["a.pcd", "b.pcd", "c.pcd"]
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.pcd", "b.pcd", "c.pcd", survey.MANIFEST]  # -o DIR: a manifest
     assert [line.split(" of ")[1].split()[0] for line in err.splitlines()] == ["4100", "3000", "2500"]  # sorted
     for stem, n in sizes.items():
         kept = io.read_points(tmp_path / "out" / f"{stem}.pcd")
@@ -85,11 +85,11 @@ def test_output_names_and_clashes(capsys, tmp_path):
     assert code == 2 and "--format las disagrees with the extension of -o" in err
     code, _, err = run_here(capsys, "resample", tmp_path / "t.ply", "-o", tmp_path / "single")
     assert code == 0, err
-    assert os.listdir(tmp_path / "single") == ["t.ply"]
+    assert sorted(os.listdir(tmp_path / "single")) == [survey.MANIFEST, "t.ply"]
     code, _, err = run_here(capsys, "score", tmp_path / "t.ply", tmp_path / "s.xyz", "-o", tmp_path / "scored",
                             "--format", "npy")
     assert code == 0, err
-    assert sorted(os.listdir(tmp_path / "scored")) == ["s.npy", "t.npy"]
+    assert sorted(os.listdir(tmp_path / "scored")) == [survey.MANIFEST, "s.npy", "t.npy"]
     code, _, err = run_here(capsys, "resample", tmp_path / "out", "-o", tmp_path / "x")
     assert code == 2 and "no point cloud or mesh files" in err
 

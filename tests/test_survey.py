@@ -1,10 +1,13 @@
 """resample_files: a survey of LAS/LAZ tiles resampled as one cloud, in process and on a 2-worker LocalCluster."""
 
 import json
+import logging
 import os
+import re
 import struct
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import jax
@@ -12,7 +15,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import io, survey, tiles
+from hgjax import _tiling, io, survey, tiles
 
 laspy = pytest.importorskip("laspy")
 
@@ -157,6 +160,37 @@ def test_cli_survey_on_two_workers(tmp_path):
     assert run.returncode == 0, run.stderr
     np.testing.assert_array_equal(_kept_ids(paths, out), np.sort(hgjax.resample(cloud, 0.2, method="ea")))
     assert (out / survey.MANIFEST).exists()
+    assert run.stderr.startswith("hgjax resample: ea keeps 0.2 of a survey of 2 files as one cloud in tiles of 120")
+    assert "Worker process still alive" not in run.stderr and "warn" not in run.stderr.lower(), run.stderr
+
+
+@pytest.mark.slow
+def test_cli_workers_close_without_a_kill_warning(tmp_path, capsys, monkeypatch):
+    """A worker that takes longer than Dask's 4 s to close is waited for, not killed with a warning."""
+    distributed = pytest.importorskip("distributed")
+    from hgjax import cli
+
+    class SlowClose(distributed.WorkerPlugin):
+        def teardown(self, worker):
+            time.sleep(4.5)
+
+    class Client(distributed.Client):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.register_plugin(SlowClose())
+
+    monkeypatch.setattr(distributed, "Client", Client)
+    records, handler, logger = [], logging.Handler(), logging.getLogger("distributed.nanny")
+    handler.emit = records.append
+    logger.addHandler(handler)
+    try:
+        paths, _ = _survey(tmp_path, n_files=1, n=500)
+        code = cli.main(["resample", *paths, "-o", str(tmp_path / "kept"), "--method", "uniform", "--workers", "1",
+                         "--quiet"])
+    finally:
+        logger.removeHandler(handler)
+    assert code == 0, capsys.readouterr().err
+    assert not [r for r in records if r.levelno >= logging.WARNING], [r.getMessage() for r in records]
 
 
 @pytest.mark.parametrize("extra,message", [(["--workers", "0"], "--workers"),
@@ -181,6 +215,78 @@ def test_cli_survey_keep_going_exits_1(tmp_path, capsys):
     assert code == 1 and "bad.las" in capsys.readouterr().err
     assert sorted(os.listdir(tmp_path / "kept")) == ["hgjax-manifest.json", "tile0.las", "tile1.las"]
 
+
+
+@pytest.mark.parametrize("method,key", [("lhf", None), ("uniform", 4)])
+def test_survey_outputs_carry_the_fields_of_per_file_outputs(tmp_path, method, key):
+    """A scoring method writes each kept point's score from this run (that of tiles.resample with return_scores on
+    the concatenated cloud), replacing a stale one read back from the input; a sampler carries it as it is."""
+    base = hgjax.eval.box_union_cloud(seed=7, n_points=2000).points * 50
+    paths = [str(tmp_path / f"part{i}.ply") for i in range(2)]
+    for i, path in enumerate(paths):
+        io.write_points(path, base[i * 1000:(i + 1) * 1000], attributes={"index": np.arange(1000) + 1000 * i},
+                        scores=np.full(1000, -1.0))
+    cloud = np.concatenate([io.read_points(p).points for p in paths])
+    key = None if key is None else jax.random.key(key)
+    survey.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=TILE, key=key)
+    outs = [io.read_points(tmp_path / "kept" / os.path.basename(p)) for p in paths]
+    ids = np.concatenate([o.attributes["index"] for o in outs])
+    written = np.concatenate([o.attributes["score"] for o in outs])
+    idx, scores = tiles.resample(cloud, 0.2, method=method, tile=TILE, key=key, return_scores=True)
+    np.testing.assert_array_equal(ids, np.sort(idx))
+    if scores is None:
+        np.testing.assert_array_equal(written, -1.0)
+    else:
+        assert (written != -1.0).all()
+        np.testing.assert_allclose(written, scores[ids], rtol=1e-6)
+
+
+def test_progress_from_the_first_stage(tmp_path, capsys):
+    paths, _ = _survey(tmp_path, n_files=2, n=1000)
+    survey.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, progress=True,
+                          on_stage=lambda name, seconds: print(f"stage {name} ended", file=sys.stderr))
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == f"hgjax survey: check: 2 files, {_tiling.Ticker.si(sum(map(os.path.getsize, paths)))} bytes"
+    assert lines.index("stage check ended") > 1  # the check reported its files before it ended
+    stages = [line.split()[1] for line in lines if line.startswith("stage ")]
+    assert stages == ["check", "plan", "tiles", "keep", "write"]
+    passes = [(line.split(": ")[0], line.split(": ")[1]) for line in lines if re.match(r"hgjax \w+: [\w ]+: \d+ ", line)]
+    assert [what for _, what in passes] == ["check", "census", "tile scores", "write"]  # EA resolves nothing
+    for prefix, what in passes:  # the last line of each pass: all its tasks and points, a rate and no time left
+        last = [line for line in lines if line.startswith(f"{prefix}: {what} ")][-1]
+        done = re.fullmatch(rf"{prefix}: {what} (\d+)/(\d+) (?:files|tiles), (\S+)/(\S+) (points|bytes), \S+ \5/s,"
+                            r" ETA 0 s", last)
+        assert done and done[1] == done[2] and done[3] == done[4], last
+
+
+def test_ticker_lines_and_bar(capsys, monkeypatch):
+    tick = _tiling.Ticker("tile scores", {"a": 1500, "b": 500})
+    tick("a")
+    tick("b")
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "hgjax tiles: tile scores: 2 tiles, 2k points"
+    assert re.fullmatch(r"hgjax tiles: tile scores 2/2 tiles, 2k/2k points, \S+ points/s, ETA 0 s", lines[-1])
+    pytest.importorskip("tqdm")
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # a terminal: a tqdm bar instead
+    tick = _tiling.Ticker("tile scores", {"a": 1500, "b": 500})
+    tick("a")
+    tick("b")
+    err = capsys.readouterr().err
+    assert "hgjax tiles: tile scores (2 tiles)" in err and "100%" in err and "ETA" not in err
+
+
+@pytest.mark.parametrize("method,stages", [("ea", ["plan", "tiles", "keep"]), ("voxel", ["copy", "sample"])])
+def test_cli_survey_verbose_prints_every_stage(tmp_path, capsys, method, stages):
+    from hgjax import cli
+
+    paths, _ = _survey(tmp_path, n_files=2, n=1000)
+    code = cli.main(["resample", *paths, "-o", str(tmp_path / "kept"), "--method", method, "--tile", f"{TILE:g}", "-v",
+                     "--quiet", "--dtype", "float64"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    lines = [line.split(":") for line in err.splitlines() if line.startswith("  ")]
+    assert [name.strip() for name, _ in lines] == ["check", *stages, "write", "total"]
+    assert all(re.fullmatch(r" \d+\.\d{3} s", seconds) for _, seconds in lines), lines
 
 
 @pytest.mark.parametrize("method,params", [("uniform", {"key": jax.random.key(5)}), ("voxel", {}),
