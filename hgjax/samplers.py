@@ -210,7 +210,11 @@ def _voxel_grid(cols: np.ndarray, origin: np.ndarray, extent: float, size: float
 
 
 def _voxel_representatives(cols: np.ndarray, voxel: np.ndarray, v: int) -> tuple[np.ndarray, np.ndarray]:
-    """(reps (V,), counts (V,)): each voxel's point nearest its centroid (ties: lowest index), and its population."""
+    """(reps (V,), counts (V,)): each voxel's point nearest its centroid (ties: lowest index), and its population.
+
+    ``cols`` (3, N) are the points minus the grid's origin, so that the centroid sums neither
+    overflow nor lose the cloud's offset (a cloud near the largest float64 along an axis).
+    """
     kernels = _voxel_kernels()
     if kernels is not None:
         return kernels[1](cols, voxel, v)
@@ -337,7 +341,7 @@ def voxel_sample(points, ratio: float | None = None, *, voxel_size: float | None
     cols = np.asarray(pts, dtype=np.float64).T
     voxel, v = (grid.voxel, grid.count) if grid.voxel is not None else _voxel_grid(cols, grid.origin, grid.extent,
                                                                                       grid.size)
-    reps, counts = _voxel_representatives(cols, voxel, v)
+    reps, counts = _voxel_representatives((np.asarray(pts, dtype=np.float64) - grid.origin).T, voxel, v)
     ranked = reps[np.argsort((counts.max() - counts) * (n + 1) + reps)]  # population desc, then index (one key)
     if m is None or m <= ranked.size:
         return ranked[:m].astype(np.int64)
@@ -381,7 +385,7 @@ def voxel_tile(cols: np.ndarray, grid: VoxelGrid) -> tuple[np.ndarray, np.ndarra
       its first (lowest-id) point, as indices into the n points.
     """
     voxel, v = _voxel_grid(cols, grid.origin, grid.extent, grid.size)
-    reps, counts = _voxel_representatives(cols, voxel, v)
+    reps, counts = _voxel_representatives((cols.T - grid.origin).T, voxel, v)
     order = np.argsort(voxel, kind="stable")
     return reps, counts, order[np.cumsum(counts) - counts]
 

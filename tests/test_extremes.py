@@ -158,6 +158,20 @@ def test_voxel_beyond_float64_squares_is_refused(cloud):
                 hgjax.voxel_sample(cloud * 1e200, 0.2)
 
 
+def test_voxel_near_the_largest_float64():
+    # was: a hang when the extent overflows float64, and repeated indices where the centroid sums did
+    p = hgjax.eval.box_union_cloud(seed=0, n_points=800).points
+    line = p * [0.0, 0.0, 1.0]  # x and y vanish next to 1.7e308: the cloud is this line of z values
+    want = hgjax.voxel_sample(line, 0.2)
+    far = p + np.array([1.7e308, -1.7e308, 0.0])
+    np.testing.assert_array_equal(hgjax.voxel_sample(far, 0.2), want)
+    np.testing.assert_array_equal(hgjax.tiles.resample(far, 0.2, method="voxel", tile=1.0), want)
+    assert len(set(want.tolist())) == want.size == 160
+    wide = np.array([[-1.7e308, 0.0, 0.0], [1.7e308, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    _refused(wide, "voxel", r"points span more than float64 holds")
+    _refused(wide, "fps", r"points span more than float64 holds")
+
+
 # ----------------------------------------------------------------------------------- parameters
 def test_pca_ac_n_clusters_range(cloud):
     with pytest.raises(ValueError, match=r"n_clusters must be in \[1, N\] = \[1, 200\] for N = 200 points; got 1000000000"):

@@ -20,9 +20,11 @@ MUG = Path(__file__).resolve().parents[2] / "shared" / "data" / "scans" / "scan_
 
 
 def voxel_naive(p, size):
-    """Ranked representatives by a dictionary of voxels: population desc, then index."""
+    """Ranked representatives by a dictionary of voxels: population desc, then index. Centroids in the
+    grid's frame (the points minus its origin, their minimum corner), as voxel_sample sums them."""
+    p = p - p.min(axis=0)
     cells = {}
-    for i, cell in enumerate(map(tuple, np.floor((p - p.min(axis=0)) / size).astype(int))):
+    for i, cell in enumerate(map(tuple, np.floor(p / size).astype(int))):
         cells.setdefault(cell, []).append(i)
     reps = []
     for members in cells.values():
