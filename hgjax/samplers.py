@@ -460,7 +460,14 @@ def _distinct_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order[new], group
 
 
-def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
+def _first_repeat(picked: np.ndarray) -> int:
+    """The position of the first entry of ``picked`` (K,) equal to an earlier one, or K if none."""
+    order = np.argsort(picked, kind="stable")
+    later = order[1:][picked[order[1:]] == picked[order[:-1]]]  # every copy after the first of its value
+    return int(later.min(initial=picked.size))
+
+
+def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray | None:
     """Exact FPS by fpsample's bucket kd-tree (QuickFPS) on the distinct float32 points.
 
     Duplicates are resolved first: each distinct position is represented by its lowest
@@ -469,7 +476,9 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
     follow in index order, as on the JAX path. ``start_idx`` is the row that the tree build
     moves ``start`` to (``_kd_row``). Should the start not come back first (a future
     fpsample building differently), fpsample's plain O(N M) FPS, which takes ``start_idx``
-    as given, serves instead.
+    as given, serves instead. Once every distinct point left is at float32 squared distance
+    0 from the kept ones (a far outlier shrinks the rest below float32's range of squares),
+    fpsample repeats a point: None is returned then, and the caller runs the JAX loop.
     """
     import fpsample
 
@@ -484,6 +493,8 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray:
     picked = fpsample.bucket_fps_kdtree_sampling(distinct, k, start_idx=_kd_row(distinct, at)).astype(np.int64)
     if picked[0] != at:
         picked = fpsample.fps_sampling(distinct, k, start_idx=at).astype(np.int64)
+    if _first_repeat(picked) < k:  # float32 squares underflowed: the exact JAX loop instead
+        return None
     chosen = rep[picked]
     if m == k:
         return chosen
@@ -529,7 +540,8 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     * ``"fpsample"``: the bucket kd-tree FPS (QuickFPS, ``fpsample.bucket_fps_kdtree_sampling``;
       exact, unlike fpsample's NPDU variants) on the distinct points, in float32 whatever
       the input dtype. Far faster than O(N M) on the host; ties between distinct points are
-      broken by the tree, deterministically.
+      broken by the tree, deterministically. Where float32 squared distances underflow (a
+      far outlier shrinks the other points' spacing below them, x64 on), the JAX loop runs.
     * ``"jax"``: a jitted ``lax.fori_loop`` over one (N,) array of squared distances to the
       kept set, in the working dtype (float64 for float64 input with x64): O(N M) time,
       O(N) memory, and M is static (a new M compiles). Ties go to the lowest index.
@@ -568,8 +580,9 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     extent = max(local.max(), -local.min())  # max |local| without an (N, 3) temporary
     if extent > 0:  # an exact power of two: squared distances neither under- nor overflow
         np.ldexp(local, -np.frexp(extent)[1], out=local)
-    if fps_backend(backend) == "fpsample":
-        return _fps_fpsample(local, m, start)
+    chosen = _fps_fpsample(local, m, start) if fps_backend(backend) == "fpsample" else None
+    if chosen is not None:  # None: fpsample's float32 squares underflowed, the JAX loop serves
+        return chosen
     p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))
     return np.asarray(_fps(p, m, jnp.int32(start))).astype(np.int64)
 

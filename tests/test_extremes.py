@@ -172,6 +172,18 @@ def test_voxel_near_the_largest_float64():
     _refused(wide, "fps", r"points span more than float64 holds")
 
 
+def test_fps_far_outlier():
+    # fpsample's float32 squares of the unit spacing underflow next to 1e30: it returned [0, 4, 4, 4, 1]
+    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1e30, 0, 0]], dtype=np.float64)
+    with jax.enable_x64(True):
+        jax_path = hgjax.resample(p, 1.0, method="fps", backend="jax")
+        assert sorted(jax_path.tolist()) == [0, 1, 2, 3, 4]
+        if hgjax.fps_backend("auto") == "fpsample":
+            np.testing.assert_array_equal(hgjax.resample(p, 1.0, method="fps", backend="fpsample"), jax_path)
+    with jax.enable_x64(False):  # float32 squares of an extent of 1e30 overflow
+        _refused(p, "fps", r"points span 1e\+30 .* float32")
+
+
 # ----------------------------------------------------------------------------------- parameters
 def test_pca_ac_n_clusters_range(cloud):
     with pytest.raises(ValueError, match=r"n_clusters must be in \[1, N\] = \[1, 200\] for N = 200 points; got 1000000000"):
