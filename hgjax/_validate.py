@@ -421,6 +421,24 @@ def check_neighbourhood_list(nbs: Any, cls: type) -> list:
     return list(nbs)
 
 
+def check_capacity_param(params: dict, minimum: int) -> None:
+    """Check a given ``params["capacity"]`` (None or absent: nothing) as the neighbourhood builders do:
+    an integer >= ``minimum``. A run that streams rows (:func:`hgjax.resample`) sizes its rows
+    itself, but refuses what :func:`hgjax.neighbourhoods` refuses."""
+    if params.get("capacity") is not None:
+        check_int(params["capacity"], "capacity", minimum=minimum)
+
+
+def check_stream(params: dict) -> dict:
+    """``params`` after checking its ``chunk_size`` (an integer >= 1 or None) and ``progress`` (True or
+    False), each where present: the kernel stream's parameters, checked before any work."""
+    if params.get("chunk_size") is not None:
+        check_int(params["chunk_size"], "chunk_size", minimum=1)
+    if "progress" in params:
+        check_bool(params["progress"], "progress")
+    return params
+
+
 def check_capacity(capacity, width: int, what: str) -> None:
     """Raise when a fixed ``capacity`` (columns) is below the fullest row's ``width``."""
     if capacity is not None and width > capacity:

@@ -92,6 +92,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return_scores = _validate.check_bool(return_scores, "return_scores")
     refused, tile = checked_tile(entry, params, tile, client)
     _registry.check_known(entry, params)
+    _validate.check_stream(params)  # the kernel stream's chunk_size and progress, before any work
     if isinstance(entry, Sampler):
         return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked

@@ -185,6 +185,25 @@ def test_fps_far_outlier():
 
 
 # ----------------------------------------------------------------------------------- parameters
+@pytest.mark.parametrize("method", SCORING)
+def test_resample_refuses_what_neighbourhoods_refuses(cloud, method):
+    runs = [lambda value: _resample(cloud, method, capacity=value)]
+    if method != "pca_ac":  # PCA-AC refuses tiles
+        runs.append(lambda value: hgjax.tiles.resample(cloud, 0.2, method=method, key=KEY, tile=2.0, capacity=value))
+    for value in (0, -5, 2.5):
+        with pytest.raises((TypeError, ValueError), match="capacity") as built:
+            hgjax.neighbourhoods(cloud, method, capacity=value)
+        for run in runs:
+            with pytest.raises(built.type, match=f"^{built.value}$"):
+                run(value)
+    for value in ("yes", 1):
+        with pytest.raises(TypeError, match=f"progress must be True or False; got {value!r}"):
+            _resample(cloud, method, progress=value)
+    if method == "gfr":  # the reference graph runs on the whole cloud at once
+        with pytest.raises(TypeError, match="progress"):
+            _resample(cloud, method, variant="reference", progress="yes")
+
+
 def test_pca_ac_n_clusters_range(cloud):
     with pytest.raises(ValueError, match=r"n_clusters must be in \[1, N\] = \[1, 200\] for N = 200 points; got 1000000000"):
         _resample(cloud, "pca_ac", n_clusters=10**9)

@@ -123,9 +123,11 @@ def knn_params(n: int, k: int, params: dict) -> dict:
     """Build parameters ``{"k", "dedupe"}`` of a k-nearest method for ``n`` points.
 
     Raises:
-      TypeError, ValueError: invalid ``dedupe``, or fewer than k points.
+      TypeError, ValueError: invalid ``dedupe`` or ``capacity`` (an integer >= k, as
+        :func:`hgjax.knn` takes it), or fewer than k points.
     """
     build = {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}
+    _validate.check_capacity_param(params, k)
     _validate.check_min_points(n, k, f"k={k} nearest neighbours")
     return build
 

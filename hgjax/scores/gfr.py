@@ -709,6 +709,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     variant, factor, max_nn = _graph.graph_params(params.get("variant", "invariant"), params.get("radius_factor"),
                                                   params.get("max_nn", _graph.MAX_NN))
     mode = _validate.check_choice(params.get("mode", "random"), "mode", MODES)
+    _validate.check_capacity_param(params, 1)
     return {"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn}, {"mode": mode}
 
 

@@ -165,6 +165,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     """
     build = voxel.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
                                                           "dedupe") if k in params})
+    _validate.check_capacity_param(params, 1)
     _validate.check_min_points(n, 2, "HKC/HKF")
     return build, {"kernel_size": build["kernel_size"], "variant": build["variant"]}
 

@@ -473,6 +473,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     """
     b = build_params(**{k: params[k] for k in ("lengths", "variant", "dedupe") if k in params})
     solver = _validate.check_choice(params.get("solver", "gram"), "solver", SOLVERS)
+    _validate.check_capacity_param(params, max(b["lengths"]))
     _validate.check_min_points(n, max(b["lengths"]), f"LHF lengths={b['lengths']}")
     return ({"k": max(b["lengths"]), "dedupe": b["dedupe"]},
             {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
