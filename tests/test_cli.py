@@ -348,7 +348,7 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path):
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
     assert stderr.splitlines()[-1] == "hgjax: interrupted" and "Traceback" not in stderr and stdout == ""
-    written = sorted(os.listdir(tmp_path / "out"))
+    written = sorted(set(os.listdir(tmp_path / "out")) - {"hgjax-manifest.json"})
     assert 1 <= len(written) < 200
     for name in written:  # no partial file
         assert len(io.read_points(tmp_path / "out" / name)) == 4000

@@ -250,14 +250,14 @@ def test_a_bad_file_in_a_batch(tmp_path, scan):
     assert os.listdir(tmp_path / "out") == []
     proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps", "--keep-going")
     assert proc.returncode == 1 and "1 of 4 inputs failed" in proc.stderr and "b.npy" in proc.stderr
-    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply"]
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply", "hgjax-manifest.json"]
     os.remove(tmp_path / "out" / "c.ply")
     before = {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
     os.remove(src / "b.npy")
     proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps", "--skip-existing")
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.count("(--skip-existing)") == 2 and proc.stderr.count(" kept ") == 1
-    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply"]
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply", "hgjax-manifest.json"]
     assert before == {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
 
 

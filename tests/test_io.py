@@ -530,7 +530,7 @@ def test_quoted_globs_are_expanded_and_each_file_read_once(capsys, tmp_path):
     code, err = _cli(capsys, "resample", tmp_path / "survey" / "*.xyz", tmp_path / "link.xyz", "-o", tmp_path / "out",
                      "--method", "uniform")
     assert code == 0, err
-    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "b.ply"]
+    assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "b.ply", "hgjax-manifest.json"]
     assert "link.xyz is" in err and "read once" in err
     code, err = _cli(capsys, "resample", tmp_path / "survey" / "*.laz", "-o", tmp_path / "none")
     assert code == 2 and "matches no point cloud" in err, err
