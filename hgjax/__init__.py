@@ -7,42 +7,57 @@ differentiable soft resampling. On one tile, ``resample`` is a composition of pu
 by tile (here or on Dask workers) and :mod:`hgjax.survey` on files as one cloud.
 """
 
-from importlib.metadata import PackageNotFoundError, version as _version
+import importlib
+import importlib.util
 
-from hgjax import eval, io, scores, spectrum  # noqa: A004 (hgjax.eval is the evaluation package)
-from hgjax import samplers as _samplers
-from hgjax import survey, tiles  # noqa: F401  (the tiled path and surveys of files)
-from hgjax._method import Method, Sampler
-from hgjax._registry import METHODS
-from hgjax.engine import resample
-from hgjax.pipeline import keep, neighbourhoods, score, soft_resample, soft_score, soft_weights
-from hgjax.samplers import farthest_point_sample, fps_backend, uniform_sample, voxel_sample
-from hgjax.select import soft_select, top_k, weighted_sample
-from hgjax.spatial import (
-    Neighbourhoods,
-    PrecisionWarning,
-    cube,
-    intrinsic_resolution,
-    knn,
-    local_frame,
-    spatial_order,
-    stack_neighbourhoods,
-    working_dtype,
-)
+# The public names and the modules that define them. ``import hgjax`` loads none of them (nor JAX):
+# each is imported on first use (PEP 562, as SciPy and scikit-image load theirs), so that the
+# command line installs its signal handlers before JAX starts (``hgjax.cli.main``).
+_EXPORTS = {
+    "hgjax._method": ("Method", "Sampler"),
+    "hgjax._registry": ("METHODS",),
+    "hgjax.engine": ("resample",),
+    "hgjax.pipeline": ("keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"),
+    "hgjax.samplers": ("farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"),
+    "hgjax.select": ("soft_select", "top_k", "weighted_sample"),
+    "hgjax.spatial": ("Neighbourhoods", "PrecisionWarning", "cube", "intrinsic_resolution", "knn", "local_frame",
+                      "spatial_order", "stack_neighbourhoods", "working_dtype"),
+}
+_SOURCE = {name: module for module, names in _EXPORTS.items() for name in names}
 
-try:
-    __version__ = _version("hgjax")
-except PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0+local"
+
+def __getattr__(name: str):
+    if name in _SOURCE:
+        value = getattr(importlib.import_module(_SOURCE[name]), name)
+    elif name == "__version__":
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            value = version("hgjax")
+        except PackageNotFoundError:  # running from a source tree without installation
+            value = "0.0.0+local"
+    elif not name.startswith("__") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        value = importlib.import_module(f"{__name__}.{name}")  # any submodule: hgjax.tiles, hgjax._stream
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "METHODS",
     "Method",
     "Neighbourhoods",
-    "Sampler",
     "PrecisionWarning",
+    "Sampler",
     "cube",
     "eval",
+    "farthest_point_sample",
+    "fps_backend",
     "intrinsic_resolution",
     "io",
     "keep",
@@ -60,7 +75,8 @@ __all__ = [
     "spectrum",
     "stack_neighbourhoods",
     "top_k",
+    "uniform_sample",
+    "voxel_sample",
     "weighted_sample",
     "working_dtype",
 ]
-__all__ += _samplers.__all__

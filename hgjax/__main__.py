@@ -1,4 +1,6 @@
-"""``python -m hgjax``: the same as the ``hgjax`` console script."""
+"""``python -m hgjax``: the same as the ``hgjax`` console script. ``hgjax`` and ``hgjax.cli`` import
+nothing heavy, so :func:`hgjax.cli.main` installs its signal handlers before JAX is imported; a
+Ctrl-C during the light import itself ends the same way."""
 
 import sys
 

@@ -31,12 +31,15 @@ import argparse
 import ast
 import contextlib
 import csv
+import math
 import os
 import sys
 import time
 import warnings
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 EPILOG = """\
 examples:
@@ -53,8 +56,10 @@ examples:
 
 Inputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY point clouds, and meshes (OBJ, STL, OFF, GLB/GLTF,
 PLY with faces) sampled to --samples points; a directory stands for its point and mesh
-files, sorted. Outputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY (a table with fields x, y, z, ...)
-with the input's attributes and a `score` attribute for scoring methods. Kept points are
+files, sorted. Outputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY with the input's attributes and a
+`score` attribute for scoring methods; NPY as the input was: a table with fields x, y, z, ...
+(score included) from a table or another format, a plain (N, 3 + C) array from a plain array
+(without the score: `hgjax score` refuses it; write another format to keep it). Kept points are
 written in input order (--order priority: best first). `hgjax score` writes finite scores
 (+inf, an HKC point without a low band, becomes the largest finite score). With several
 inputs, a directory or -o DIR, each output is named after its input's stem with the
@@ -119,7 +124,7 @@ def _positive(cast):
             value = cast(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"not {'an integer' if cast is int else 'a number'}: {text!r}") from None
-        if not (value > 0 and np.isfinite(value)):
+        if not (value > 0 and math.isfinite(value)):
             raise argparse.ArgumentTypeError(f"must be {'>= 1' if cast is int else 'a finite number > 0'}; got {text}")
         return value
 
@@ -141,7 +146,7 @@ def _view(text: str) -> tuple[float, float]:
         elev, azim = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected ELEV,AZIM in degrees, e.g. 25,-60; got {text!r}") from None
-    if not (np.isfinite(elev) and np.isfinite(azim)):
+    if not (math.isfinite(elev) and math.isfinite(azim)):
         raise argparse.ArgumentTypeError(f"must be finite; got {text!r}")
     return elev, azim
 
@@ -557,6 +562,8 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
     ``on_stage``). The points are moved to their local frame in float64 first, so that no
     method, the samplers included, ever casts georeferenced coordinates to float32.
     """
+    import numpy as np
+
     import hgjax
 
     start = time.perf_counter()
@@ -696,12 +703,16 @@ def _ratio_of(args, path: str, n: int) -> float | None:
 def _score_placeholder(entry, args, n: int) -> np.ndarray | None:
     """A stand-in for the score column, of the dtype the method writes, to check the output
     format before computing."""
+    import numpy as np
+
     from hgjax import Method
 
     return np.zeros(n, np.dtype(args.dtype)) if isinstance(entry, Method) else None
 
 
 def cmd_resample(args) -> None:
+    import numpy as np
+
     from hgjax import METHODS, io
 
     entry = METHODS[args.method]
@@ -823,6 +834,8 @@ def _finite_scores(scores: np.ndarray) -> np.ndarray:
     """Scores as written by ``hgjax score``: +inf (an HKC point whose low band vanishes) becomes the
     largest finite score and -inf the smallest, so colour ramps (CloudCompare, PDAL) accept the
     column; with no finite score at all, 0."""
+    import numpy as np
+
     finite = scores[np.isfinite(scores)]
     if finite.size == 0:
         return np.zeros_like(scores)
@@ -921,6 +934,8 @@ def cmd_compare(args) -> None:
 def _gap_unit(points: np.ndarray, res: float) -> tuple[float, str]:
     """The unit of coverage gaps: the intrinsic resolution, else (a cloud whose points mostly
     coincide) the bounding-box diagonal, else 1."""
+    import numpy as np
+
     if res > 0:
         return res, "res"
     diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
@@ -940,7 +955,17 @@ def _picture(points, kept: dict, path: str, args, **style) -> bool:
     return True
 
 
+SAME_RANKING = {
+    ("hkc", "hkf"): "HKF's sigma = beta / (1 + beta) grows with HKC's beta, on the same cubes",
+    ("ea", "pca_ac"): "PCA-AC's Ward clusters are intervals of EA's surface variation, on the same neighbours",
+}
+"""Pairs of methods that rank the points alike by definition, and why: the demo finds them keeping the
+same points and says so."""
+
+
 def cmd_demo(args) -> None:
+    import numpy as np
+
     import hgjax
 
     folder = os.path.dirname(os.path.abspath(args.output))
@@ -952,12 +977,20 @@ def cmd_demo(args) -> None:
           f" keeping {args.ratio:g}")
     print(f"{'method':<8} {'points':>7} {'kept':>6} {'seconds':>8} {'edge precision':>15}")
     key, progress = _key(args), _progress(args)
-    kept = {}
+    kept, same = {}, {}
     for method in sorted(hgjax.METHODS):
         idx, _, seconds = _compute(hgjax.METHODS[method], cloud.points, args.ratio, {}, key, progress, args)
+        same[method] = next((m for m, other in kept.items() if np.array_equal(np.sort(other), np.sort(idx))), None)
         kept[method] = idx
-        print(f"{method:<8} {len(edge):>7} {idx.size:>6} {seconds:>8.2f} {float(edge[idx].mean()):>15.3f}")
-    print(f"(a random subset keeps edge points with precision {edge.mean():.3f} on average)")
+        note = "" if same[method] is None else f"  same points as {same[method]}"
+        print(f"{method:<8} {len(edge):>7} {idx.size:>6} {seconds:>8.2f} {float(edge[idx].mean()):>15.3f}{note}")
+    size = next(iter(kept.values())).size
+    print(f"edge precision: the share of kept points that are labelled edge points; at most"
+          f" {min(int(edge.sum()), size)} / {size} = {min(int(edge.sum()), size) / size:.3f} (every edge point"
+          f" kept), {edge.mean():.3f} for a random subset on average.")
+    for method, first in same.items():
+        if (first, method) in SAME_RANKING:
+            print(f"{method} keeps the points of {first}: {SAME_RANKING[first, method]}.")
     if _picture(np.asarray(cloud.points), kept, args.output, args,
                 title="hgjax demo: kept points (red) over the cloud"):
         print(f"wrote the picture to {os.path.abspath(args.output)}")
@@ -972,18 +1005,51 @@ SIGNAL_EXITS = {"SIGINT": (130, "interrupted"), "SIGTERM": (143, "terminated")}
 """Exit code and message of a run stopped by a signal."""
 
 
+def _exit_at_once(name: str) -> None:
+    """End the process for the signal ``name`` without unwinding: remove the partial files
+    (:data:`hgjax.io.OPEN_TEMPORARIES`; before hgjax.io is loaded there are none, and it is never
+    imported here, as the signal may have come in the middle of that import), print one line, exit.
+
+    Unwinding would free arrays that library threads (SciPy's k-d tree workers, XLA's) may still
+    read, and would turn a signal inside an import into that import's ImportError."""
+    io = sys.modules.get("hgjax.io")
+    for temp in list(getattr(io, "OPEN_TEMPORARIES", ())):
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+    code, message = SIGNAL_EXITS[name]
+    os.write(2, f"hgjax: {message}\n".encode())
+    os._exit(code)
+
+
 @contextlib.contextmanager
 def _signals(received: list, exit_now: bool = False):
     """SIGINT raises KeyboardInterrupt and SIGTERM :class:`Terminated`, once: the name of the
     first is appended to ``received`` and later ones are ignored, so the clean-up of partial
-    files runs to its end. With ``exit_now`` (the console script) the handler removes the
-    partial files and ends the process itself. Signals the parent set to be ignored stay
-    ignored."""
+    files runs to its end. With ``exit_now`` (the console script) the handler ends the process
+    itself (:func:`_exit_at_once`) whenever the signal comes, start-up included. Signals the
+    parent set to be ignored stay ignored.
+
+    Yields ``held``: a context manager for imports; a signal that comes inside is only recorded,
+    and raised when the block ends (with ``exit_now``, the process still ends at once), so that
+    it never becomes the ImportError of an extension module stopped while it initialises, nor is
+    swallowed by an optional import that catches ImportError."""
     import signal
     import threading
 
+    holding = []
+
+    @contextlib.contextmanager
+    def held():
+        holding.append(True)
+        try:
+            yield
+        finally:
+            holding.pop()
+        if received:
+            raise Terminated() if received[0] == "SIGTERM" else KeyboardInterrupt()
+
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield contextlib.nullcontext
         return
 
     def handler(signum, frame):
@@ -991,27 +1057,27 @@ def _signals(received: list, exit_now: bool = False):
             return
         received.append(signal.Signals(signum).name)
         if exit_now:
-            # Unwinding would free arrays that library threads (SciPy's k-d tree workers) may
-            # still read: remove the partial files and end the process here instead.
-            from hgjax import io
-
-            for temp in list(io.OPEN_TEMPORARIES):
-                with contextlib.suppress(OSError):
-                    os.unlink(temp)
-            code, message = SIGNAL_EXITS[received[0]]
-            os.write(2, f"hgjax: {message}\n".encode())
-            os._exit(code)
-        raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+            _exit_at_once(received[0])
+        if not holding:
+            raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     saved = {}
     for signum, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
         if signal.getsignal(signum) is default:
             saved[signum] = signal.signal(signum, handler)
     try:
-        yield
+        yield held
     finally:
         for signum, previous in saved.items():
             signal.signal(signum, previous)
+
+
+def _import_engine() -> None:
+    """Import what every command needs: JAX (its compilation cache) and the method registry, with
+    its kernels and I/O: most of a run's start-up."""
+    import jax.experimental.compilation_cache  # noqa: F401
+
+    from hgjax import METHODS, io  # noqa: F401
 
 
 def _run(argv, received: list) -> int:
@@ -1044,10 +1110,13 @@ def _run(argv, received: list) -> int:
 def main(argv=None) -> int:
     """Run the ``hgjax`` command line.
 
-    SIGINT (Ctrl-C) and SIGTERM stop the run at once: partial output files are removed and
-    the exit code is 130 or 143. Called as the console script (``argv`` None), the process
-    then ends with :func:`os._exit`, so that library threads still running (SciPy's k-d
-    tree workers) cannot crash the interpreter's shutdown.
+    SIGINT (Ctrl-C) and SIGTERM stop the run at once, with one line on stderr: partial output
+    files are removed and the exit code is 130 or 143. The handlers are installed before
+    anything heavy is imported (``import hgjax.cli`` loads neither NumPy nor JAX), so this holds
+    during start-up too. Called as the console script (``argv`` None), the process then ends
+    with :func:`os._exit`, so that library threads still running (SciPy's k-d tree workers)
+    cannot crash the interpreter's shutdown, and a signal inside an import cannot become an
+    ImportError.
 
     Args:
       argv: the arguments without the program name (default: ``sys.argv[1:]``).
@@ -1061,16 +1130,34 @@ def main(argv=None) -> int:
       2
     """
     received: list[str] = []
+    code = None
     try:
-        with _signals(received, exit_now=argv is None):
-            return _run(argv, received)
+        with _signals(received, exit_now=argv is None) as held:  # before JAX is imported
+            if argv is None:
+                # The resource tracker that multiprocessing starts (a local Dask cluster) removes the
+                # semaphores of a process that ended at once, with a warning not meant for the user:
+                # its command line takes this process's -W options.
+                sys.warnoptions.append("ignore::UserWarning:multiprocessing.resource_tracker")
+            with held():
+                _import_engine()
+            code = _run(argv, received)
+            if argv is None and not received:
+                _exit(code)  # the handlers still in place: a signal up to the end is reported as one
     except BaseException as err:
         if not (received or isinstance(err, KeyboardInterrupt)):
             raise
+    if received or code is None:  # a signal, or a KeyboardInterrupt raised by another part of the process
         code, message = SIGNAL_EXITS[received[0] if received else "SIGINT"]
         print(f"hgjax: {message}", file=sys.stderr)
-        if argv is None:
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(code)
-        return code
+    if argv is None:
+        _exit(code)
+    return code
+
+
+def _exit(code: int) -> None:
+    """End the console script: flush what it printed and exit without the interpreter's shutdown,
+    which library threads still running (SciPy's k-d tree workers, XLA's) can crash."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a closed pipe (hgjax demo | head)
+            stream.flush()
+    os._exit(code)

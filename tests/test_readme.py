@@ -88,7 +88,7 @@ def test_setup_commands_are_the_first_block_and_the_test_command_is_ci():
     assert first.group(1) == "bash"
     commands = [line.split("   #")[0].rstrip() for line in first.group(2).splitlines()]
     ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith('pip install ".[test]"')]
-    assert commands == ["pip install . && hgjax demo", ci[0]] and len(ci) == 1
+    assert commands == ['pip install ".[plot]" && hgjax demo', ci[0]] and len(ci) == 1
 
 
 def test_local_links_exist():
