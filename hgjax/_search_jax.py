@@ -256,6 +256,7 @@ class _Cloud:
     real: jax.Array  # (N,) bool
     gid: jax.Array  # (N,) int32 tie key
     qorder: jax.Array  # (N,) caller index of each query position (cells, then coordinates)
+    rep: jax.Array  # (N,) the point whose radius a point's query uses (``dedupe``: its location's first copy)
     qcell: jax.Array  # (N, 3) int32 cell of each caller point (0 for padding)
     keys: tuple  # 3 x (N,) int32 sorted candidate cells (z, y, x), SENTINEL_CELL for non-candidates
     cpoint: jax.Array  # (N, 3) candidate coordinates in that order
@@ -278,20 +279,22 @@ def _coordinates(points, real):
 
 
 def _eligible(coords, real, cell, dedupe):
-    """(qorder, candidate mask): query order (cells, then coordinates, then index) and which
-    points are candidates (every real point, or with ``dedupe`` the first copy of each location)."""
+    """(qorder, candidate mask, rep): the query order (cells, then coordinates, then index),
+    which points are candidates (every real point, or with ``dedupe`` the first copy of each
+    location) and each point's representative (itself, or with ``dedupe`` its location's first copy)."""
     n = coords.shape[0]
     iota = jnp.arange(n, dtype=jnp.int32)
     cz, cy, cx = cell[:, 2], cell[:, 1], cell[:, 0]
     if not dedupe:
         qorder = lax.sort((cz, cy, cx, iota), num_keys=4)[-1]
-        return qorder, real
+        return qorder, real, iota
     out = lax.sort((cz, cy, cx, coords[:, 0], coords[:, 1], coords[:, 2], iota), num_keys=7)
     qorder = out[-1]
     p = coords[qorder]
     same = jnp.concatenate([jnp.zeros(1, bool), jnp.all(p[1:] == p[:-1], axis=1)])
-    first = ~same & real[qorder]
-    return qorder, jnp.zeros(n, bool).at[qorder].set(first)
+    first = ~same & real[qorder]  # (padding rows sort last: a real row never follows one)
+    rep = qorder[lax.cummax(jnp.where(same, 0, iota))]
+    return qorder, jnp.zeros(n, bool).at[qorder].set(first), jnp.zeros(n, jnp.int32).at[qorder].set(rep)
 
 
 def _cloud(points, count, gid, edge, dedupe) -> _Cloud:
@@ -307,12 +310,12 @@ def _cloud(points, count, gid, edge, dedupe) -> _Cloud:
     delta = 16 * eps * (jnp.minimum(top, MAX_CELL) + 4)
     cell = jnp.floor(jnp.clip(t, 0, MAX_CELL)).astype(jnp.int32)
     cell = jnp.where(real[:, None], cell, SENTINEL_CELL)
-    qorder, cand = _eligible(coords, real, cell, dedupe)
+    qorder, cand, rep = _eligible(coords, real, cell, dedupe)
     ccell = jnp.where(cand[:, None], cell, SENTINEL_CELL)
     corder = lax.sort((ccell[:, 2], ccell[:, 1], ccell[:, 0], iota), num_keys=4)[-1]
     keys = tuple(ccell[corder, a] for a in (2, 1, 0))
-    return _Cloud(coords, real, gid, qorder, jnp.where(real[:, None], cell, 0), keys, coords[corder], gid[corder],
-                  corder, jnp.sum(cand, dtype=jnp.int32), lo, edge, delta)
+    return _Cloud(coords, real, gid, qorder, rep, jnp.where(real[:, None], cell, 0), keys, coords[corder],
+                  gid[corder], corder, jnp.sum(cand, dtype=jnp.int32), lo, edge, delta)
 
 
 def _lower_bound(keys, q):
@@ -607,10 +610,10 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         hi, lo = s["hi"], s["lo"]
         found = hi < jnp.inf
         if bound is not None:
-            found = found & _below(hi, lo, bound[qi], metric)
+            found = found & _below(hi, lo, bound[cloud.rep[qi]], metric)
         value = _in_units(hi, metric)
         reach = jnp.where(found[:, -1], value[:, -1], jnp.inf)
-        limit = _as_distance(reach if bound is None else jnp.minimum(reach, bound[qi]), metric)
+        limit = _as_distance(reach if bound is None else jnp.minimum(reach, bound[cloud.rep[qi]]), metric)
         ok = c["complete"] | (limit < c["slack"])
         return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
                     limit=limit, ok=ok, needed=c["count"])
@@ -671,7 +674,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
 
     def rows(qi):
         c = _candidates(cloud, qi, capacity, metric)
-        h = bound[qi]
+        h = bound[cloud.rep[qi]]  # with dedupe, every copy asks its location's first copy's query
         inside = _below(c["hi"], c["lo"], h, metric)  # (B, C) every candidate, exactly
         used = h
         cut = None
