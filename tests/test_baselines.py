@@ -18,7 +18,7 @@ import naive
 from conftest import TOL
 from fixtures import box_surface, degenerate_clouds, grid, uniform_cloud
 
-ea_module = importlib.import_module("hgjax.scores.ea")
+eigen = importlib.import_module("hgjax.scores.eigen")
 pca_ac_module = importlib.import_module("hgjax.scores.pca_ac")
 assert pca_ac_module is hgjax.scores.pca_ac  # the module, not a function of the same name
 
@@ -64,7 +64,7 @@ def hard_symmetric_3x3(seed=0):
 def test_smallest_eigenvalue_matches_lapack(dtype):
     m = hard_symmetric_3x3()
     ref = np.linalg.eigvalsh(m)
-    got = np.asarray(jax.vmap(ea_module.smallest_eigenvalue)(jnp.asarray(m.astype(dtype))))
+    got = np.asarray(jax.vmap(eigen.smallest_eigenvalue)(jnp.asarray(m.astype(dtype))))
     assert got.dtype == dtype
     scale = np.abs(ref).max(axis=1)  # the error bound of any backward-stable solver
     assert np.all(np.abs(got - ref[:, 0]) <= 16 * np.finfo(dtype).eps * scale + 1e-300)
@@ -73,7 +73,7 @@ def test_smallest_eigenvalue_matches_lapack(dtype):
 def test_smallest_eigenvalue_gradient(dtype):
     m = hard_symmetric_3x3(seed=1).astype(dtype)
     ref = np.linalg.eigh(m.astype(np.float64))
-    grad = np.asarray(jax.vmap(jax.grad(ea_module.smallest_eigenvalue))(jnp.asarray(m)))
+    grad = np.asarray(jax.vmap(jax.grad(eigen.smallest_eigenvalue))(jnp.asarray(m)))
     assert np.all(np.isfinite(grad))
     gap = ref.eigenvalues[:, 1] - ref.eigenvalues[:, 0]
     simple = gap > 1e-3 * np.abs(ref.eigenvalues).max(axis=1)
@@ -89,7 +89,7 @@ def _entries(m):
 def test_eigenvalues_of_six_entries_match_lapack(dtype):
     m = hard_symmetric_3x3(seed=2)
     ref = np.linalg.eigvalsh(m)
-    got = np.stack([np.asarray(x) for x in jax.jit(jax.vmap(ea_module.eigenvalues))(_entries(m.astype(dtype)))], 1)
+    got = np.stack([np.asarray(x) for x in jax.jit(jax.vmap(eigen.eigenvalues))(_entries(m.astype(dtype)))], 1)
     assert got.dtype == dtype and np.all(np.diff(got, axis=1) >= 0)
     scale = np.abs(ref).max(axis=1, keepdims=True)
     assert np.all(np.abs(got - ref) <= 16 * np.finfo(dtype).eps * scale + 1e-300)
@@ -100,7 +100,7 @@ def test_eigenvalues_of_six_entries_derivative_is_v_dc_v(dtype):
     ref = np.linalg.eigh(m.astype(np.float64))
     dm = np.random.default_rng(4).normal(size=m.shape)
     dm = (dm + dm.transpose(0, 2, 1)).astype(dtype)  # a symmetric direction
-    _, tangent = jax.jit(jax.vmap(lambda e, d: jax.jvp(ea_module.eigenvalues, (e,), (d,))))(_entries(m), _entries(dm))
+    _, tangent = jax.jit(jax.vmap(lambda e, d: jax.jvp(eigen.eigenvalues, (e,), (d,))))(_entries(m), _entries(dm))
     tangent = np.stack([np.asarray(t) for t in tangent], 1)
     assert np.all(np.isfinite(tangent))
     want = np.einsum("mik,mij,mjk->mk", ref.eigenvectors, dm.astype(np.float64), ref.eigenvectors)
