@@ -517,13 +517,29 @@ def base(points, m: int, entry, tile: float | None, params: dict, client=None) -
 
 def resolved(plan_: Plan, runner: Here) -> Plan:
     """The plan with the build parameters that depend on the seeded sample (SampleStats) resolved,
-    and the first halo the resolved parameters need (:attr:`hgjax._method.Tiling.halo`)."""
-    tiling = plan_.tiling
-    if tiling.resolve is None:
-        return plan_
-    build = tiling.resolve(dict(plan_.build), lambda: sample_stats(runner, plan_))
-    halo = plan_.halo if tiling.halo is None else tiling.halo(build, plan_.halo)
-    return dataclasses.replace(plan_, build=build, halo=halo)
+    and the first halo the resolved parameters need (:attr:`hgjax._method.Tiling.halo`).
+
+    Where float64 points are cast to float32 (:func:`hgjax.spatial.working_dtype`), the same
+    sample's finest spacing judges the cast (a :class:`hgjax.PrecisionWarning` where it loses
+    it): the statistics the resolution gathered, else gathered for it from the tiles' indices,
+    which a run in this process keeps for its scoring pass.
+    """
+    held = []
+
+    def stats() -> spatial.SampleStats:
+        if not held:
+            held.append(sample_stats(runner, plan_))
+        return held[0]
+
+    tiling, resolved_ = plan_.tiling, plan_
+    if tiling.resolve is not None:
+        build = tiling.resolve(dict(plan_.build), stats)
+        halo = plan_.halo if tiling.halo is None else tiling.halo(build, plan_.halo)
+        resolved_ = dataclasses.replace(plan_, build=build, halo=halo)
+    wide = getattr(getattr(runner.cloud, "points", None), "dtype", np.float64)  # a lazy Source reads float64
+    extent = float(np.max(np.abs([plan_.lo, plan_.hi])))
+    spatial.working_dtype(wide, extent=extent, spacing=lambda: spatial.finest_spacing(stats().distinct))
+    return resolved_
 
 
 def bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -583,7 +583,9 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
     chosen = _fps_fpsample(local, m, start) if fps_backend(backend) == "fpsample" else None
     if chosen is not None:  # None: fpsample's float32 squares underflowed, the JAX loop serves
         return chosen
-    p = jnp.asarray(local, dtype=spatial.working_dtype(pts.dtype))
+    dtype = spatial.working_dtype(pts.dtype, extent=spatial.frame_extent(local),  # judged in the scaled frame
+                                  spacing=lambda: spatial.index_spacing(spatial.SpatialIndex(local)))
+    p = jnp.asarray(local, dtype=dtype)
     return np.asarray(_fps(p, m, jnp.int32(start))).astype(np.int64)
 
 

@@ -55,36 +55,112 @@ RESOLUTION_SAMPLES = 1000
 CUBE_GROUPS = 8  # cube queries bound each eighth of a batch (by half-width) separately
 
 
+PRECISION_SHARE = 2.0 ** -10  # float32's rounding may reach this share of the finest spacing before a warning
+
+
 class PrecisionWarning(UserWarning):
-    """float64 input computed in float32 because JAX's x64 mode is off."""
+    """float64 input computed in float32 (JAX's x64 mode off) where float32 loses what the data holds.
+
+    Coordinates are cast after the local frame is taken in float64 (:func:`local_frame`), so
+    the cast moves a coordinate by at most half a float32 ulp at the largest |local
+    coordinate| m, ``np.spacing(np.float32(m)) / 2`` (:func:`float32_rounding`). The warning
+    fires when that rounding exceeds 2^-10 (about 1e-3) of the cloud's finest spacing: the
+    smallest positive distance from a point of the seeded sample (:func:`sample_ids`) to its
+    nearest distinct point (:func:`finest_spacing`). The float64 clouds of
+    :func:`hgjax.eval.box_union_cloud` (extent 6, 2e4 to 1e6 points: rounding 1e-4 to 3e-4 of
+    that spacing) do not warn; millimetre detail at an extent of 1e7, or a dense cluster
+    beside a far outlier, does (:func:`working_dtype`).
+    """
 
 
-def working_dtype(dtype) -> np.dtype:
+def working_dtype(dtype, *, extent=None, spacing=None) -> np.dtype:
     """The dtype kernels run in: the caller's, or float32 for float64 input without x64.
 
     JAX keeps 64-bit types opt-in (``jax.config.update("jax_enable_x64", True)``). Without
-    it, float64 input is computed in float32 and a :class:`PrecisionWarning` says so (never a
-    silent cast). Coordinates are first moved to a local frame in float64
-    (:func:`local_frame`), so the cast loses no more than the cloud's own extent allows.
+    it, float64 input is computed in float32. Coordinates are first moved to a local frame in
+    float64 (:func:`local_frame`), so the cast loses no more than the cloud's own extent
+    allows, and a :class:`PrecisionWarning` says so only where that loss matters: when
+    float32's rounding at the largest |local coordinate| ``extent``, ``np.spacing(np.float32(
+    extent)) / 2``, exceeds 2^-10 of ``spacing``, the smallest positive nearest-distinct
+    distance of the seeded sample (:func:`finest_spacing`). Every builder (:func:`knn`,
+    :func:`cube`, :func:`hgjax.neighbourhoods`, :func:`hgjax.resample`) passes both.
 
     Args:
       dtype: the caller's float dtype.
+      extent: the largest |coordinate| of the cloud in its local frame; None: not known.
+      spacing: the cloud's finest spacing (:func:`finest_spacing`), or a callable returning
+        it, called only when float64 is cast to float32; None: not known. Without both
+        ``extent`` and ``spacing`` nothing is judged and nothing is warned.
 
     Returns:
       np.dtype float32 or float64.
+
+    Warns:
+      PrecisionWarning: float64 cast to float32 whose rounding is not small against ``spacing``.
 
     Examples:
       >>> import numpy as np, hgjax
       >>> hgjax.working_dtype(np.float32)
       dtype('float32')
+      >>> hgjax.working_dtype(np.float32, extent=0.5, spacing=1e-4)  # float32 input: never cast
+      dtype('float32')
     """
     dtype = np.dtype(dtype)
-    if dtype == np.float64 and not jax.config.jax_enable_x64:
-        warnings.warn("float64 points are computed in float32 because jax_enable_x64 is off;"
-                      ' call jax.config.update("jax_enable_x64", True) for float64 precision',
-                      PrecisionWarning, stacklevel=3)
-        return np.dtype(np.float32)
-    return dtype
+    if dtype != np.float64 or jax.config.jax_enable_x64:
+        return dtype
+    if extent is not None and spacing is not None:
+        rounding = float32_rounding(extent)
+        finest = float(spacing() if callable(spacing) else spacing)
+        if rounding > PRECISION_SHARE * finest:
+            warnings.warn(f"float64 points are computed in float32 because jax_enable_x64 is off, and float32"
+                          f" rounds their local coordinates (up to {float(extent):.3g}) by {rounding:.2g}, more"
+                          f" than 2^-10 of their finest spacing {finest:.3g};"
+                          ' call jax.config.update("jax_enable_x64", True) for float64 precision',
+                          PrecisionWarning, stacklevel=3)
+    return np.dtype(np.float32)
+
+
+def float32_rounding(extent) -> float:
+    """Half a float32 ulp at ``extent``: the most a cast to float32 moves a coordinate of magnitude <= ``extent``."""
+    with np.errstate(over="ignore"):
+        return float(np.spacing(np.abs(np.float32(extent)))) / 2
+
+
+def frame_extent(local: np.ndarray) -> float:
+    """The largest |coordinate| of (N, 3) local coordinates (0.0 for none), without an (N, 3) temporary."""
+    return float(max(local.max(initial=0.0), -local.min(initial=0.0)))
+
+
+def finest_spacing(distinct: np.ndarray) -> float:
+    """The smallest positive finite nearest-distinct distance of ``distinct`` (S,) (:attr:`SampleStats.distinct`);
+    inf when there is none (a single location)."""
+    d = np.asarray(distinct, dtype=np.float64)
+    d = d[np.isfinite(d) & (d > 0)]
+    return float(d.min()) if d.size else np.inf
+
+
+def index_spacing(index: "SpatialIndex") -> float:
+    """:func:`finest_spacing` of the seeded sample of a whole-cloud index (rows of global ids 0..N-1)."""
+    return finest_spacing(nearest_distances(index, index.row[sample_ids(index.n_caller)])[0])
+
+
+def pair_spacing(local: np.ndarray, idx: np.ndarray, first: np.ndarray | None = None) -> float:
+    """:func:`finest_spacing` of the seeded sample from a graph's pairs instead of an index.
+
+    Args:
+      local: (N, 3) float64 local coordinates.
+      idx: (N, K) neighbour rows padded with N; row i and the rows listing i together hold
+        each point's nearest distinct point (GFR's graph).
+      first: optional (N,) first point of each point's location (only those have pairs).
+    """
+    n = local.shape[0]
+    wanted = sample_ids(n)
+    sampled = np.zeros(n + 1, dtype=bool)
+    sampled[wanted if first is None else np.asarray(first)[wanted]] = True
+    real = idx < n
+    rows, cols = np.nonzero(real & (sampled[:n, None] | sampled[idx]))  # the padding n is not sampled
+    gap = local[rows] - local[idx[rows, cols]]
+    return finest_spacing(np.sqrt(np.einsum("ij,ij->i", gap, gap)))
 
 
 def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
@@ -647,10 +723,12 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, sc
 
     Returns:
       :class:`Neighbourhoods` whose points are the caller's in a local frame, cast to the
-      working dtype (see :func:`working_dtype`).
+      working dtype (see :func:`working_dtype`; a cast that loses the cloud's finest spacing,
+      read from ``index``, warns).
     """
-    dtype = working_dtype(points.dtype)
-    local = local_frame(points)[0].astype(dtype)
+    local = local_frame(points)[0]
+    dtype = working_dtype(points.dtype, extent=frame_extent(local), spacing=lambda: index_spacing(index))
+    local = local.astype(dtype)
     scale = None if scale_sorted is None else index.to_caller(np.asarray(scale_sorted)).astype(dtype)
     return Neighbourhoods(local, index.caller_idx(idx_sorted), scale, params=record(params or {}))
 

@@ -268,7 +268,9 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
         _validate.check_capacity(_validate.check_int(capacity, "capacity", minimum=1), width, "GFR row")
     cols = spatial.bucket(width) if capacity is None else capacity
     idx = np.pad(idx[:, :cols], ((0, 0), (0, cols - min(cols, idx.shape[1]))), constant_values=pts.shape[0])
-    return spatial.Neighbourhoods(local.astype(spatial.working_dtype(pts.dtype)), idx.astype(np.int32), first=first,
+    dtype = spatial.working_dtype(pts.dtype, extent=spatial.frame_extent(local),
+                                  spacing=lambda: spatial.pair_spacing(local, idx, first))  # warns where the cast loses detail
+    return spatial.Neighbourhoods(local.astype(dtype), idx.astype(np.int32), first=first,
                                   params=spatial.record({"variant": variant, "radius_factor": radius_factor,
                                                          "max_nn": max_nn}))
 
