@@ -75,6 +75,7 @@ SAMPLES = 64  # points whose brute-force k-th distance sets the default edge
 SAMPLE_BLOCK = 4096  # columns per block of that brute force
 EDGE_MARGIN = 1.1  # default edge: the largest sampled reach times this
 CHUNK = 256  # rows per block of the search
+SPILL_FRACTION = 8  # by default up to N / 8 rows are searched again at a wider edge
 METRICS = ("l2", "l2sq", "linf")
 
 
@@ -236,9 +237,10 @@ def _below(hi, lo, h, metric):
     h = h[:, None]
     if lo is None:
         return hi < h
-    if metric == "l2":  # the squared radius as an exact pair
+    if metric == "l2":  # the squared radius as an exact pair (an infinite radius stays infinite)
         hh, hl = _fast_two_sum(*_two_prod(h, h))
-        return _pair_less(hi, lo, hh, hl)
+        finite = jnp.isfinite(h)
+        return _pair_less(hi, lo, jnp.where(finite, hh, h), jnp.where(finite, hl, 0))
     return _pair_less(hi, lo, h, jnp.zeros_like(h))
 
 
@@ -274,7 +276,7 @@ def _coordinates(points, real):
         p = points.astype(jnp.float64)
         lo = jnp.min(jnp.where(real[:, None], p, jnp.inf), axis=0)
         hi = jnp.max(jnp.where(real[:, None], p, -jnp.inf), axis=0)
-        return p - (lo + hi) / 2
+        return p - ((lo + hi) / 2)[None, :]
     return points.astype(jnp.float32)
 
 
@@ -304,7 +306,7 @@ def _cloud(points, count, gid, edge, dedupe) -> _Cloud:
     coords = _coordinates(lax.stop_gradient(points), real)
     gid = iota if gid is None else jnp.asarray(gid, jnp.int32)
     lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
-    t = (coords - lo) / edge
+    t = (coords - lo[None, :]) / edge
     top = jnp.max(jnp.where(real[:, None], t, 0))
     eps = jnp.finfo(coords.dtype).eps / 2
     delta = 16 * eps * (jnp.minimum(top, MAX_CELL) + 4)
@@ -358,7 +360,7 @@ def _candidates(cloud: _Cloud, qi, capacity: int, metric: str):
     cell = cloud.qcell[qi]  # (B, 3) x, y, z
     dz = jnp.array([r[0] for r in _ROWS], jnp.int32)
     dy = jnp.array([r[1] for r in _ROWS], jnp.int32)
-    z, y = cell[:, 2:3] + dz, cell[:, 1:2] + dy  # (B, 9)
+    z, y = cell[:, 2:3] + dz[None, :], cell[:, 1:2] + dy[None, :]  # (B, 9)
     x = jnp.broadcast_to(cell[:, 0:1], z.shape)
     begin = _lower_bound(cloud.keys, (z, y, x - 1))
     length = _lower_bound(cloud.keys, (z, y, x + 2)) - begin
@@ -368,7 +370,7 @@ def _candidates(cloud: _Cloud, qi, capacity: int, metric: str):
     valid = run < len(_ROWS)
     run = jnp.minimum(run, len(_ROWS) - 1)
     start = jnp.take_along_axis(ends - length, run, axis=1)
-    pos = jnp.minimum(jnp.take_along_axis(begin, run, axis=1) + slot - start, n - 1)
+    pos = jnp.minimum(jnp.take_along_axis(begin, run, axis=1) + slot[None, :] - start, n - 1)
     cand = cloud.cpoint[pos]  # (B, C, 3)
     q = cloud.coords[qi][:, None, :]
     cidx = cloud.cidx[pos]
@@ -381,7 +383,7 @@ def _candidates(cloud: _Cloud, qi, capacity: int, metric: str):
     hi = jnp.where(valid, jnp.where(me, -1, hi), jnp.inf)
     gid = jnp.where(valid, cloud.gid[cidx], np.iinfo(np.int32).max)
     # The block [c - 1, c + 2) per axis, in edges from the query, less the rounding margin.
-    t = (cloud.coords[qi] - cloud.lo) / cloud.edge
+    t = (cloud.coords[qi] - cloud.lo[None, :]) / cloud.edge
     c = cell.astype(t.dtype)
     room = jnp.min(jnp.minimum(t - (c - 1), (c + 2) - t), axis=1)
     count = ends[:, -1]
@@ -529,6 +531,15 @@ def _edge(points, count, edge, dedupe, k):
     return _default_edge(coords, real, cand, k, k)
 
 
+def _spill(spill, n: int) -> int:
+    """Rows of the second level: ``spill``, or N / 8 by default."""
+    if spill is None:
+        return max(1, n // SPILL_FRACTION)
+    if not isinstance(spill, (int, np.integer)) or isinstance(spill, bool) or spill < 0:
+        raise ValueError(f"spill must be a non-negative int or None; got {spill!r}")
+    return int(spill)
+
+
 def _check(points, k_or_columns: int, capacity: int, chunk: int, metric: str):
     if points.ndim != 2 or points.shape[-1] != 3:
         raise ValueError(f"points must have shape (N, 3); got {points.shape}")
@@ -543,21 +554,55 @@ def _check(points, k_or_columns: int, capacity: int, chunk: int, metric: str):
         raise ValueError(f"unknown metric {metric!r}; expected one of {sorted(METRICS)}")
 
 
-def _summary(cloud: _Cloud, out, reach_dist, ok, capacity, columns_needed):
-    """Found's scalar report from per-row results."""
+def _grow(limit, delta):
+    """The edge that covers a reach ``limit`` at any place in a cell (inf stays inf)."""
+    return jnp.where(jnp.isfinite(limit), limit * (1 + 4 * delta) * 1.0001, jnp.inf)
+
+
+def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int):
+    """``rows(cloud, qi)`` over every real row at ``edge``; the rows whose reach passed their block,
+    again at an edge that covers them (at most ``spill`` of them, compacted; skipped when none).
+
+    Returns:
+      (out, cloud): the per-row outputs (caller order) and the first level's cloud.
+    """
+    cloud = _cloud(points, count, gid, edge, dedupe)
+    out = _map_rows(cloud, chunk, functools.partial(rows, cloud))
+    n = cloud.coords.shape[0]
+    bad = cloud.real & ~out["ok"]
+    grow = _grow(out["limit"], cloud.delta)
+    wider = jnp.max(jnp.where(bad, jnp.where(jnp.isfinite(grow), grow, 4 * cloud.edge), 0))
+    size = -(-min(spill, n) // chunk) * chunk if spill else 0
+    if not size:
+        return out, cloud
+
+    def again(out):
+        second = _cloud(points, count, gid, jnp.maximum(wider, cloud.edge), dedupe)
+        which = jnp.nonzero(bad, size=size, fill_value=n)[0]
+        got = lax.map(functools.partial(rows, second), jnp.minimum(which, n - 1).reshape(-1, chunk))
+        got = jax.tree.map(lambda x: x.reshape((size,) + x.shape[2:]), got)
+        return jax.tree.map(lambda x, y: x.at[which].set(y, mode="drop"), out, got)
+
+    return lax.cond(jnp.any(bad), again, lambda out: out, out), cloud
+
+
+def _found(cloud: _Cloud, out, capacity: int, columns_needed, empty_reach) -> Found:
+    """The :class:`Found` of per-row outputs: padding rows emptied, the overflow report summed up."""
+    n = cloud.coords.shape[0]
     real = cloud.real
-    needed = jnp.max(jnp.where(real, out["needed"], 0))
-    bad = real & ~ok
-    grow = jnp.where(jnp.isfinite(reach_dist), reach_dist * (1 + 4 * cloud.delta) * 1.0001, jnp.inf)
-    edge_needed = jnp.maximum(cloud.edge, jnp.max(jnp.where(bad, grow, 0)))
-    return dict(needed=needed, columns_needed=columns_needed, uncovered=jnp.any(bad), edge=cloud.edge,
-                edge_needed=edge_needed, capacity=capacity)
+    bad = real & ~out["ok"]
+    edge_needed = jnp.maximum(cloud.edge, jnp.max(jnp.where(bad, _grow(out["limit"], cloud.delta), 0)))
+    return Found(jnp.where(real[:, None], out["idx"], n).astype(jnp.int32),
+                 jnp.where(real[:, None], out["dist"], jnp.inf),
+                 jnp.where(real, out["reach"], empty_reach),
+                 needed=jnp.max(jnp.where(real, out["needed"], 0)), columns_needed=columns_needed,
+                 uncovered=jnp.any(bad), edge=cloud.edge, edge_needed=edge_needed, capacity=capacity)
 
 
 # ----------------------------------------------------------------------------- public queries
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None, count=None, gid=None,
-        radius=None, metric: str = "l2", chunk: int = CHUNK) -> Found:
+        radius=None, metric: str = "l2", chunk: int = CHUNK, spill: int | None = None) -> Found:
     """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.spatial.knn`, traced.
 
     Pure JAX: runs under ``jax.jit`` and ``jax.vmap``; no gradient flows through the choice.
@@ -581,6 +626,10 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
       metric: ``"l2"`` (the host's k-nearest: rank by the rooted distance), ``"l2sq"`` (rank
         by squared distances, as GFR) or ``"linf"`` (Chebyshev) (static).
       chunk: rows per block (static): memory is about chunk x capacity candidates.
+      spill: rows searched again at a wider edge when their reach passes their block
+        (static; default N / 8, rounded up to whole chunks; 0: none). The default edge comes
+        from a sample, so the few rows it misses (corners, sparse patches) are redone there,
+        not by the caller; more than ``spill`` such rows are reported (``uncovered``).
 
     Returns:
       :class:`Found` with idx (N, k) int32 padded with N (fewer than k candidates, or beyond
@@ -601,10 +650,9 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
     _check(points, k, capacity, chunk, metric)
     n = points.shape[0]
     e = _edge(points, count, edge, dedupe, k)
-    cloud = _cloud(points, count, gid, e, dedupe)
-    bound = None if radius is None else jnp.broadcast_to(jnp.asarray(radius, cloud.coords.dtype), (n,))
+    bound = None if radius is None else jnp.broadcast_to(jnp.asarray(radius, e.dtype), (n,))
 
-    def rows(qi):
+    def rows(cloud, qi):
         c = _candidates(cloud, qi, capacity, metric)
         s = _select(c, k)
         hi, lo = s["hi"], s["lo"]
@@ -618,16 +666,13 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
                     limit=limit, ok=ok, needed=c["count"])
 
-    out = _map_rows(cloud, chunk, rows)
-    real = cloud.real
-    idx = jnp.where(real[:, None], out["idx"], n).astype(jnp.int32)
-    dist = jnp.where(real[:, None], out["dist"], jnp.inf)
-    report = _summary(cloud, out, out["limit"], out["ok"], capacity, jnp.int32(k))
-    return Found(idx, dist, jnp.where(real, out["reach"], jnp.inf), **report)
+    out, cloud = _run(points, count, gid, e, dedupe, rows, max(1, min(chunk, n)), _spill(spill, n))
+    return _found(cloud, out, capacity, jnp.int32(k), jnp.inf)
 
 
 def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int = 128, edge=None, count=None,
-           gid=None, metric: str = "l2", max_count: int | None = None, chunk: int = CHUNK) -> Found:
+           gid=None, metric: str = "l2", max_count: int | None = None, chunk: int = CHUNK,
+           spill: int | None = None) -> Found:
     """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
     :meth:`hgjax.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
     variant; ``"l2"``: the ball of their invariant variant), traced.
@@ -637,7 +682,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
       radius: traced scalar or (N,) per-point radius (half-width), > 0, in the search's
         float dtype (float64 under x64).
       columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
-      dedupe, capacity, edge, count, gid, chunk: as :func:`knn`. The default edge is the
+      dedupe, capacity, edge, count, gid, chunk, spill: as :func:`knn`. The default edge is the
         largest radius times 1.1 (traced).
       metric: ``"l2"``, ``"l2sq"`` (``radius`` is then a squared radius) or ``"linf"`` (static).
       max_count: the host's ``max_count`` (static): a row whose ball holds ``max_count``
@@ -670,9 +715,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
     if edge is None:
         top = jnp.max(jnp.where(real, bound, 0))
         edge = EDGE_MARGIN * (jnp.sqrt(top) if metric == "l2sq" else top)
-    cloud = _cloud(points, count, gid, jnp.asarray(edge, dtype), dedupe)
-
-    def rows(qi):
+    def rows(cloud, qi):
         c = _candidates(cloud, qi, capacity, metric)
         h = bound[cloud.rep[qi]]  # with dedupe, every copy asks its location's first copy's query
         inside = _below(c["hi"], c["lo"], h, metric)  # (B, C) every candidate, exactly
@@ -703,12 +746,10 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
                     reach=used, limit=_as_distance(used, metric), ok=ok, needed=c["count"],
                     width=jnp.sum(inside, axis=1))
 
-    out = _map_rows(cloud, chunk, rows)
-    idx = jnp.where(real[:, None], out["idx"], n).astype(jnp.int32)
-    dist = jnp.where(real[:, None], out["dist"], jnp.inf)
-    columns_needed = jnp.max(jnp.where(real, out["width"], 0)).astype(jnp.int32)
-    report = _summary(cloud, out, out["limit"], out["ok"], capacity, columns_needed)
-    return Found(idx, dist, jnp.where(real, out["reach"], 0), **report)
+    out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, max(1, min(chunk, n)),
+                      _spill(spill, n))
+    columns_needed = jnp.max(jnp.where(cloud.real, out["width"], 0)).astype(jnp.int32)
+    return _found(cloud, out, capacity, columns_needed, 0)
 
 
 # ----------------------------------------------------------------------------- eager regrowth
@@ -723,7 +764,7 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
 
     Each round is one jitted call; a round that overflows is run again with the capacity
     (and, for :func:`within`, the columns) that it reports needed, rounded up to a power of
-    two, and with the edge it reports needed (twice the edge where a row found too few
+    two, and with the edge it reports needed (four times the edge where a row found too few
     points). Nothing is ever truncated: the result is the traced query's exact answer.
 
     Args:
@@ -751,7 +792,7 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
     first = "k" if query is knn else "radius"
     if args:
         kwargs[first] = args[0]
-    static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk")
+    static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk", "spill")
               if name in kwargs}
     found = None
     for _ in range(max_rounds):
@@ -764,7 +805,7 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
         edge = found.edge
         if bool(found.uncovered):
             need = float(found.edge_needed)
-            edge = need if math.isfinite(need) else 2 * float(found.edge)
+            edge = need if math.isfinite(need) else 4 * float(found.edge)
     raise RuntimeError(f"the traced search still overflows after {max_rounds} rounds (capacity {capacity}, "
                        f"edge {float(found.edge)!r})")
 
