@@ -450,3 +450,23 @@ def install_hint(extra: str) -> str:
     """How to install the optional packages of ``extra``, as this project is installed (from its
     source folder; ``all`` holds every extra)."""
     return f'pip install ".[{extra}]" in the hgjax source folder (".[all]" for every optional feature)'
+
+
+def check_traced_points(points: Any, name: str = "points"):
+    """Validate what can be known of points that may be a tracer: shape (N, 3), N >= 1, a float dtype.
+
+    Values are not read (they may not exist yet), so non-finite coordinates pass; concrete
+    points go through :func:`check_points` instead.
+
+    Raises:
+      TypeError: not an array, or not float32 / float64.
+      ValueError: not of shape (N, 3) with N >= 1.
+    """
+    shape, dtype = getattr(points, "shape", None), getattr(points, "dtype", None)
+    if shape is None or dtype is None:
+        raise TypeError(f"{name} must be an array of shape (N, 3); got {type(points).__name__}")
+    if np.dtype(dtype) not in FLOAT_DTYPES:
+        raise TypeError(f"{name} must have dtype float32 or float64; got {dtype}")
+    if len(shape) != 2 or shape[1] != 3 or shape[0] == 0:
+        raise ValueError(f"{name} must have shape (N, 3) with N >= 1; got {tuple(shape)}")
+    return points

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import jax
 import numpy as np
 
 from hgjax import _registry, _tiling, _validate, pipeline, select
@@ -92,6 +93,9 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return_scores = _validate.check_bool(return_scores, "return_scores")
     refused, tile = checked_tile(entry, params, tile, client)
     _registry.check_known(entry, params)
+    if params.get("search", "host") != "host":
+        raise ValueError(f"search={params['search']!r} runs in one tile only (hgjax.resample); tiles, Dask and"
+                         " surveys search on the host")
     _validate.check_stream(params)  # the kernel stream's chunk_size and progress, before any work
     if isinstance(entry, Sampler):
         return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
@@ -184,7 +188,10 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
         ``"keep"`` for one run on the whole cloud at once (GFR's reference)
         (:data:`hgjax.engine.STAGES`).
       **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
-        ``chunk_size``, ``progress``).
+        ``chunk_size``, ``progress``), and ``search="jax"`` for the methods that take it
+        (:data:`hgjax.METHODS`' build parameters: the k-nearest ones): the whole resample in
+        pure JAX, neighbourhoods included, so it runs inside a caller's ``jax.jit`` (``ratio``
+        and shape parameters static) and returns a JAX int32 array, equal to the host's.
 
     Returns:
       (M,) int64 unique indices into ``points``, M = ceil(ratio N), from the highest to the
@@ -203,5 +210,25 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
       >>> idx.shape, len(set(idx.tolist()))
       ((400,), 400)
     """
+    if params.get("search", "host") != "host":
+        return _traced(points, ratio, _registry.scoring(method), return_scores, params)
     done = run(points, ratio, method=method, key=key, return_scores=return_scores, on_stage=on_stage, params=params)
     return (done.idx, done.scores) if return_scores else done.idx
+
+
+def _traced(points, ratio, entry: Method, return_scores, params: dict):
+    """``top_k(score(neighbourhoods(points, search="jax")))``: a resample in pure JAX, under a caller's ``jit``.
+
+    The kept count ceil(ratio N) sets a shape: ``ratio`` is static. Ties are broken by index
+    as :func:`hgjax.top_k` breaks them (``jax.lax.top_k`` lists the lower index first).
+    """
+    if entry.select is not None:
+        raise ValueError(f"method {entry.name!r} selects on the host ({entry.select.__module__}); search='jax' resamples"
+                         " with the methods that keep their top scores")
+    return_scores = _validate.check_bool(return_scores, "return_scores")
+    nb = pipeline.neighbourhoods(points, entry.name, **params)
+    scores = pipeline.score(nb, entry.name, **params)
+    m = _validate.n_keep(nb.points.shape[0], _validate.check_ratio(ratio))
+    ranked = scores if entry.combine is None else entry.combine(scores, m)
+    idx = jax.lax.top_k(ranked if entry.largest else -ranked, m)[1]
+    return (idx, ranked) if return_scores else idx

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate, spatial
+from hgjax import _traced, _validate, spatial
 from hgjax._method import Method
 from hgjax._registry import DEFAULT, METHODS, scoring, split
 from hgjax.select import soft_select, top_k
@@ -24,7 +24,14 @@ from hgjax.select import soft_select, top_k
 __all__ = ["keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"]
 
 def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
-    """The neighbourhoods a method scores, built on the host with SciPy (not jittable).
+    """The neighbourhoods a method scores, built on the host with SciPy, or traced (``search="jax"``).
+
+    With ``search="jax"`` (the methods whose build parameters list ``search``: the k-nearest
+    ones) the build is pure JAX: it runs under ``jax.jit`` and ``jax.vmap`` and inside
+    ``jax.grad``, with the host's neighbour sets; eagerly it grows its static
+    ``cell_capacity`` until nothing overflows and records the capacity and ``cell_edge`` it
+    ended with in ``nb.params``, to pass back inside ``jit``, where an overflow is recorded
+    on ``nb.overflow`` instead (:func:`score` refuses it eagerly).
 
     Build once per cloud, then call :func:`score` or :func:`soft_score` as often as needed,
     inside your own ``jit``, ``vmap`` or ``grad``. Parameters another stage takes (e.g.
@@ -112,7 +119,8 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     Raises:
       TypeError: a ``ratio`` (it belongs to :func:`keep` and :func:`resample`), or invalid
         parameters.
-      ValueError: invalid method or parameters.
+      ValueError: invalid method or parameters; neighbourhoods of the traced search that
+        overflowed their capacity (called eagerly: ``nb.overflow``).
 
     Examples:
       >>> import jax, numpy as np, hgjax
@@ -122,6 +130,7 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     """
     entry = scoring(method)
     _ratio_free("score", params)
+    _traced.check(nb)
     return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", split(entry, "score", params))))
 
 
@@ -168,6 +177,7 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     """
     entry = scoring(method)
     _ratio_free("soft_score", params)
+    _traced.check(nb)
     return _absent_zero(nb, entry.soft_score(nb, **_matching(nb, entry, "soft_score",
                                                              split(entry, "soft_score", params))))
 

@@ -222,7 +222,7 @@ def axis_bounds(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             np.array([c.max() for c in columns], dtype=np.float64))
 
 
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first", "count"],
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first", "count", "overflow"],
                    meta_fields=["method", "params"])
 @dataclasses.dataclass(frozen=True)
 class Neighbourhoods:
@@ -253,6 +253,10 @@ class Neighbourhoods:
         HKC's ``d_factor`` left None so that clouds built alike stack into one batch), as
         sorted ``(name, value)`` pairs (static): :func:`hgjax.score` refuses a method or a
         parameter that disagrees with them.
+      overflow: int32 scalar from the traced search (``search="jax"``): 0, or the cell
+        capacity a search that overflowed needs (-1 where its cell edge was too small), so
+        that a result built under ``jit`` is never silently truncated (:func:`hgjax.score`
+        refuses it eagerly); None from the host search (it never overflows).
 
     Examples:
       >>> import numpy as np, hgjax
@@ -268,6 +272,7 @@ class Neighbourhoods:
     count: np.ndarray | None = None
     method: str | None = None
     params: tuple = ()
+    overflow: np.ndarray | None = None
 
     @property
     def mask(self):

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from hgjax import _method, _stream, _validate, spatial
+from hgjax import _method, _stream, _traced, _validate, spatial
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K, eigenvalues
 
@@ -48,9 +48,9 @@ def variation(offsets, valid):
     return jnp.where(trace > 0, l0 / jnp.where(trace > 0, trace, 1), 0.0)
 
 
-def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True,
-                   capacity: int | None = None) -> spatial.Neighbourhoods:
-    """k-nearest neighbourhoods of EA and PCA-AC (host, not jittable).
+def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True, capacity: int | None = None,
+                   search: str = "host", cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+    """k-nearest neighbourhoods of EA and PCA-AC (host; jittable with ``search="jax"``).
 
     Args:
       points: (N, 3) float32 or float64, N >= k.
@@ -58,6 +58,10 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True,
       dedupe: count exact duplicates once (default True; False for the paper's
         neighbourhoods, where k copies of a point make its covariance 0).
       capacity: columns of ``idx`` (>= k); default k.
+      search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
+        jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
+      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
+        edge (traced); an eager build records those it ended with in ``params``.
 
     Returns:
       :class:`hgjax.Neighbourhoods` (no scale).
@@ -72,7 +76,8 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True,
       (100, 16)
     """
     k = _validate.check_int(k, "k", minimum=2)
-    return spatial.knn(points, k, dedupe=dedupe, capacity=capacity)
+    return _traced.build_knn(points, k, dedupe=dedupe, capacity=capacity, search=search, cell_capacity=cell_capacity,
+                             cell_edge=cell_edge)
 
 
 def score(nb, *, chunk_size: int | None = None, progress: bool = False):
@@ -159,7 +164,8 @@ def tile_kernel(params: dict):
     return variation, False
 
 
-KNN_PARAMS = _method.stages(build=("capacity", "dedupe", "k"), score=("chunk_size", "progress"))
+KNN_PARAMS = _method.stages(build=("capacity", "cell_capacity", "cell_edge", "dedupe", "k", "search"),
+                            score=("chunk_size", "progress"))
 
 METHOD = _method.Method(
     "ea", "knn", largest=True, needs_key=False,

@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _stream, _validate, select, spatial, spectrum
+from hgjax import _method, _stream, _traced, _validate, select, spatial, spectrum
 from hgjax.scores import _common, ea, eigen
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
@@ -328,8 +328,9 @@ def mix(gamma_a, gamma_b, big_a, big_b):
 
 
 def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None,
-                   capacity: int | None = None) -> spatial.Neighbourhoods:
-    """k-nearest neighbourhoods of LHF, k = max(lengths) (host, not jittable).
+                   capacity: int | None = None, search: str = "host",
+                   cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+    """k-nearest neighbourhoods of LHF, k = max(lengths) (host; jittable with ``search="jax"``).
 
     Args:
       points: (N, 3) float32 or float64, N >= max(lengths).
@@ -338,6 +339,10 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
       dedupe: count exact duplicates once (default True for "invariant", False for
         "reference", the paper's neighbourhoods).
       capacity: columns of ``idx`` (>= max(lengths)); default max(lengths).
+      search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
+        jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
+      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
+        edge (traced); an eager build records those it ended with in ``params``.
 
     Returns:
       :class:`hgjax.Neighbourhoods` (no scale).
@@ -353,9 +358,13 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
     """
     params = build_params(lengths=lengths, variant=variant, dedupe=dedupe)
     lengths = params["lengths"]
-    _validate.check_min_points(_validate.check_points(points).shape[0], max(lengths), f"LHF lengths={lengths}")
-    nb = spatial.knn(points, max(lengths), dedupe=params["dedupe"], capacity=capacity)
-    return dataclasses.replace(nb, params=spatial.record(params))
+    traced = search == "jax" and _stream.is_traced(points)
+    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    _validate.check_min_points(pts.shape[0], max(lengths), f"LHF lengths={lengths}")
+    nb = _traced.build_knn(pts, max(lengths), dedupe=params["dedupe"], capacity=capacity, search=search,
+                           cell_capacity=cell_capacity, cell_edge=cell_edge)
+    searched = {k: v for k, v in nb.params if k in ("search", "cell_capacity", "cell_edge")}
+    return dataclasses.replace(nb, params=spatial.record({**params, **searched}))
 
 
 def build_params(*, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None) -> dict:
@@ -511,7 +520,7 @@ METHOD = _method.Method(
     summary="local hypergraph filtering: keep the largest two-length sharpness gamma",
     citation=f"{_method.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "dedupe", "lengths", "variant"),
+    params=_method.stages(build=("capacity", "cell_capacity", "cell_edge", "dedupe", "lengths", "search", "variant"),
                             score=("chunk_size", "lengths", "progress", "solver", "variant"),
                             soft_score=("lengths", "tau")),
     columns=2, combine=combine,

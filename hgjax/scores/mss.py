@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _stream, _validate, spatial
+from hgjax import _method, _stream, _traced, _validate, spatial
 from hgjax.scores import _common, _mss_weights, ea
 from hgjax.scores.eigen import jacobi
 
@@ -342,13 +342,18 @@ def sharpness(offsets, valid, noise):
     return jax.nn.softplus(mlp(weights(offsets.dtype), inputs(offsets, valid, noise)))
 
 
-def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) -> spatial.Neighbourhoods:
-    """The max(SCALES) nearest points of every point (host, not jittable).
+def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, search: str = "host",
+                   cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+    """The max(SCALES) nearest points of every point (host; jittable with ``search="jax"``).
 
     Args:
       points: (N, 3) float32 or float64, N >= max(SCALES).
       dedupe: count exact duplicates once (default True).
       capacity: columns of ``idx`` (>= max(SCALES)); default max(SCALES).
+      search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
+        jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
+      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
+        edge (traced); an eager build records those it ended with in ``params``.
 
     Returns:
       :class:`hgjax.Neighbourhoods` (no scale), the point itself first.
@@ -362,7 +367,8 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None) 
       >>> mss.neighbourhoods(np.random.default_rng(0).random((100, 3))).idx.shape
       (100, 32)
     """
-    return spatial.knn(points, max(SCALES), dedupe=dedupe, capacity=capacity)
+    return _traced.build_knn(points, max(SCALES), dedupe=dedupe, capacity=capacity, search=search,
+                             cell_capacity=cell_capacity, cell_edge=cell_edge)
 
 
 def _noise(nb, noise):
@@ -449,8 +455,9 @@ METHOD = _method.Method(
     "mss", "knn", largest=True, needs_key=False,
     summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 6 to 32 neighbours and the cloud's noise level, trained on synthetic shapes",
     citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
-    soft_score=soft_score, params=_method.stages(build=("capacity", "dedupe"), score=("chunk_size", "noise", "progress"),
-                                                   soft_score=("noise",)),
+    soft_score=soft_score,
+    params=_method.stages(build=("capacity", "cell_capacity", "cell_edge", "dedupe", "search"),
+                          score=("chunk_size", "noise", "progress"), soft_score=("noise",)),
     bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, resolve=resolve, rows=tile_rows,
                           kernel=_tile_kernel))
