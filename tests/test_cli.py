@@ -310,12 +310,12 @@ def test_write_failure_exits_1(tmp_path, capsys, monkeypatch):
 def test_too_many_samples_are_refused_up_front(capsys, tmp_path, monkeypatch):
     start = time.perf_counter()
     code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "x.ply", "--samples", 10**9)
-    cost = cli.BYTES_PER_SAMPLE["hkc"]
+    cost = hgjax.METHODS["hkc"].bytes_per_sample
     assert code == 2 and f"--samples 1000000000 needs about {cost:.1f} GB" in err and "or fewer" in err
     assert time.perf_counter() - start < 5
     monkeypatch.setattr(cli, "_available_memory", lambda: 2**30)
     code, _, err = run_here(capsys, "compare", MESH, "--samples", 10**6)
-    costliest = max(cli.BYTES_PER_SAMPLE.values())  # compare runs every method
+    costliest = max(e.bytes_per_sample for e in hgjax.METHODS.values())  # compare runs every method
     assert code == 2 and f"use --samples {2**30 // costliest} or fewer" in err
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "x.ply", "--samples", 10**6)
     assert code == 0, err  # a point cloud is only subset: nothing is sampled
