@@ -72,7 +72,7 @@ __all__ = ["Found", "grown", "knn", "within"]
 SENTINEL_CELL = np.iinfo(np.int32).max  # cell of a padding row or of a point that is no candidate
 MAX_CELL = 1 << 30  # cell coordinates are clipped here (never reached by a sensible edge)
 SAMPLES = 64  # points whose brute-force k-th distance sets the default edge
-SAMPLE_BLOCK = 4096  # columns per block of that brute force
+SAMPLE_BLOCK = 1 << 16  # columns per block of that brute force (one top_k per block)
 EDGE_MARGIN = 1.1  # default edge: the largest sampled reach times this
 CHUNK = 256  # rows per block of the search
 SPILL_FRACTION = 8  # by default up to N / 8 rows are searched again at a wider edge
@@ -435,16 +435,27 @@ def _sorted_fast(c, width: int):
             for name in ("hi", "lo", "gid", "cidx")}
     pick["slot"] = at
     w = min(width, p)
-    certain = (-top[:, -1] > -top[:, w - 1]) | jnp.isinf(top[:, w - 1]) | (p == cap)
-    if p <= RANK_LIMIT:
-        a = {name: (None if x is None else x[:, :, None]) for name, x in pick.items()}
-        bb = {name: (None if x is None else x[:, None, :]) for name, x in pick.items()}
-        rank = jnp.sum(_exact_less(a, bb), axis=1)  # (B, P): how many candidates precede each
+    a = -top  # ascending approximate keys
+    certain = (a[:, -1] > a[:, w - 1]) | jnp.isinf(a[:, w - 1]) | (p == cap)
+    names = [name for name in ("hi", "lo", "gid", "cidx") if pick[name] is not None]
+
+    def ranked():
+        if p > RANK_LIMIT:
+            got = _sorted_exact(pick, w)
+            return tuple(got[name] for name in names)
+        x = {name: (None if v is None else v[:, :, None]) for name, v in pick.items()}
+        y = {name: (None if v is None else v[:, None, :]) for name, v in pick.items()}
+        rank = jnp.sum(_exact_less(x, y), axis=1)  # (B, P): how many candidates precede each
         where = jnp.argmax(rank[:, None, :] == jnp.arange(w)[None, :, None], axis=2)  # (B, W) the one at each rank
-        got = {name: (None if x is None else jnp.take_along_axis(x, where, axis=1)) for name, x in pick.items()}
-    else:
-        got = _sorted_exact(pick, w)
-    got.pop("slot", None)
+        return tuple(jnp.take_along_axis(pick[name], where, axis=1) for name in names)
+
+    # Where the approximate keys of the first columns (and the cut) differ, top_k's order is the
+    # exact one (the approximation never reorders); only equal ones need the exact ranking.
+    m = min(w + 1, p)
+    tied = jnp.any((a[:, 1:m] == a[:, :m - 1]) & jnp.isfinite(a[:, :m - 1]), axis=1) if m > 1 else jnp.zeros_like(certain)
+    out = lax.cond(jnp.any(tied), ranked, lambda: tuple(pick[name][:, :w] for name in names))
+    got = dict(zip(names, out))
+    got.setdefault("lo", None)
     return got, certain
 
 
@@ -497,12 +508,13 @@ def _default_edge(coords, real, cand_mask, k: int, metric_k: int):
     def step(best, xs):
         cb, okb = xs
         d = q[:, None, :] - cb[None]
-        sq = jnp.where(okb[None], jnp.sum(d * d, axis=-1), jnp.inf)
+        # float32 (an estimate; XLA's CPU top_k is fast for float32 only)
+        sq = jnp.where(okb[None], jnp.sum(d * d, axis=-1), jnp.inf).astype(jnp.float32)
         both = jnp.concatenate([best, sq], axis=1)
         return -lax.top_k(-both, kk)[0], None
 
-    best, _ = lax.scan(step, jnp.full((s, kk), jnp.inf, coords.dtype), (c, ok))
-    reach = jnp.sqrt(best[:, -1])
+    best, _ = lax.scan(step, jnp.full((s, kk), jnp.inf, jnp.float32), (c, ok))
+    reach = jnp.sqrt(best[:, -1].astype(coords.dtype))
     lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
     hi = jnp.max(jnp.where(real[:, None], coords, -jnp.inf), axis=0)
     extent = jnp.max(hi - lo)
@@ -662,7 +674,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         value = _in_units(hi, metric)
         reach = jnp.where(found[:, -1], value[:, -1], jnp.inf)
         limit = _as_distance(reach if bound is None else jnp.minimum(reach, bound[cloud.rep[qi]]), metric)
-        ok = c["complete"] | (limit < c["slack"])
+        # a block over capacity says nothing about coverage (its reach is wrong): reported by ``needed``
+        ok = c["complete"] | (limit < c["slack"]) | (c["count"] > capacity)
         return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
                     limit=limit, ok=ok, needed=c["count"])
 
@@ -741,7 +754,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
             below_cut = _pair_less(s["hi"], jnp.zeros_like(s["hi"]) if s["lo"] is None else s["lo"],
                                    cut[0][:, None], cut[1][:, None])
             take = jnp.where(full[:, None], below_cut, take)
-        ok = c["complete"] | (_as_distance(used, metric) < c["slack"])
+        ok = c["complete"] | (_as_distance(used, metric) < c["slack"]) | (c["count"] > capacity)
         return dict(idx=jnp.where(take, s["cidx"], n), dist=jnp.where(take, _in_units(s["hi"], metric), jnp.inf),
                     reach=used, limit=_as_distance(used, metric), ok=ok, needed=c["count"],
                     width=jnp.sum(inside, axis=1))
@@ -764,8 +777,9 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
 
     Each round is one jitted call; a round that overflows is run again with the capacity
     (and, for :func:`within`, the columns) that it reports needed, rounded up to a power of
-    two, and with the edge it reports needed (four times the edge where a row found too few
-    points). Nothing is ever truncated: the result is the traced query's exact answer.
+    two, or, when the capacity sufficed, with the edge it reports needed (four times the edge
+    where a row found too few points). Nothing is ever truncated: the result is the traced
+    query's exact answer.
 
     Args:
       query: :func:`knn` or :func:`within`.
@@ -799,11 +813,12 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
         found = _jitted(query, tuple(sorted(static.items())), capacity)(points, edge=edge, **kwargs)
         if not bool(found.overflow):
             return found
-        capacity = max(capacity, bucket(int(found.needed)))
         if "columns" in static and int(found.columns_needed) > static["columns"]:
             static["columns"] = bucket(int(found.columns_needed))
         edge = found.edge
-        if bool(found.uncovered):
+        if int(found.needed) > capacity:  # first the capacity: an overflowing block's reach means nothing
+            capacity = bucket(int(found.needed))
+        elif bool(found.uncovered):
             need = float(found.edge_needed)
             edge = need if math.isfinite(need) else 4 * float(found.edge)
     raise RuntimeError(f"the traced search still overflows after {max_rounds} rounds (capacity {capacity}, "
