@@ -67,7 +67,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-__all__ = ["Found", "grown", "knn", "within"]
+__all__ = ["Found", "grown", "knn", "local_spacing", "within"]
 
 SENTINEL_CELL = np.iinfo(np.int32).max  # cell of a padding row or of a point that is no candidate
 MAX_CELL = 1 << 30  # cell coordinates are clipped here (never reached by a sensible edge)
@@ -75,7 +75,8 @@ SAMPLES = 64  # points whose brute-force k-th distance sets the default edge
 SAMPLE_BLOCK = 1 << 16  # columns per block of that brute force (one top_k per block)
 EDGE_MARGIN = 1.1  # default edge: the largest sampled reach times this
 CHUNK = 256  # rows per block of the search
-SPILL_FRACTION = 8  # by default up to N / 8 rows are searched again at a wider edge
+SPILL_FRACTION = 8  # by default up to N / 8 rows at a time are searched again at a wider edge
+LEVELS = 4  # searches of a row at most (the first level and three wider ones)
 METRICS = ("l2", "l2sq", "linf")
 
 
@@ -128,15 +129,23 @@ class Found:
 
 
 # ----------------------------------------------------------------------------- exact arithmetic
-# XLA does not reassociate floating-point operations, but its CPU backend contracts a product
+# XLA does not reassociate floating-point additions, but its CPU backend contracts a product
 # feeding an addition into one fused multiply-add (one rounding instead of two: measured, 21%
-# of ``(dx*dx + dy*dy) + dz*dz`` differ from NumPy's and cKDTree's in float64). Every product
-# whose rounding matters goes through :func:`_mul`, whose select stops the contraction.
+# of ``(dx*dx + dy*dy) + dz*dz`` differ from NumPy's and cKDTree's in float64), and divides by a
+# constant through its reciprocal. Every product and quotient whose rounding matters goes
+# through :func:`_mul` or :func:`_div`, whose select stops the rewrite.
 
 
 def _mul(a, b):
     """a * b rounded on its own, as NumPy and C compute it (never fused into a later addition)."""
     return jnp.where(a == a, a * b, a)
+
+
+def _div(a, b):
+    """a / b correctly rounded, as NumPy computes it. XLA turns a division by a constant or a
+    broadcast scalar into a multiplication by its rounded reciprocal (measured: 9% of x / 17
+    differ from NumPy's); a select hides the divisor."""
+    return a / jnp.where(a == a, b, a)
 
 
 # Error-free transformations (Knuth's TwoSum, Dekker's product) for the float32 pairs.
@@ -572,8 +581,10 @@ def _grow(limit, delta):
 
 
 def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int):
-    """``rows(cloud, qi)`` over every real row at ``edge``; the rows whose reach passed their block,
-    again at an edge that covers them (at most ``spill`` of them, compacted; skipped when none).
+    """``rows(cloud, qi)`` over every real row at ``edge``; then, level by level (at most
+    ``LEVELS``), the rows whose reach passed their block again, at most ``spill`` of them at a
+    time (compacted), at an edge that covers the reaches they found (four times the last edge
+    where a row found too few points). One compiled body serves every later level.
 
     Returns:
       (out, cloud): the per-row outputs (caller order) and the first level's cloud.
@@ -581,21 +592,29 @@ def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int):
     cloud = _cloud(points, count, gid, edge, dedupe)
     out = _map_rows(cloud, chunk, functools.partial(rows, cloud))
     n = cloud.coords.shape[0]
-    bad = cloud.real & ~out["ok"]
-    grow = _grow(out["limit"], cloud.delta)
-    wider = jnp.max(jnp.where(bad, jnp.where(jnp.isfinite(grow), grow, 4 * cloud.edge), 0))
     size = -(-min(spill, n) // chunk) * chunk if spill else 0
     if not size:
         return out, cloud
 
-    def again(out):
-        second = _cloud(points, count, gid, jnp.maximum(wider, cloud.edge), dedupe)
-        which = jnp.nonzero(bad, size=size, fill_value=n)[0]
-        got = lax.map(functools.partial(rows, second), jnp.minimum(which, n - 1).reshape(-1, chunk))
-        got = jax.tree.map(lambda x: x.reshape((size,) + x.shape[2:]), got)
-        return jax.tree.map(lambda x, y: x.at[which].set(y, mode="drop"), out, got)
+    def bad(out):
+        return cloud.real & ~out["ok"]
 
-    return lax.cond(jnp.any(bad), again, lambda out: out, out), cloud
+    def again(state):
+        out, last, level = state
+        wrong = bad(out)
+        grow = _grow(out["limit"], cloud.delta)
+        wider = jnp.max(jnp.where(wrong, jnp.where(jnp.isfinite(grow), grow, 4 * last), 0))
+        wider = jnp.maximum(wider, last)
+        level_cloud = _cloud(points, count, gid, wider, dedupe)
+        which = jnp.nonzero(wrong, size=size, fill_value=n)[0]
+        got = lax.map(functools.partial(rows, level_cloud), jnp.minimum(which, n - 1).reshape(-1, chunk))
+        got = jax.tree.map(lambda x: x.reshape((size,) + x.shape[2:]), got)
+        out = jax.tree.map(lambda x, y: x.at[which].set(y, mode="drop"), out, got)
+        return out, wider, level + 1
+
+    out, _, _ = lax.while_loop(lambda state: jnp.any(bad(state[0])) & (state[2] < LEVELS), again,
+                               (out, cloud.edge, 1))
+    return out, cloud
 
 
 def _found(cloud: _Cloud, out, capacity: int, columns_needed, empty_reach) -> Found:
@@ -638,10 +657,11 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
       metric: ``"l2"`` (the host's k-nearest: rank by the rooted distance), ``"l2sq"`` (rank
         by squared distances, as GFR) or ``"linf"`` (Chebyshev) (static).
       chunk: rows per block (static): memory is about chunk x capacity candidates.
-      spill: rows searched again at a wider edge when their reach passes their block
-        (static; default N / 8, rounded up to whole chunks; 0: none). The default edge comes
-        from a sample, so the few rows it misses (corners, sparse patches) are redone there,
-        not by the caller; more than ``spill`` such rows are reported (``uncovered``).
+      spill: rows searched again, at a time, at a wider edge when their reach passes their
+        block (static; default N / 8, rounded up to whole chunks; 0: none), for at most
+        ``LEVELS`` searches of a row. The default edge comes from a sample, so the few rows it
+        misses (corners, sparse patches) are redone here, not by the caller; rows still
+        missed are reported (``uncovered``).
 
     Returns:
       :class:`Found` with idx (N, k) int32 padded with N (fewer than k candidates, or beyond
@@ -763,6 +783,67 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
                       _spill(spill, n))
     columns_needed = jnp.max(jnp.where(cloud.real, out["width"], 0)).astype(jnp.int32)
     return _found(cloud, out, capacity, columns_needed, 0)
+
+
+# ----------------------------------------------------------------------------- HKC/HKF's spacing
+
+def _numpy_sum(x):
+    """Sum over the last axis (length < 128) in NumPy's pairwise order, so float64 sums are NumPy's bits."""
+    n = x.shape[-1]
+    if n < 8:
+        out = jnp.zeros(x.shape[:-1], x.dtype)
+        for i in range(n):
+            out = out + x[..., i]
+        return out
+    if n >= 128:
+        raise ValueError(f"NumPy's pairwise order is emulated for fewer than 128 terms; got {n}")
+    r = [x[..., j] for j in range(8)]
+    i = 8
+    while i < n - n % 8:
+        r = [r[j] + x[..., i + j] for j in range(8)]
+        i += 8
+    out = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    for j in range(i, n):
+        out = out + x[..., j]
+    return out
+
+
+def local_spacing(found: Found):
+    """HKC/HKF's per-point sample spacing, :func:`hgjax.spatial.local_spacing`, from a traced kNN.
+
+    s_i = sqrt(pi / k x mean over the k + 1 points j of row i of r_j^2), r_j the distance of
+    point j's (k + 1)-th point (itself first), 1 where s_i = 0; with the same float64
+    operations in the same order as the host (NumPy's pairwise mean), so under x64 the
+    spacing is the host's to the last bit.
+
+    Args:
+      found: :func:`knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
+        ``LOCAL_K + 1`` = 17); the cloud must hold at least k + 1 distinct locations (the
+        host then lowers k; this does not).
+
+    Returns:
+      (spacing, reach): (N,) each; reach the distance within which every point the estimate
+      used lies (the row's own (k + 1)-th distance plus the largest of its neighbours').
+      Padding rows (``count``) get spacing 1 and reach 0.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax import _search_jax
+      >>> p = np.c_[np.mgrid[0:8, 0:8].reshape(2, -1).T, np.zeros(64)].astype(np.float32)
+      >>> s, _ = _search_jax.local_spacing(_search_jax.knn(p, 17, dedupe=True, capacity=64))
+      >>> round(float(s[27]), 3)  # inside an 8 x 8 grid of spacing 1
+      0.991
+    """
+    idx, rk = found.idx, found.reach
+    n, width = idx.shape[-2], idx.shape[-1]
+    k = width - 1
+    real = idx[:, 0] < n
+    near = jnp.where(real[:, None], rk[jnp.minimum(idx, n - 1)], 0)
+    mean = _div(_numpy_sum(_mul(near, near)), width)
+    spacing = jnp.sqrt((math.pi / k) * mean)
+    spacing = jnp.where(real & (spacing > 0), spacing, 1.0)
+    reach = jnp.where(real, rk + jnp.max(near, axis=1), 0)
+    return spacing, reach
 
 
 # ----------------------------------------------------------------------------- eager regrowth

@@ -167,6 +167,30 @@ def test_within_equals_the_host(x64, dtype, metric, max_count):
             np.testing.assert_array_equal(np.asarray(found.reach)[:len(q)], radii, err_msg=name)
 
 
+def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
+    """HKC/HKF's default build: the spacing from 17 nearest distinct points (NumPy's pairwise mean,
+    float64), the ball of sqrt(3) k / 2 f times it, shrunk below 256 points; the same bits."""
+    factor = np.sqrt(3.0) * 3 / 2 * 1.6
+    with x64_mode(True):
+        spacing = jax.jit(lambda p, c: search.local_spacing(search.knn(p, 17, dedupe=True, capacity=CAPACITY,
+                                                                       count=c)))
+        ball = traced_within(256, "l2", True, 256, True)  # a sparse point's ball holds up to 255
+        for name in ("quantised_1mm", "duplicated", "mixed_density", "georeferenced"):
+            p = CLOUDS[name]
+            index = spatial.SpatialIndex(spatial.local_frame(p)[0], dedupe=True)
+            want_s, want_r = (index.to_caller(x) for x in spatial.local_spacing(index, np.arange(index.n), 16))
+            want, radii = host_within(p, factor * want_s, 2, True, 256)
+            s, r = spacing(*padded(p, np.float64))
+            np.testing.assert_array_equal(np.asarray(s)[:len(p)], want_s, err_msg=name)
+            np.testing.assert_array_equal(np.asarray(r)[:len(p)], want_r, err_msg=name)
+            found = ball(padded(p, np.float64)[0], factor * s, np.int32(len(p)))
+            assert not bool(found.overflow), name
+            got = cut(found.idx, len(p))
+            np.testing.assert_array_equal(got[:, :want.shape[1]], want, err_msg=name)
+            assert (got[:, want.shape[1]:] == len(p)).all()
+            np.testing.assert_array_equal(np.asarray(found.reach)[:len(p)], radii, err_msg=name)
+
+
 # ----------------------------------------------------------------------------- jit, vmap, grad
 def test_jit_equals_eager():
     p = CLOUDS["quantised_1mm"][:64].astype(np.float32)
@@ -227,6 +251,22 @@ def test_small_capacity_and_small_edge_are_flagged_and_grown():
             found = search.grown(search.knn, p, 8, capacity=16, edge=edge, spill=0)
             assert not bool(found.overflow)
             np.testing.assert_array_equal(found.idx, want)
+
+
+def test_rows_missed_by_the_edge_are_searched_again_under_jit():
+    """An edge too small for some rows: wider levels redo them (no overflow); with no spill
+    they are reported."""
+    p = CLOUDS["mixed_density"]
+    want = spatial.knn(p, K).idx
+    with x64_mode(True):
+        fn = jax.jit(lambda p, e: search.knn(p, K, capacity=CAPACITY, edge=e, spill=400))
+        found = fn(p, 0.3)  # right for the dense sphere, too small for the sparse points around it
+        assert not bool(found.overflow) and float(found.edge) == 0.3
+        np.testing.assert_array_equal(found.idx, want)
+        none = jax.jit(lambda p, e: search.knn(p, K, capacity=CAPACITY, edge=e, spill=0))(p, 0.3)
+        assert bool(none.overflow) and bool(none.uncovered) and float(none.edge_needed) > 0.3
+        few = jax.jit(lambda p, e: search.knn(p, K, capacity=CAPACITY, edge=e, spill=8))(p, 0.3)
+        assert bool(few.overflow) or (np.asarray(few.idx) == want).all()  # flagged, or right
 
 
 def test_within_reports_the_columns_needed_and_grows_them():
