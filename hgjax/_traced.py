@@ -125,9 +125,10 @@ def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_capacity: in
 
 def check(nb: spatial.Neighbourhoods) -> None:
     """Raise ValueError when concrete neighbourhoods of the traced search overflowed (never run on a truncated one)."""
-    if nb.overflow is None or _stream.is_traced(nb.overflow):
+    overflow = getattr(nb, "overflow", None)  # anything but Neighbourhoods is refused by the caller's checks
+    if overflow is None or _stream.is_traced(overflow):
         return
-    worst = np.asarray(nb.overflow)
+    worst = np.asarray(overflow)
     if (worst != 0).any():
         needed = int(worst.max())
         how = (f"cell_capacity={needed}" if needed > 0 else "a wider cell edge (build it outside jit: an eager"

@@ -30,10 +30,17 @@ def test_fps_is_scale_free(cloud, backend):
 @pytest.mark.parametrize("method", ["ea", "pca_ac"])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_ea_and_pca_ac_are_scale_free(cloud, method, dtype):
+    """The same scores and kept points at every extent the working dtype represents (squares under- or
+    overflowing: float64 at 8e-25, 1.2e21 and 1.3e30; float32 at 9e-11 and 7e15); beyond that range
+    (hgjax._validate.check_extent) a ValueError naming points, before any work."""
     points = cloud.astype(dtype)
     want = np.asarray(hgjax.score(hgjax.neighbourhoods(points, method), method))
     assert np.isfinite(want).all() and want.max() > 0
-    for k in (-80, 70, 100):  # extents about 8e-25, 1.2e21 and 1.3e30: squares under- or overflow
+    inside, outside = ((-80, 70, 100), ()) if dtype == np.float64 else ((-36, 50), (-80, 100))
+    for k in outside:
+        with pytest.raises(ValueError, match="points span .* which float32 cannot represent"):
+            hgjax.resample(np.ldexp(points, k).astype(dtype), 0.2, method=method)
+    for k in inside:
         scaled = np.ldexp(points, k).astype(dtype)
         np.testing.assert_array_equal(np.asarray(hgjax.score(hgjax.neighbourhoods(scaled, method), method)), want)
         np.testing.assert_array_equal(hgjax.resample(scaled, 0.2, method=method, key=None),
