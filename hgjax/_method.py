@@ -106,6 +106,8 @@ class Method:
       check_key: ``check_key(key, params) -> key``: the validated key that the selection
         with these parameters draws from (raising before any work when it is missing);
         None for a method that never draws.
+      ranks_as: (another method, why) when this one keeps that one's points by definition
+        (the demo says so where it sees it), or None.
 
     Examples:
       >>> import hgjax
@@ -130,6 +132,7 @@ class Method:
     combine: Callable | None = None
     select: Callable | None = None
     check_key: Callable | None = None
+    ranks_as: tuple | None = None
 
     @property
     def accepted(self) -> frozenset:

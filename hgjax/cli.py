@@ -218,7 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
                        " cloud's centre (default 1: the whole cloud)")
 
     def with_method(p, names):
-        p.add_argument("--method", choices=names, default=DEFAULT, help=f"one of {', '.join(names)} (default {DEFAULT})")
+        p.add_argument("--method", choices=names, default=DEFAULT,
+                       help=f"one of {', '.join(names)} (default {DEFAULT})")
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                        help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")
@@ -955,14 +956,6 @@ def _picture(points, kept: dict, path: str, args, **style) -> bool:
     return True
 
 
-SAME_RANKING = {
-    ("hkc", "hkf"): "HKF's sigma = beta / (1 + beta) grows with HKC's beta, on the same cubes",
-    ("ea", "pca_ac"): "PCA-AC's Ward clusters are intervals of EA's surface variation, on the same neighbours",
-}
-"""Pairs of methods that rank the points alike by definition, and why: the demo finds them keeping the
-same points and says so."""
-
-
 def cmd_demo(args) -> None:
     import numpy as np
 
@@ -989,8 +982,9 @@ def cmd_demo(args) -> None:
           f" {min(int(edge.sum()), size)} / {size} = {min(int(edge.sum()), size) / size:.3f} (every edge point"
           f" kept), {edge.mean():.3f} for a random subset on average.")
     for method, first in same.items():
-        if (first, method) in SAME_RANKING:
-            print(f"{method} keeps the points of {first}: {SAME_RANKING[first, method]}.")
+        alike = getattr(hgjax.METHODS[method], "ranks_as", None)
+        if alike is not None and alike[0] == first:
+            print(f"{method} keeps the points of {first}: {alike[1]}.")
     if _picture(np.asarray(cloud.points), kept, args.output, args,
                 title="hgjax demo: kept points (red) over the cloud"):
         print(f"wrote the picture to {os.path.abspath(args.output)}")
