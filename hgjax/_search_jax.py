@@ -672,8 +672,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         None (all). Padding rows are neither neighbours nor queried.
       gid: (N,) int32 global ids that break ties (default the row numbers).
       radius: optional upper bound (traced, scalar or (N,)): only points closer than it
-        (in the key of ``metric``) are listed: GFR's capped radius graph with
-        ``metric="l2sq"``.
+        (in the units of ``metric``) are listed: GFR's capped radius graph with
+        ``metric="l2sq"``. With ``dedupe`` every copy uses its location's first copy's.
       metric: ``"l2"`` (the host's k-nearest: rank by the rooted distance), ``"l2sq"`` (rank
         by squared distances, as GFR) or ``"linf"`` (Chebyshev) (static).
       chunk: rows per block (static): memory is about chunk x capacity candidates.
@@ -733,7 +733,8 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
     Args:
       points: (N, 3) float points.
       radius: traced scalar or (N,) per-point radius (half-width), > 0, in the search's
-        float dtype (float64 under x64).
+        float dtype (float64 under x64). With ``dedupe`` every copy uses its location's first
+        copy's radius (the host queries each location once).
       columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
       dedupe, capacity, edge, count, gid, chunk, spill: as :func:`knn`. The default edge is the
         largest radius times 1.1 (traced).
