@@ -89,7 +89,8 @@ MAX_CELL = 1 << 30  # cell coordinates are clipped here (never reached by a sens
 SAMPLES = 64  # points whose brute-force k-th distance sets the default edge
 SAMPLE_BLOCK = 1 << 16  # columns per block of that brute force (one top_k per block)
 EDGE_MARGIN = 1.1  # default edge: the largest sampled reach times this
-CHUNK = 256  # rows per block of the search
+CHUNK = 256  # rows per block of the search on a CPU
+ACCELERATOR_CHUNK = 8192  # rows per block on a GPU/TPU: fewer, wider steps keep the device busy
 SPILL_FRACTION = 8  # by default up to N / 8 rows at a time are searched again at a wider edge
 LEVELS = 4  # searches of a row at most (the first level and three wider ones)
 METRICS = ("l2", "l2sq", "linf")
@@ -559,6 +560,13 @@ def _edge(points, count, edge, dedupe, k):
     return _default_edge(coords, real, cand, k)
 
 
+def _chunk(chunk, n: int) -> int:
+    """Rows per block: ``chunk``, or the backend's default (:data:`CHUNK` on CPU, :data:`ACCELERATOR_CHUNK` else)."""
+    if chunk is None:
+        chunk = CHUNK if jax.default_backend() == "cpu" else ACCELERATOR_CHUNK
+    return max(1, min(chunk, n))
+
+
 def _spill(spill, n: int) -> int:
     """Rows of the second level: ``spill``, or N / 8 by default."""
     if spill is None:
@@ -576,6 +584,8 @@ def _check(points, k_or_columns: int, capacity: int, chunk: int, metric: str):
     if points.shape[0] < 1:
         raise ValueError("points must hold at least one point")
     for name, value in (("k", k_or_columns), ("capacity", capacity), ("chunk", chunk)):
+        if name == "chunk" and value is None:
+            continue
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
             raise ValueError(f"{name} must be a positive int; got {value!r}")
     if metric not in METRICS:
@@ -653,7 +663,7 @@ def _found(cloud: _Cloud, out, capacity: int, columns_needed, empty_reach) -> Fo
 # ----------------------------------------------------------------------------- public queries
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None, count=None, gid=None,
-        radius=None, metric: str = "l2", chunk: int = CHUNK, spill: int | None = None) -> Found:
+        radius=None, metric: str = "l2", chunk: int | None = None, spill: int | None = None) -> Found:
     """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.spatial.knn`, traced.
 
     Pure JAX: runs under ``jax.jit`` and ``jax.vmap``; no gradient flows through the choice.
@@ -676,7 +686,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         ``metric="l2sq"``. With ``dedupe`` every copy uses its location's first copy's.
       metric: ``"l2"`` (the host's k-nearest: rank by the rooted distance), ``"l2sq"`` (rank
         by squared distances, as GFR) or ``"linf"`` (Chebyshev) (static).
-      chunk: rows per block (static): memory is about chunk x capacity candidates.
+      chunk: rows per block (static; default :data:`CHUNK` on CPU, :data:`ACCELERATOR_CHUNK` on a
+        GPU/TPU): memory is about chunk x capacity candidates.
       spill: rows searched again, at a time, at a wider edge when their reach passes their
         block (static; default N / 8, rounded up to whole chunks; 0: none), for at most
         ``LEVELS`` searches of a row. The default edge comes from a sample, so the few rows it
@@ -719,12 +730,12 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
                     limit=limit, ok=ok, needed=c["count"])
 
-    out, cloud = _run(points, count, gid, e, dedupe, rows, max(1, min(chunk, n)), _spill(spill, n))
+    out, cloud = _run(points, count, gid, e, dedupe, rows, _chunk(chunk, n), _spill(spill, n))
     return _found(cloud, out, capacity, jnp.int32(k), jnp.inf)
 
 
 def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int = 128, edge=None, count=None,
-           gid=None, metric: str = "l2", max_count: int | None = None, chunk: int = CHUNK,
+           gid=None, metric: str = "l2", max_count: int | None = None, chunk: int | None = None,
            spill: int | None = None) -> Found:
     """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
     :meth:`hgjax.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
@@ -800,8 +811,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
                     reach=used, limit=_as_distance(used, metric), ok=ok, needed=c["count"],
                     width=jnp.sum(inside, axis=1))
 
-    out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, max(1, min(chunk, n)),
-                      _spill(spill, n))
+    out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, _chunk(chunk, n), _spill(spill, n))
     columns_needed = jnp.max(jnp.where(cloud.real, out["width"], 0)).astype(jnp.int32)
     return _found(cloud, out, capacity, columns_needed, 0)
 
