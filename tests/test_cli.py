@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _validate, cli, engine, io
+from hgjax import _cli_common, _validate, cli, engine, io
 from hgjax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -313,7 +313,7 @@ def test_too_many_samples_are_refused_up_front(capsys, tmp_path, monkeypatch):
     cost = hgjax.METHODS["hkc"].bytes_per_sample
     assert code == 2 and f"--samples 1000000000 needs about {cost:.1f} GB" in err and "or fewer" in err
     assert time.perf_counter() - start < 5
-    monkeypatch.setattr(cli, "_available_memory", lambda: 2**30)
+    monkeypatch.setattr(_cli_common, "_available_memory", lambda: 2**30)  # where _check_samples reads it
     code, _, err = run_here(capsys, "compare", MESH, "--samples", 10**6)
     costliest = max(e.bytes_per_sample for e in hgjax.METHODS.values())  # compare runs every method
     assert code == 2 and f"use --samples {2**30 // costliest} or fewer" in err

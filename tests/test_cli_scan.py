@@ -287,10 +287,10 @@ def test_score_writes_finite_values(tmp_path):
 
 
 def test_samples_memory_uses_the_method_cost_and_the_cgroup_limit(tmp_path, monkeypatch):
-    from hgjax import cli
+    from hgjax import _cli_common, cli
 
     mesh = str(pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "fandisk.obj")
-    monkeypatch.setattr(cli, "_available_memory", lambda: 3 * 10**9)
+    monkeypatch.setattr(_cli_common, "_available_memory", lambda: 3 * 10**9)  # where _check_samples reads it
     cli._check_samples(10**6, [mesh], ["hkc"])
     with pytest.raises(cli.UsageError, match="with gfr, more than the 3.0 GB available"):
         cli._check_samples(10**6, [mesh], ["hkc", "gfr"])

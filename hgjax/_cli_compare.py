@@ -1,0 +1,150 @@
+"""``hgjax compare`` and ``hgjax demo``: several methods on one cloud, tabulated and drawn.
+
+``compare`` runs a list of methods on one input and prints a markdown table of their coverage
+gaps (:func:`_coverage`, in units of the intrinsic resolution: :func:`_gap_unit`) and of the
+share of sharp features they keep; with ``-o DIR`` it writes the table as compare.md and
+compare.csv and the picture compare.png. ``demo`` runs every method on the built-in
+edge-labelled box-union cloud and reports the precision of the kept edge points. Pictures need
+matplotlib; without it a note replaces them (:func:`_picture`).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import sys
+from typing import TYPE_CHECKING
+
+from hgjax._cli_common import (
+    UsageError,
+    _check_samples,
+    _compute,
+    _expand,
+    _key,
+    _load,
+    _progress,
+    _refuse_stdout,
+)
+
+if TYPE_CHECKING:
+    import numpy as np
+
+
+def _coverage(points: np.ndarray, idx: np.ndarray) -> tuple[float, float]:
+    """Mean and max distance from every point to its nearest kept point."""
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(points[idx]).query(points, k=1, workers=-1)
+    return float(dist.mean()), float(dist.max())
+
+
+def cmd_compare(args) -> None:
+    import hgjax
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = sorted(set(methods) - set(hgjax.METHODS))
+    if unknown or not methods:
+        raise UsageError(f"unknown method(s) {unknown}; expected a comma-separated subset of {sorted(hgjax.METHODS)}")
+    inputs = _expand(args.inputs)
+    if len(inputs) != 1:
+        raise UsageError(f"compare takes one file; {args.inputs[0]} holds {len(inputs)}")
+    (path,) = inputs
+    _check_samples(args.samples, inputs, methods)
+    if args.output is not None:
+        _refuse_stdout(args.output)
+        try:
+            os.makedirs(args.output, exist_ok=True)
+        except OSError as err:
+            raise UsageError(f"cannot create the output directory {args.output}: {err.strerror}") from None
+        if not os.access(args.output, os.W_OK | os.X_OK):
+            raise UsageError(f"cannot write to {args.output}: the directory is not writable")
+    data = _load(path, args)
+    res = hgjax.intrinsic_resolution(data.points)
+    unit, unit_name = _gap_unit(data.points, res)
+    variation = hgjax.eval.feature_variation(data.points)
+    rows, kept = [], {}
+    key, progress = _key(args), _progress(args)
+    for method in methods:
+        idx, _, seconds = _compute(hgjax.METHODS[method], data.points, args.ratio, {}, key, progress, args)
+        mean, worst = _coverage(data.points, idx)
+        kept[method] = idx
+        share = f"{variation[idx].mean() / variation.mean():.2f}" if variation.mean() > 0 else "-"
+        rows.append([method, idx.size, len(data), f"{seconds:.3f}", f"{mean / unit:.3f}", f"{worst / unit:.3f}",
+                     share])
+    header = ["method", "kept", "points", "seconds", f"mean gap ({unit_name})", f"max gap ({unit_name})",
+              "feature share"]
+    table = "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+                      + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
+    print(f"{path}: ratio {args.ratio}, resolution {res:.4g}. Gap: distance from a point to the nearest kept"
+          " point (small: even coverage). Feature share: mean surface variation of the kept points over"
+          " that of all points (above 1: sharp edges and corners kept preferentially; EA maximises it by"
+          f" definition).\n\n{table}")
+    if args.output is None:
+        return
+    with open(os.path.join(args.output, "compare.md"), "w") as fh:
+        fh.write(table + "\n")
+    with open(os.path.join(args.output, "compare.csv"), "w", newline="") as fh:
+        csv.writer(fh).writerows([header] + rows)
+    picture = _picture(data.points, kept, os.path.join(args.output, "compare.png"), args,
+                       colors=data.attributes.get("colors"), title=os.path.basename(path))
+    print(f"wrote compare.md, compare.csv{', compare.png' * bool(picture)} to {args.output}", file=sys.stderr)
+
+
+def _gap_unit(points: np.ndarray, res: float) -> tuple[float, str]:
+    """The unit of coverage gaps: the intrinsic resolution, else (a cloud whose points mostly
+    coincide) the bounding-box diagonal, else 1."""
+    import numpy as np
+
+    if res > 0:
+        return res, "res"
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    return (diagonal, "diagonal") if diagonal > 0 else (1.0, "units")
+
+
+def _picture(points, kept: dict, path: str, args, **style) -> bool:
+    """Draw the kept points of each method over the grey cloud to ``path``; False, with a note,
+    where matplotlib is missing."""
+    from hgjax.plot import show_resampling
+
+    try:
+        show_resampling(points, kept, view=args.view, zoom=args.zoom, context=True, path=path, **style)
+    except ImportError as err:
+        print(f"no picture written: {err}", file=sys.stderr)
+        return False
+    return True
+
+
+def cmd_demo(args) -> None:
+    import numpy as np
+
+    import hgjax
+
+    folder = os.path.dirname(os.path.abspath(args.output))
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"cannot write the picture {args.output}: {folder} is not a writable folder")
+    cloud = hgjax.eval.box_union_cloud(seed=args.seed, n_points=args.n_points)
+    edge = np.asarray(cloud.edge_mask)
+    print(f"demo cloud: {len(edge)} points on a union of boxes, {int(edge.sum())} labelled edge points,"
+          f" keeping {args.ratio:g}")
+    print(f"{'method':<8} {'points':>7} {'kept':>6} {'seconds':>8} {'edge precision':>15}")
+    key, progress = _key(args), _progress(args)
+    kept, same = {}, {}
+    for method in sorted(hgjax.METHODS):
+        idx, _, seconds = _compute(hgjax.METHODS[method], cloud.points, args.ratio, {}, key, progress, args)
+        same[method] = next((m for m, other in kept.items() if np.array_equal(np.sort(other), np.sort(idx))), None)
+        kept[method] = idx
+        note = "" if same[method] is None else f"  same points as {same[method]}"
+        print(f"{method:<8} {len(edge):>7} {idx.size:>6} {seconds:>8.2f} {float(edge[idx].mean()):>15.3f}{note}")
+    size = next(iter(kept.values())).size
+    print(f"edge precision: the share of kept points that are labelled edge points; at most"
+          f" {min(int(edge.sum()), size)} / {size} = {min(int(edge.sum()), size) / size:.3f} (every edge point"
+          f" kept), {edge.mean():.3f} for a random subset on average.")
+    for method, first in same.items():
+        alike = getattr(hgjax.METHODS[method], "ranks_as", None)
+        if alike is not None and alike[0] == first:
+            print(f"{method} keeps the points of {first}: {alike[1]}.")
+    if _picture(np.asarray(cloud.points), kept, args.output, args,
+                title="hgjax demo: kept points (red) over the cloud"):
+        print(f"wrote the picture to {os.path.abspath(args.output)}")
+    print("next: hgjax resample YOUR_SCAN.ply -o kept.ply --method hkc --ratio 0.2   (or hgjax compare"
+          " YOUR_SCAN.ply -o out/ to pick a method)")
