@@ -1,21 +1,27 @@
 """The traced neighbour search (``search="jax"``) beside the host's k-d tree, and the jitted resample.
 
 Usage:
-  python bench/device_search.py --sizes 10000,100000 --repeats 3 --out bench/results/device_search.md
+  python bench/device_search.py --sizes 10000,100000,1000000 --repeats 3 --out bench/results/device_search.md
 
-One process, float32 box surface (``_report.box_cloud``). Each round times, in turn: the floor
-(``cKDTree`` kNN16 on the Morton-sorted copy, tree build included), the host build of each
-k-nearest method's neighbourhoods (``hgjax.neighbourhoods(p, m)``), the same with
-``search="jax"`` compiled once and called with the cell capacity and edge an eager build recorded
-(the device path), and the whole resample jitted (``jax.jit(lambda q: hgjax.resample(q, 0.2,
-method=m, search="jax", ...))``), each result checked equal to the host's (neighbour sets; kept
-set). Medians over the rounds after a warm-up; ratios to the floor measured beside each call. Peak
-resident memory of the process at the end. The same script runs on a GPU (``bench/gpu_check.sh``).
+Every method whose build takes ``search`` (``hgjax.METHODS``), each size in a fresh process (its
+peak resident memory is that method's), on the float32 box surface (``_report.box_cloud``). Each
+round times, in turn: the floor (``cKDTree`` kNN16 on the Morton-sorted copy, tree build
+included), the host build (``hgjax.neighbourhoods(p, m)``), the traced build compiled once and
+called with the cell capacity and edge an eager build recorded (the device path), the whole
+resample jitted (``jax.jit(lambda q: hgjax.resample(q, 0.2, method=m, search="jax", ...))``,
+for the methods that keep their top scores), the host resample, and the engine with its tiles
+built by the traced search (``hgjax.tiles.resample(p, 0.2, method=m, search="jax")``, the
+GPU/TPU default, where the method's tiles can). Each result is checked against the host's:
+neighbour sets equal; kept indices that differ (ties of float scores at the cut may differ when
+the scores are computed inside one fused program). Medians over the rounds after a warm-up;
+ratios to the floor measured beside each call. The same script runs on a GPU
+(``bench/gpu_check.sh``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -26,7 +32,7 @@ sys.path.insert(0, str(HERE))
 
 import _report  # noqa: E402
 
-METHODS = ("ea", "lhf", "mss")
+RATIO = 0.2
 
 
 def _timed(fn) -> float:
@@ -37,7 +43,15 @@ def _timed(fn) -> float:
     return time.perf_counter() - t
 
 
-def measure(n: int, repeats: int) -> list[dict]:
+def searchable() -> list[str]:
+    """The methods whose neighbourhoods the traced search builds."""
+    import hgjax
+
+    return [name for name, entry in hgjax.METHODS.items() if "search" in entry.params.get("build", ())]
+
+
+def measure(n: int, method: str, repeats: int) -> dict:
+    """One method at one size, in this process."""
     import jax
     import numpy as np
 
@@ -45,48 +59,77 @@ def measure(n: int, repeats: int) -> list[dict]:
 
     p = _report.box_cloud(n, np.float32)
     q = _report.morton_copy(p)
-    rows = []
-    for m in METHODS:
-        host = hgjax.neighbourhoods(p, m)
-        eager = hgjax.neighbourhoods(p, m, search="jax")
-        cells = {k: v for k, v in eager.params if k.startswith("cell_")}
-        build = jax.jit(lambda x, m=m: hgjax.neighbourhoods(x, m, search="jax", **cells))
-        whole = jax.jit(lambda x, m=m: hgjax.resample(x, 0.2, method=m, search="jax", **cells))
-        traced = build(p)
-        same = bool(np.array_equal(np.asarray(traced.idx), host.idx)) and int(traced.overflow) == 0
-        kept = set(np.asarray(whole(p)).tolist()) == set(hgjax.resample(p, 0.2, method=m).tolist())
-        times = {"floor": [], "host build": [], "traced build": [], "jitted resample": [], "host resample": []}
-        for _ in range(repeats):
-            for name, fn in (("host build", lambda: hgjax.neighbourhoods(p, m).idx),
-                             ("traced build", lambda: build(p).idx), ("jitted resample", lambda: whole(p)),
-                             ("host resample", lambda: hgjax.resample(p, 0.2, method=m))):
-                times["floor"].append(_report.knn16_seconds(q))
-                times[name].append(_timed(fn))
-        med = {k: statistics.median(v) for k, v in times.items()}
-        rows.append({"n": n, "method": m, **med, "cells": cells, "same": same, "kept": kept})
-    return rows
+    entry = hgjax.METHODS[method]
+    host = hgjax.neighbourhoods(p, method)
+    eager = hgjax.neighbourhoods(p, method, search="jax")
+    cells = {k: v for k, v in eager.params if k.startswith("cell_") or k == "columns"}
+    build = jax.jit(lambda x: hgjax.neighbourhoods(x, method, search="jax", **cells))
+    traced = build(p)
+    same = bool(np.array_equal(np.asarray(traced.idx), host.idx)) and int(traced.overflow) == 0
+    kept = hgjax.resample(p, RATIO, method=method)
+    calls = {"host build": lambda: hgjax.neighbourhoods(p, method).idx, "traced build": lambda: build(p).idx,
+             "host resample": lambda: hgjax.resample(p, RATIO, method=method)}
+    differ = {}
+    if entry.select is None:
+        whole = jax.jit(lambda x: hgjax.resample(x, RATIO, method=method, search="jax", **cells))
+        calls["jitted resample"] = lambda: whole(p)
+        differ["jitted resample"] = len(set(kept.tolist()) - set(np.asarray(whole(p)).tolist()))
+    if "jax" in entry.tiling.searches:
+        calls["engine, traced tiles"] = lambda: hgjax.tiles.resample(p, RATIO, method=method, search="jax")
+        differ["engine, traced tiles"] = len(set(kept.tolist()) - set(calls["engine, traced tiles"]().tolist()))
+    times = {"floor": [], **{name: [] for name in calls}}
+    for _ in range(repeats):
+        for name, fn in calls.items():
+            times["floor"].append(_report.knn16_seconds(q))
+            times[name].append(_timed(fn))
+    return {"n": n, "method": method, **{k: statistics.median(v) for k, v in times.items()},
+            "cells": {k: (float(v) if k == "cell_edge" else v) for k, v in cells.items()}, "same": same,
+            "differ": differ, "peak_mb": _report.peak_mb()}
+
+
+def _ratio(r: dict, name: str) -> str:
+    return f"{r[name] / r['floor']:.2f}" if name in r else "-"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="10000,100000")
+    ap.add_argument("--methods", default=None, help="comma-separated (default: every method that takes search)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # N,method: measure in this process
     args = ap.parse_args()
-    rows = [r for n in map(int, args.sizes.split(",")) for r in measure(n, args.repeats)]
-    table = ["| N | method | floor s | host build / floor | traced build / floor | jitted resample / floor |"
-             " host resample / floor | cell capacity, edge | traced sets == host | kept set == host |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    if args.one:
+        n, method = args.one.split(",")
+        print(json.dumps(measure(int(n), method, args.repeats)))
+        return
+    methods = args.methods.split(",") if args.methods else searchable()
+    rows = []
+    for n in map(int, args.sizes.split(",")):
+        for m in methods:
+            r = _report.spawn(Path(__file__), ["--one", f"{n},{m}", "--repeats", args.repeats])
+            rows.append({"n": n, "method": m, **r})
+            print(json.dumps(rows[-1]), flush=True)
+    table = ["| N | method | floor s | host build | traced build | jitted resample | host resample |"
+             " engine, traced tiles | cells (capacity, edge) | traced sets == host | kept differing"
+             " (jitted; engine) | peak MB |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        f = r["floor"]
-        table.append(f"| {r['n']:,} | {r['method']} | {f:.3f} | {r['host build'] / f:.2f} | {r['traced build'] / f:.2f} |"
-                     f" {r['jitted resample'] / f:.2f} | {r['host resample'] / f:.2f} |"
-                     f" {r['cells']['cell_capacity']}, {r['cells']['cell_edge']:.3g} | {r['same']} | {r['kept']} |")
-    text = "\n".join(table)
-    print(text)
+        if "error" in r:
+            table.append(f"| {r['n']:,} | {r['method']} | {r['error']} |" + " |" * 9)
+            continue
+        d = r["differ"]
+        cells = ", ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in r["cells"].values())
+        table.append(f"| {r['n']:,} | {r['method']} | {r['floor']:.3f} | {_ratio(r, 'host build')} |"
+                     f" {_ratio(r, 'traced build')} | {_ratio(r, 'jitted resample')} | {_ratio(r, 'host resample')} |"
+                     f" {_ratio(r, 'engine, traced tiles')} | {cells} | {r['same']} |"
+                     f" {d.get('jitted resample', '-')}; {d.get('engine, traced tiles', '-')} | {r['peak_mb']:.0f} |")
+    print("\n".join(table))
     if args.out:
         _report.write(args.out, "device_search.py", None, title="The traced neighbour search beside the host's",
-                      paragraphs=[_report.machine(), f"Peak resident memory of the process: {_report.peak_mb():.0f} MB."],
+                      paragraphs=[_report.machine(), "Times are medians / the floor measured beside each call"
+                                  f" (the floor in seconds); kept differing: of the {RATIO:g} N kept by the host"
+                                  " resample, how many the other path does not keep; peak MB: the process of"
+                                  " that row (one per method and size)."],
                       table=table)
 
 

@@ -58,6 +58,9 @@ class Tiling:
       refused: ``refused(params) -> (qualifier, reason) | None``: why these parameters need
         the whole cloud at once (the tiled path refuses a tile size, naming the reason);
         None when the method always tiles.
+      searches: the neighbour searches its tiles can build with (the build parameter
+        ``search``): ``("host",)``, or ``("host", "jax")`` where ``rows`` also builds with the
+        traced search (:func:`hgjax._traced.index_knn`), the default on a GPU/TPU backend.
     """
 
     params: Callable
@@ -70,6 +73,7 @@ class Tiling:
     select: Callable | None = None
     whole_selection: bool = False
     refused: Callable | None = None
+    searches: tuple[str, ...] = ("host",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,6 +112,10 @@ class Method:
         None for a method that never draws.
       ranks_as: (another method, why) when this one keeps that one's points by definition
         (the demo says so where it sees it), or None.
+      keeps_top: ``keeps_top(params) -> bool`` for a method with its own ``select``: whether
+        that selection with these selection parameters keeps the m top ranked values, ties by
+        index (as :func:`hgjax.top_k`), so a traced resample (``search="jax"``) may rank with
+        ``jax.lax.top_k`` instead (GFR's ``mode="top"``); None: never.
 
     Examples:
       >>> import hgjax
@@ -133,6 +141,7 @@ class Method:
     select: Callable | None = None
     check_key: Callable | None = None
     ranks_as: tuple | None = None
+    keeps_top: Callable | None = None
 
     @property
     def accepted(self) -> frozenset:

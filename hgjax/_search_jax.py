@@ -298,10 +298,14 @@ class _Cloud:
     delta: jax.Array  # scalar rounding margin, in edges
 
 
-def _coordinates(points, real):
-    """The search's coordinates: the host's float64 local frame under x64, else the float32 input."""
+def _coordinates(points, real, frame: bool = True):
+    """The search's coordinates: the host's float64 local frame under x64 (the points as given
+    when ``frame`` is False: already in the host's frame, as a tile's index holds them), else
+    the float32 input."""
     if _x64():
         p = points.astype(jnp.float64)
+        if not frame:
+            return p
         lo = jnp.min(jnp.where(real[:, None], p, jnp.inf), axis=0)
         hi = jnp.max(jnp.where(real[:, None], p, -jnp.inf), axis=0)
         return p - ((lo + hi) / 2)[None, :]
@@ -327,11 +331,11 @@ def _eligible(coords, real, cell, dedupe):
     return qorder, jnp.zeros(n, bool).at[qorder].set(first), jnp.zeros(n, jnp.int32).at[qorder].set(rep)
 
 
-def _cloud(points, count, gid, edge, dedupe) -> _Cloud:
+def _cloud(points, count, gid, edge, dedupe, frame: bool = True) -> _Cloud:
     n = points.shape[0]
     iota = jnp.arange(n, dtype=jnp.int32)
     real = iota < (n if count is None else count)
-    coords = _coordinates(lax.stop_gradient(points), real)
+    coords = _coordinates(lax.stop_gradient(points), real, frame)
     gid = iota if gid is None else jnp.asarray(gid, jnp.int32)
     lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
     t = (coords - lo[None, :]) / edge
@@ -543,11 +547,11 @@ def _default_edge(coords, real, cand_mask, k: int):
     return jnp.where(edge > 0, edge, 1.0)
 
 
-def _edge(points, count, edge, dedupe, k):
+def _edge(points, count, edge, dedupe, k, frame: bool = True):
     """The given edge in the computation dtype, or the default from the data."""
     n = points.shape[0]
     real = jnp.arange(n) < (n if count is None else count)
-    coords = _coordinates(lax.stop_gradient(points), real)
+    coords = _coordinates(lax.stop_gradient(points), real, frame)
     if edge is not None:
         return jnp.asarray(edge, coords.dtype)
     cand = real
@@ -597,7 +601,7 @@ def _grow(limit, delta):
     return jnp.where(jnp.isfinite(limit), limit * (1 + 4 * delta) * 1.0001, jnp.inf)
 
 
-def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int):
+def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int, frame: bool = True):
     """``rows(cloud, qi)`` over every row, then the rows whose reach passed their block again.
 
     One ``while_loop`` of passes over ``size`` rows each (``lax.map`` over chunks inside), so
@@ -609,7 +613,7 @@ def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int):
     Returns:
       (out, cloud): the per-row outputs (caller order) and the first level's cloud.
     """
-    cloud = _cloud(points, count, gid, edge, dedupe)
+    cloud = _cloud(points, count, gid, edge, dedupe, frame)
     n = cloud.coords.shape[0]
     size = -(-max(1, min(n, spill or n // SPILL_FRACTION)) // chunk) * chunk
     first = -(-n // size)  # passes of the first level
@@ -629,7 +633,7 @@ def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int):
             grow = _grow(out["limit"], cloud.delta)
             wider = jnp.max(jnp.where(wrong(out), jnp.where(jnp.isfinite(grow), grow, 4 * last), 0))
             wider = jnp.maximum(wider, last)
-            return _cloud(points, count, gid, wider, dedupe), wider
+            return _cloud(points, count, gid, wider, dedupe, frame), wider
 
         level, last = lax.cond(spilling, widen, lambda: (level, last))
         which = jnp.where(spilling, jnp.nonzero(wrong(out), size=size, fill_value=n)[0],
@@ -663,7 +667,8 @@ def _found(cloud: _Cloud, out, capacity: int, columns_needed, empty_reach) -> Fo
 # ----------------------------------------------------------------------------- public queries
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None, count=None, gid=None,
-        radius=None, metric: str = "l2", chunk: int | None = None, spill: int | None = None) -> Found:
+        radius=None, metric: str = "l2", chunk: int | None = None, spill: int | None = None,
+        frame: bool = True) -> Found:
     """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.spatial.knn`, traced.
 
     Pure JAX: runs under ``jax.jit`` and ``jax.vmap``; no gradient flows through the choice.
@@ -693,6 +698,9 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         ``LEVELS`` searches of a row. The default edge comes from a sample, so the few rows it
         misses (corners, sparse patches) are redone here, not by the caller; rows still
         missed are reported (``uncovered``).
+      frame: under x64, move the points to the host's local frame first (static); False for
+        points already in the host's frame (a tile's index), whose distances are then the
+        host's own.
 
     Returns:
       :class:`Found` with idx (N, k) int32 padded with N (fewer than k candidates, or beyond
@@ -712,7 +720,7 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
     points = jnp.asarray(points)
     _check(points, k, capacity, chunk, metric)
     n = points.shape[0]
-    e = _edge(points, count, edge, dedupe, k)
+    e = _edge(points, count, edge, dedupe, k, frame)
     bound = None if radius is None else jnp.broadcast_to(jnp.asarray(radius, e.dtype), (n,))
 
     def rows(cloud, qi):
@@ -730,7 +738,7 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
                     limit=limit, ok=ok, needed=c["count"])
 
-    out, cloud = _run(points, count, gid, e, dedupe, rows, _chunk(chunk, n), _spill(spill, n))
+    out, cloud = _run(points, count, gid, e, dedupe, rows, _chunk(chunk, n), _spill(spill, n), frame)
     return _found(cloud, out, capacity, jnp.int32(k), jnp.inf)
 
 
@@ -918,7 +926,8 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
     first = "k" if query is knn else "radius"
     if args:
         kwargs[first] = args[0]
-    static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk", "spill")
+    static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk", "spill",
+                                                  "frame")
               if name in kwargs}
     found = None
     for _ in range(max_rounds):

@@ -22,7 +22,7 @@ import numpy as np
 
 from hgjax import _search_jax, _stream, _validate, spatial
 
-__all__ = ["CELL_CAPACITY", "SEARCHES", "build_knn", "check", "knn", "local_frame"]
+__all__ = ["CELL_CAPACITY", "SEARCHES", "build_knn", "check", "default_search", "index_knn", "knn", "local_frame"]
 
 CELL_CAPACITY = 128
 """Candidate slots per query of the traced search (points its 27-cell block may hold; static)."""
@@ -74,12 +74,8 @@ def local_frame(points) -> jax.Array:
         return p - (lo + hi) / 2
     p = p.astype(jnp.float32)
     lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
-    s = lo + hi
-    b = s - lo
-    e = (lo - (s - b)) + (hi - b)  # lo + hi == s + e exactly
-    a = p - s / 2
-    bb = a - p
-    err = (p - (a - bb)) + (-s / 2 - bb)  # p - s / 2 == a + err exactly
+    s, e = _search_jax._two_sum(lo, hi)  # lo + hi == s + e exactly
+    a, err = _search_jax._two_sum(p, -s / 2)  # p - s / 2 == a + err exactly
     return a + (err - e / 2)
 
 
@@ -135,3 +131,39 @@ def check(nb: spatial.Neighbourhoods) -> None:
                " hgjax.neighbourhoods(..., search='jax') grows both)")
         raise ValueError(f"nb overflowed the traced search's capacity: some neighbourhoods may be truncated; rebuild"
                          f" them with {how}")
+
+
+def default_search() -> str:
+    """The search a run uses when none is named: ``"jax"`` on a GPU/TPU backend, ``"host"`` on CPU.
+
+    On a CPU SciPy's k-d tree is faster than the traced search (``bench/results/device_search.md``);
+    on an accelerator the traced search runs where the scores run (``device_search_gpu.md``).
+    """
+    return "host" if jax.default_backend() == "cpu" else "jax"
+
+
+def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`hgjax.spatial.SpatialIndex.knn` of sorted-frame ``rows`` by the traced search (a tile's build).
+
+    The search runs on the index's own float64 coordinates with x64 enabled for this call only
+    (``frame=False``: the host's frame, its distances the k-d tree's), ties by the index's
+    global ids, so the neighbourhoods are the host's bit for bit.
+
+    Returns:
+      (idx, reach): idx (R, k) int32 sorted-frame rows, column 0 the point itself, padded
+      with n when the index holds fewer than k points; reach (R,) float64 the k-th distance (inf when the index holds fewer than k points).
+
+    Raises:
+      ValueError: global ids beyond int32 (the traced search's tie key).
+    """
+    if index.gid_span > np.iinfo(np.int32).max:
+        raise ValueError(f"search='jax' breaks ties by int32 global ids; this cloud's reach {index.gid_span}")
+    n, k_eff = index.n, min(k, index.n)
+    rows_in = _search_jax.bucket(n)  # the tile padded to a power of two: one program per size class
+    with jax.enable_x64(True):
+        found = _search_jax.grown(_search_jax.knn, np.pad(index.points, ((0, rows_in - n), (0, 0))), k_eff,
+                                  gid=np.pad(index.gid[:n], (0, rows_in - n)).astype(np.int32), count=n,
+                                  capacity=CELL_CAPACITY, frame=False)
+        idx, reach = np.asarray(found.idx)[rows], np.asarray(found.reach, np.float64)[rows]
+    idx = np.pad(np.minimum(idx, n), ((0, 0), (0, k - k_eff)), constant_values=n)
+    return idx, (reach if k_eff == k else np.full(reach.shape, np.inf))

@@ -27,7 +27,7 @@ import time
 import jax
 import numpy as np
 
-from hgjax import _registry, _tiling, _validate, pipeline, select
+from hgjax import _registry, _tiling, _traced, _validate, pipeline, select
 from hgjax._method import Method, Sampler
 
 __all__ = ["STAGES", "Run", "checked_tile", "planned", "resample", "run"]
@@ -93,9 +93,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return_scores = _validate.check_bool(return_scores, "return_scores")
     refused, tile = checked_tile(entry, params, tile, client)
     _registry.check_known(entry, params)
-    if params.get("search", "host") != "host":
-        raise ValueError(f"search={params['search']!r} runs in one tile only (hgjax.resample); tiles, Dask and"
-                         " surveys search on the host")
+    params = searched(entry, params)
     _validate.check_stream(params)  # the kernel stream's chunk_size and progress, before any work
     if isinstance(entry, Sampler):
         return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
@@ -126,6 +124,26 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     clock("keep")
     threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
     return Run(idx, _tiling.gathered(runner, parts, plan) if return_scores else None, plan, selection, threshold)
+
+
+def searched(entry: Method | Sampler, params: dict) -> dict:
+    """``params`` with the run's neighbour search: the one named, else the backend's default
+    (:func:`hgjax._traced.default_search`) where the method's tiles can build with it.
+
+    Raises:
+      ValueError: a ``search`` the method's tiles cannot build with.
+    """
+    if isinstance(entry, Sampler) or entry.tiling is None:
+        return params
+    searches = entry.tiling.searches
+    if "search" in params:
+        search = _validate.check_choice(params["search"], "search", _traced.SEARCHES)
+        if search not in searches:
+            raise ValueError(f"method {entry.name!r} builds its tiles with search in {searches}; got"
+                             f" search={search!r} (hgjax.resample(..., search={search!r}) runs it as one traced tile)")
+        return params
+    default = _traced.default_search()
+    return {**params, "search": default} if default in searches else params
 
 
 def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> tuple[tuple[str, str] | None, float | None]:
@@ -189,7 +207,8 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
         (:data:`hgjax.engine.STAGES`).
       **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
         ``chunk_size``, ``progress``), and ``search="jax"`` for the methods that take it
-        (:data:`hgjax.METHODS`' build parameters: the k-nearest ones): the whole resample in
+        (:data:`hgjax.METHODS`' build parameters: the k-nearest ones, and GFR with
+        ``mode="top"``, a selection that keeps the top scores): the whole resample in
         pure JAX, neighbourhoods included, so it runs inside a caller's ``jax.jit`` (``ratio``
         and shape parameters static) and returns a JAX int32 array, equal to the host's.
 
@@ -211,20 +230,20 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
       ((400,), 400)
     """
     if params.get("search", "host") != "host":
-        return _traced(points, ratio, _registry.scoring(method), return_scores, params)
+        return _pure(points, ratio, _registry.scoring(method), return_scores, params)
     done = run(points, ratio, method=method, key=key, return_scores=return_scores, on_stage=on_stage, params=params)
     return (done.idx, done.scores) if return_scores else done.idx
 
 
-def _traced(points, ratio, entry: Method, return_scores, params: dict):
+def _pure(points, ratio, entry: Method, return_scores, params: dict):
     """``top_k(score(neighbourhoods(points, search="jax")))``: a resample in pure JAX, under a caller's ``jit``.
 
     The kept count ceil(ratio N) sets a shape: ``ratio`` is static. Ties are broken by index
     as :func:`hgjax.top_k` breaks them (``jax.lax.top_k`` lists the lower index first).
     """
-    if entry.select is not None:
-        raise ValueError(f"method {entry.name!r} selects on the host ({entry.select.__module__}); search='jax' resamples"
-                         " with the methods that keep their top scores")
+    if entry.select is not None and not (entry.keeps_top is not None and entry.keeps_top(params)):
+        raise ValueError(f"method {entry.name!r} selects on the host ({entry.select.__module__}) with these parameters;"
+                         " search='jax' resamples with a selection that keeps the top scores")
     return_scores = _validate.check_bool(return_scores, "return_scores")
     nb = pipeline.neighbourhoods(points, entry.name, **params)
     scores = pipeline.score(nb, entry.name, **params)

@@ -125,7 +125,8 @@ def soft_score(nb):
 
 
 def knn_params(n: int, k: int, params: dict) -> dict:
-    """Build parameters ``{"k", "dedupe"}`` of a k-nearest method for ``n`` points.
+    """Build parameters ``{"k", "dedupe"}`` of a k-nearest method for ``n`` points (and
+    ``"search": "jax"`` when its tiles build with the traced search).
 
     Raises:
       TypeError, ValueError: invalid ``dedupe`` or ``capacity`` (an integer >= k, as
@@ -134,6 +135,19 @@ def knn_params(n: int, k: int, params: dict) -> dict:
     build = {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}
     _validate.check_capacity_param(params, k)
     _validate.check_min_points(n, k, f"k={k} nearest neighbours")
+    return searched(build, params)
+
+
+def searched(build: dict, params: dict) -> dict:
+    """``build`` with ``"search": "jax"`` when ``params`` ask the tiles for the traced search.
+
+    The host search is recorded by no key, so a host run's plan is what it always was.
+
+    Raises:
+      ValueError: ``search`` not one of :data:`hgjax._traced.SEARCHES`.
+    """
+    if _validate.check_choice(params.get("search", "host"), "search", _traced.SEARCHES) == "jax":
+        return {**build, "search": "jax"}
     return build
 
 
@@ -147,8 +161,13 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.spatial.knn_batches`)."""
+    """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.spatial.knn_batches`,
+    or one batch of :func:`hgjax._traced.index_knn` with ``build["search"] == "jax"``)."""
     del dtype  # no per-row arguments
+    if build.get("search") == "jax":
+        idx, reach = _traced.index_knn(index, build["k"], rows)
+        yield slice(0, rows.size), idx, (), reach
+        return
     for part, idx, reach in spatial.knn_batches(index, build["k"], rows):
         yield part, idx, (), reach
 
@@ -171,4 +190,5 @@ METHOD = _method.Method(
     "ea", "knn", largest=True, needs_key=False,
     summary="eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
     citation=_method.DICTA, build=neighbourhoods, score=score, soft_score=soft_score, params=KNN_PARAMS,
-    tiling=_method.Tiling(params=tile_params, reach=knn_reach, rows=tile_rows, kernel=tile_kernel))
+    tiling=_method.Tiling(params=tile_params, reach=knn_reach, rows=tile_rows, kernel=tile_kernel,
+                          searches=_traced.SEARCHES))

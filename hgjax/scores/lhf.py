@@ -484,7 +484,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     solver = _validate.check_choice(params.get("solver", "gram"), "solver", SOLVERS)
     _validate.check_capacity_param(params, max(b["lengths"]))
     _validate.check_min_points(n, max(b["lengths"]), f"LHF lengths={b['lengths']}")
-    return ({"k": max(b["lengths"]), "dedupe": b["dedupe"]},
+    return (ea.searched({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
             {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
 
 
@@ -525,4 +525,4 @@ METHOD = _method.Method(
                             soft_score=("lengths", "tau")),
     columns=2, combine=combine,
     tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, rows=ea.tile_rows, kernel=_tile_kernel,
-                          select=tiled_select))
+                          select=tiled_select, searches=ea.METHOD.tiling.searches))

@@ -460,4 +460,4 @@ METHOD = _method.Method(
                           score=("chunk_size", "noise", "progress"), soft_score=("noise",)),
     bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, resolve=resolve, rows=tile_rows,
-                          kernel=_tile_kernel))
+                          kernel=_tile_kernel, searches=ea.METHOD.tiling.searches))

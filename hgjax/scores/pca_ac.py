@@ -253,5 +253,5 @@ METHOD = _method.Method(
     citation=_method.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
     params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select,
     tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, rows=ea.tile_rows, kernel=ea.tile_kernel,
-                          whole_selection=True, refused=_untiled),
+                          whole_selection=True, refused=_untiled, searches=ea.METHOD.tiling.searches),
     ranks_as=(ea.METHOD.name, "PCA-AC's Ward clusters are intervals of EA's surface variation, on the same neighbours"))
