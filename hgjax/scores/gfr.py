@@ -55,7 +55,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _graph, _method, _stream, _tiling, _validate, select, spatial
+from hgjax import _graph, _method, _stream, _tiling, _traced, _traced_graph, _validate, select, spatial
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K
 
@@ -237,14 +237,21 @@ def _weights_dtype(variant: str):
 
 
 def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float | None = None,
-                   max_nn: int = _graph.MAX_NN, capacity: int | None = None) -> spatial.Neighbourhoods:
-    """The GFR graph as :class:`hgjax.Neighbourhoods` (host, not jittable): see :func:`hgjax._graph.graph`.
+                   max_nn: int = _graph.MAX_NN, capacity: int | None = None, search: str = "host",
+                   cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+    """The GFR graph as :class:`hgjax.Neighbourhoods`, :func:`hgjax._graph.graph` (host; jittable: ``search="jax"``).
 
     Args:
       points: (N, 3) float32 or float64; never modified.
       variant, radius_factor, max_nn: as :func:`hgjax._graph.graph`.
       capacity: fixed number of columns K (at least the fullest row); default the fullest
-        row rounded up to a power of two.
+        row rounded up to a power of two. Static with ``search="jax"`` under ``jit`` (default
+        there ``bucket(max_nn)``; a wider row is recorded on ``overflow``).
+      search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
+        jit, vmap, grad; the same graph, :mod:`hgjax._traced_graph`).
+      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and
+        cell edge (traced, or None from the data); an eager build grows both and records
+        them (with ``capacity``) in ``nb.params``, to pass back inside ``jit``.
 
     Returns:
       Neighbourhoods whose row i lists the partners j > i of its stored pairs, padded with N,
@@ -260,6 +267,9 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
       >>> nb.idx.shape[0], nb.scale is None
       (100, True)
     """
+    if _validate.check_choice(search, "search", _traced.SEARCHES) == "jax":
+        return _traced_graph.build(points, variant=variant, radius_factor=radius_factor, max_nn=max_nn,
+                                   capacity=capacity, cell_capacity=cell_capacity, cell_edge=cell_edge)
     pts = _validate.check_points(points)
     local = spatial.local_frame(pts)[0]
     idx, first = _graph.graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
@@ -694,6 +704,11 @@ def _select(scores, m: int, *, key=None, mode: str = "random") -> np.ndarray:
     return select.weighted_sample(key, inclusion(np.ldexp(values, shift), total.value(shift), n), m)
 
 
+def _keeps_top(params: dict) -> bool:
+    """Whether the selection with these parameters keeps the top scores, ties by index (``mode="top"``)."""
+    return _validate.check_choice(params.get("mode", "random"), "mode", MODES) == "top"
+
+
 def _untiled(params: dict) -> tuple[str, str] | None:
     if params.get("variant") != "reference":
         return None
@@ -854,8 +869,9 @@ METHOD = _method.Method(
     summary='graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
     citation="Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "max_nn", "radius_factor", "variant"),
+    params=_method.stages(build=("capacity", "cell_capacity", "cell_edge", "max_nn", "radius_factor", "search",
+                                 "variant"),
                             score=("chunk_size", "progress", "variant"), soft_score=("variant",), select=("mode",)),
-    select=_select, check_key=check_key, bytes_per_sample=4096,
+    select=_select, check_key=check_key, keeps_top=_keeps_top, bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=_reach, resolve=resolve_build, halo=_first_halo,
                           scores=tiled_scores, select=tiled_select, refused=_untiled))

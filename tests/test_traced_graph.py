@@ -1,0 +1,170 @@
+"""search="jax" for GFR: its graph (both variants) and its top-score resample in pure JAX, equal to the host's."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hgjax
+from fixtures import box_union, degenerate_clouds
+
+VARIANTS = ["invariant", "reference"]
+SEARCHED = ("capacity", "cell_capacity", "cell_edge")
+
+
+def _clouds():
+    smooth = box_union(1200, seed=3).astype(np.float32)
+    rounded = (np.round(smooth * 20) / 20).astype(np.float32)  # many equal distances and duplicates
+    return {"smooth": smooth, "rounded": rounded}
+
+
+@pytest.fixture(scope="module")
+def clouds():
+    return _clouds()
+
+
+@pytest.fixture(scope="module")
+def built(clouds):
+    """(host, eager traced) neighbourhoods of every cloud and variant, built once."""
+    out = {}
+    for which, p in clouds.items():
+        for variant in VARIANTS:
+            # the first build starts wide enough for the graph's blocks: fewer rounds of growth to compile
+            out[which, variant] = (hgjax.neighbourhoods(p, "gfr", variant=variant),
+                                   hgjax.neighbourhoods(p, "gfr", variant=variant, search="jax", cell_capacity=512))
+    return out
+
+
+@functools.partial(jax.jit, static_argnames=("variant", "capacity", "cell_capacity"))
+def _jitted(points, cell_edge, *, variant, capacity, cell_capacity):
+    """The traced build inside jit, one program per static setting (shared by clouds of one N)."""
+    return hgjax.neighbourhoods(points, "gfr", variant=variant, search="jax", capacity=capacity,
+                                cell_capacity=cell_capacity, cell_edge=cell_edge)
+
+
+def _jit_build(points, variant, settings):
+    return _jitted(points, settings["cell_edge"], variant=variant, capacity=settings["capacity"],
+                   cell_capacity=settings["cell_capacity"])
+
+
+def _searched(nb) -> dict:
+    """The traced build's settings an eager build ended with, to pass back inside jit."""
+    params = dict(nb.params)
+    return {name: params[name] for name in SEARCHED}
+
+
+def _first(nb) -> np.ndarray:
+    """``nb.first``, the identity where it is None (every point its own location)."""
+    n = nb.points.shape[0]
+    return np.arange(n) if nb.first is None else np.asarray(nb.first)
+
+
+def _assert_same_graph(got, host, *, first_may_be_identity=False):
+    np.testing.assert_array_equal(np.asarray(got.idx), host.idx)
+    assert got.idx.dtype == host.idx.dtype
+    np.testing.assert_array_equal(np.asarray(got.points), np.asarray(host.points))
+    assert got.points.dtype == host.points.dtype
+    if first_may_be_identity:
+        np.testing.assert_array_equal(_first(got), _first(host))
+    else:
+        assert (got.first is None) == (host.first is None)
+        if host.first is not None:
+            np.testing.assert_array_equal(np.asarray(got.first), host.first)
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("which", ["smooth", "rounded"])
+def test_traced_graph_equals_the_host(built, which, variant):
+    host, eager = built[which, variant]
+    _assert_same_graph(eager, host)
+    params = dict(eager.params)
+    assert params["search"] == "jax" and int(eager.overflow) == 0
+    assert {k: v for k, v in params.items() if k not in ("search",) + SEARCHED} == dict(host.params)
+    np.testing.assert_array_equal(np.asarray(hgjax.score(eager, "gfr", variant=variant)),
+                                  np.asarray(hgjax.score(host, "gfr", variant=variant)))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_jitted_graph_equals_the_eager_one(clouds, built, variant):
+    p = clouds["rounded"]
+    host, eager = built["rounded", variant]
+    jitted = _jit_build(p, variant, _searched(eager))
+    assert int(jitted.overflow) == 0
+    assert dict(jitted.params) == {**dict(eager.params), "cell_edge": None}  # the edge was traced there
+    _assert_same_graph(jitted, host, first_may_be_identity=True)
+    np.testing.assert_array_equal(np.asarray(hgjax.score(jitted, "gfr", variant=variant)),
+                                  np.asarray(hgjax.score(host, "gfr", variant=variant)))
+
+
+def test_jitted_graph_without_duplicates_scores_as_the_host(clouds, built):
+    """Under jit ``first`` is always an array (the identity here): the same scores as the host's None."""
+    host, eager = built["smooth", "invariant"]
+    jitted = _jit_build(clouds["smooth"], "invariant", _searched(eager))
+    assert host.first is None and eager.first is None
+    np.testing.assert_array_equal(np.asarray(jitted.first), np.arange(host.idx.shape[0]))
+    np.testing.assert_array_equal(np.asarray(jitted.idx), host.idx)
+    np.testing.assert_array_equal(np.asarray(hgjax.score(jitted, "gfr")), np.asarray(hgjax.score(host, "gfr")))
+
+
+def test_traced_graph_equals_the_host_in_float64(clouds):
+    with jax.enable_x64(True):
+        p = clouds["rounded"].astype(np.float64)
+        host = hgjax.neighbourhoods(p, "gfr")
+        eager = hgjax.neighbourhoods(p, "gfr", search="jax", cell_capacity=512)
+        _assert_same_graph(eager, host)
+        assert eager.points.dtype == jnp.float64
+
+
+def test_jitted_top_resample_equals_the_host(clouds, built):
+    p = clouds["rounded"]
+    settings = _searched(built["rounded", "invariant"][1])
+    host = hgjax.resample(p, 0.2, method="gfr", mode="top")
+    got = jax.jit(lambda q: hgjax.resample(q, 0.2, method="gfr", mode="top", search="jax", **settings))(p)
+    np.testing.assert_array_equal(np.asarray(got), host)
+    eager = hgjax.resample(p, 0.2, method="gfr", mode="top", search="jax", cell_capacity=512)
+    np.testing.assert_array_equal(np.asarray(eager), host)
+
+
+def test_the_random_selection_is_refused_by_the_traced_resample(clouds):
+    with pytest.raises(ValueError, match="selects on the host"):
+        hgjax.resample(clouds["smooth"], 0.2, method="gfr", search="jax", key=jax.random.key(0))
+
+
+def test_an_overflow_under_jit_is_flagged_and_refused_eagerly(clouds, built):
+    p = clouds["smooth"]
+    settings = _searched(built["smooth", "reference"][1])
+    nb = _jit_build(p, "reference", {**settings, "cell_capacity": 8})  # blocks over the cell capacity
+    assert int(nb.overflow) > 8
+    with pytest.raises(ValueError, match="overflowed the traced search's capacity"):
+        hgjax.score(nb, "gfr", variant="reference")
+    settings = {**_searched(built["smooth", "invariant"][1]), "capacity": 8}
+    nb = _jit_build(p, "invariant", settings)  # rows wider than the static columns
+    assert int(nb.overflow) == -1
+    with pytest.raises(ValueError, match="overflowed"):
+        hgjax.score(nb, "gfr")
+    with pytest.raises(ValueError, match="capacity=8 is too small"):  # eagerly, as the host
+        hgjax.neighbourhoods(p, "gfr", search="jax", **settings)
+
+
+def test_an_eager_build_grows_its_cell_capacity(clouds, built):
+    p = clouds["rounded"]
+    grown = hgjax.neighbourhoods(p, "gfr", variant="reference", search="jax", cell_capacity=8)
+    assert int(grown.overflow) == 0 and dict(grown.params)["cell_capacity"] > 8
+    _assert_same_graph(grown, built["rounded", "reference"][0])
+
+
+@pytest.mark.parametrize("name", ["all_equal", "duplicates", "collinear"])
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_degenerate_clouds(name, variant):
+    p = degenerate_clouds()[name].astype(np.float32)
+    x64 = name == "collinear" and variant == "invariant"
+    # float32 pairs cannot follow float64's rounding where a pair's length equals the radius exactly (here: ten
+    # equal steps on the line); x64 computes the host's float64 bits
+    with jax.enable_x64(x64):
+        host = hgjax.neighbourhoods(p, "gfr", variant=variant)
+        eager = hgjax.neighbourhoods(p, "gfr", variant=variant, search="jax")
+        _assert_same_graph(eager, host)
+        np.testing.assert_array_equal(np.asarray(hgjax.score(eager, "gfr", variant=variant)),
+                                      np.asarray(hgjax.score(host, "gfr", variant=variant)))
