@@ -1,4 +1,6 @@
-"""search="jax": the k-nearest methods' neighbourhoods and resample in pure JAX, equal to the host's."""
+"""search="jax": the k-nearest methods' and HKC/HKF's neighbourhoods and resample in pure JAX, equal to the host's."""
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -6,9 +8,10 @@ import numpy as np
 import pytest
 
 import hgjax
-from fixtures import box_union
+from fixtures import box_union, degenerate_clouds
 
 KNN = ["ea", "lhf", "mss"]
+CUBE = ["hkc", "hkf"]  # voxel.neighbourhoods: the invariant ball or the reference cube, and the voxel spacing
 
 
 def _clouds():
@@ -107,8 +110,118 @@ def test_a_jitted_training_step_rebuilds_neighbourhoods_and_compiles_once(clouds
 @pytest.mark.parametrize("call", [
     lambda p: hgjax.tiles.resample(p, 0.2, method="ea", tile=1.0, search="jax"),
     lambda p: hgjax.resample(p, 0.2, method="pca_ac", search="jax"),
-    lambda p: hgjax.neighbourhoods(p, "hkc", search="jax"),
+    lambda p: hgjax.tiles.resample(p, 0.2, method="hkc", tile=1.0, search="jax"),
 ])
 def test_what_the_traced_search_does_not_cover_is_refused(clouds, call):
     with pytest.raises((ValueError, TypeError)):
         call(clouds["smooth"])
+
+
+# ----------------------------------------------------------------------------- HKC/HKF: cubes and balls
+def _cube_settings(nb) -> dict:
+    """The traced search's settings and the columns an eager cube build ended with, to pass back inside jit."""
+    return {**_searched(nb), "capacity": dict(nb.params)["capacity"]}
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted_cubes(variant: str, cell_capacity: int, capacity: int):
+    """One jitted HKC build per static setting (the edge traced), shared by the clouds that need it."""
+    return jax.jit(lambda q, edge: hgjax.neighbourhoods(q, "hkc", variant=variant, search="jax", cell_edge=edge,
+                                                        cell_capacity=cell_capacity, capacity=capacity))
+
+
+def _jitted_like(nb, p, variant="invariant"):
+    settings = _cube_settings(nb)
+    return _jitted_cubes(variant, settings["cell_capacity"], settings["capacity"])(p, settings["cell_edge"])
+
+
+@pytest.fixture(scope="module")
+def cube_builds(clouds):
+    """(host, eager traced) HKC neighbourhoods by (cloud, variant), built once."""
+    cache = {}
+
+    def get(which, variant):
+        if (which, variant) not in cache:
+            p = clouds[which]
+            cache[which, variant] = (hgjax.neighbourhoods(p, "hkc", variant=variant),
+                                     hgjax.neighbourhoods(p, "hkc", variant=variant, search="jax"))
+        return cache[which, variant]
+    return get
+
+
+def _assert_same_cubes(got, host):
+    np.testing.assert_array_equal(np.asarray(got.idx), host.idx)
+    np.testing.assert_array_equal(np.asarray(got.points), np.asarray(host.points))
+    np.testing.assert_array_equal(np.asarray(got.scale), np.asarray(host.scale))
+
+
+@pytest.mark.parametrize("variant", ["invariant", "reference"])
+@pytest.mark.parametrize("which", ["smooth", "rounded"])
+def test_traced_cubes_equal_the_host(clouds, cube_builds, variant, which):
+    """The whole build traced: spacing (or resolution), d factor from the sample, ball (or cube), scale d."""
+    host, eager = cube_builds(which, variant)
+    _assert_same_cubes(eager, host)
+    jitted = _jitted_like(eager, clouds[which], variant)
+    assert int(jitted.overflow) == 0
+    _assert_same_cubes(jitted, host)
+    np.testing.assert_array_equal(np.asarray(hgjax.score(jitted, "hkc", variant=variant)),
+                                  np.asarray(hgjax.score(host, "hkc", variant=variant)))
+
+
+def test_traced_cubes_equal_the_host_in_float64(clouds):
+    with jax.enable_x64(True):
+        p = clouds["rounded"].astype(np.float64)
+        eager = hgjax.neighbourhoods(p, "hkc", search="jax")
+        assert eager.points.dtype == jnp.float64 and eager.scale.dtype == jnp.float64
+        _assert_same_cubes(eager, hgjax.neighbourhoods(p, "hkc"))
+
+
+@pytest.mark.parametrize("params", [{"resolution": 0.1}, {"variant": "reference", "resolution": 0.1, "d_factor": 1.5}],
+                         ids=["resolution", "both"])
+def test_traced_cubes_with_a_fixed_resolution_and_factor(clouds, params):
+    p = clouds["rounded"]
+    _assert_same_cubes(hgjax.neighbourhoods(p, "hkc", search="jax", **params), hgjax.neighbourhoods(p, "hkc", **params))
+
+
+def test_the_traced_d_factor_ramp_is_the_hosts():
+    """The irregularity between the lattice and the random regimes sets d_factor by a linear ramp, same bits."""
+    from hgjax import _traced_cube
+    from hgjax.scores import voxel
+    ramp = (voxel.IRREGULARITY_RANGE, (voxel.REGULAR_D_FACTOR, voxel.IRREGULAR_D_FACTOR))
+    x = np.array([0.0, 0.25, 0.3, 0.3333, 0.41, 0.45, 0.6])
+    with jax.enable_x64(True):
+        got = np.asarray(jax.jit(lambda v: _traced_cube.linear_ramp(v, ramp))(jnp.asarray(x)))
+    np.testing.assert_array_equal(got, [voxel.default_d_factor(v) for v in x])
+
+
+def test_cube_resample_equals_the_host(clouds, cube_builds):
+    """Jitted (HKC) and eager (HKF, same cubes) resamples with the traced search keep the host's points."""
+    p = clouds["smooth"]
+    settings = _cube_settings(cube_builds("smooth", "invariant")[1])
+    got = jax.jit(lambda q: hgjax.resample(q, 0.2, method="hkc", search="jax", **settings))(p)
+    np.testing.assert_array_equal(np.asarray(got), hgjax.resample(p, 0.2, method="hkc"))
+    np.testing.assert_array_equal(np.asarray(hgjax.resample(p, 0.2, method="hkf", search="jax")),
+                                  hgjax.resample(p, 0.2, method="hkf"))
+
+
+def test_a_cube_overflow_under_jit_is_flagged_and_refused_eagerly(clouds):
+    p = clouds["smooth"]
+    nb = _jitted_cubes("reference", 4, 4)(p, None)  # too few cells and too few columns
+    assert int(nb.overflow) != 0
+    with pytest.raises(ValueError, match="overflowed the traced search's capacity"):
+        hgjax.score(nb, "hkc", variant="reference")
+    with pytest.raises(ValueError, match="capacity=4 is too small"):  # eagerly, as the host
+        hgjax.neighbourhoods(p, "hkc", variant="reference", search="jax", capacity=4)
+
+
+@pytest.mark.parametrize("name", ["all_equal", "collinear", "two_points"])
+def test_degenerate_clouds_give_the_hosts_cubes(name):
+    """One location (spacing 1), a line, fewer locations than the spacing's 17 (the host's k lowered alike)."""
+    p = degenerate_clouds(40)[name].astype(np.float32)
+    host = hgjax.neighbourhoods(p, "hkc")
+    eager = hgjax.neighbourhoods(p, "hkc", search="jax")
+    _assert_same_cubes(eager, host)
+    assert np.isfinite(np.asarray(eager.scale)).all()
+    jitted = _jitted_like(eager, p)
+    assert int(jitted.overflow) == 0
+    _assert_same_cubes(jitted, host)

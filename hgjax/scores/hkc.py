@@ -193,7 +193,8 @@ def _tile_kernel(params: dict):
     return _kernel(params["kernel_size"], params["variant"]), True
 
 
-CUBE_PARAMS = _method.stages(build=("capacity", "d_factor", "dedupe", "kernel_size", "resolution", "variant"),
+CUBE_PARAMS = _method.stages(build=("capacity", "cell_capacity", "cell_edge", "d_factor", "dedupe", "kernel_size",
+                                    "resolution", "search", "variant"),
                                score=("chunk_size", "kernel_size", "progress", "variant"),
                                soft_score=("kernel_size", "tau", "variant"))
 

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate, spatial
+from hgjax import _stream, _traced, _traced_cube, _validate, spatial
 from hgjax.scores import _common, eigen
 
 __all__ = ["band_energies", "default_d_factor", "frame", "local_signal", "low_high", "neighbourhoods", "oriented",
@@ -434,8 +434,9 @@ def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
 
 def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                    resolution: float | None = None, dedupe: bool | None = None,
-                   capacity: int | None = None) -> spatial.Neighbourhoods:
-    """Cube neighbourhoods of HKC/HKF and the voxel spacing d of each point (host, not jittable).
+                   capacity: int | None = None, search: str = "host", cell_capacity: int | None = None,
+                   cell_edge=None) -> spatial.Neighbourhoods:
+    """Cube neighbourhoods of HKC/HKF and the voxel spacing d of each point (host; jittable with ``search="jax"``).
 
     The ROI of point i is the axis-aligned cube of half-width k d_i / 2 (Fig. 2), with
 
@@ -462,7 +463,16 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       resolution: a fixed resolution (spacing) for every point instead of the computed one.
       dedupe: count exact duplicates once (default: True for "invariant", False for
         "reference").
-      capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic.
+      capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic. With
+        ``search="jax"`` under ``jit`` it sets a static shape: pass the one an eager build
+        recorded (``nb.params``); without it, 256 columns for "invariant" (a cube never
+        holds more) and 128 for "reference" (an overflow is recorded on ``nb.overflow``).
+      search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search,
+        :func:`hgjax._traced_cube.cube`: jit, vmap; the host's neighbour sets and ``scale``,
+        every whole-cloud decision (d factor, resolution) traced too).
+      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
+        edge (traced); an eager build grows them until nothing overflows and records those it
+        ended with, and its columns (``capacity``), in ``params``, to pass inside ``jit``.
 
     Returns:
       :class:`hgjax.Neighbourhoods` with ``scale`` = (N,) voxel spacing d_i.
@@ -477,6 +487,11 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       >>> nb.scale.shape, bool((nb.idx[:, 0] == np.arange(300)).all())
       ((300,), True)
     """
+    search = _validate.check_choice(search, "search", _traced.SEARCHES)
+    if search == "jax":
+        return _traced_neighbourhoods(points, build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size,
+                                                           resolution=resolution, dedupe=dedupe),
+                                      capacity, cell_capacity, cell_edge)
     pts = _validate.check_points(points)
     params = build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size, resolution=resolution,
                           dedupe=dedupe)
@@ -486,3 +501,26 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     resolved = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
     idx, scale, _ = build_rows(index, np.arange(index.n), resolved, cap)
     return spatial.assemble(pts, index, idx, scale, params=params)
+
+
+def _traced_neighbourhoods(points, params: dict, capacity, cell_capacity, cell_edge) -> spatial.Neighbourhoods:
+    """:func:`neighbourhoods` by the traced search: the cube (or ball) with every decision of :func:`resolve` traced."""
+    traced = _stream.is_traced(points)
+    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
+    cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
+    cells = None if cell_capacity is None else _validate.check_int(cell_capacity, "cell_capacity", minimum=1)
+    invariant = params["variant"] == "invariant"
+    if params["resolution"] is not None:
+        spacing = params["resolution"]
+    else:
+        spacing = "local" if invariant else "mean_other"
+    d_factor = params["d_factor"]
+    if d_factor is None and not invariant:
+        d_factor = REFERENCE_D_FACTOR
+    return _traced_cube.cube(
+        pts, metric="l2" if invariant else "linf", widen=np.sqrt(3.0) if invariant else 1.0,
+        kernel_size=params["kernel_size"], d_factor=d_factor,
+        ramp=(IRREGULARITY_RANGE, (REGULAR_D_FACTOR, IRREGULAR_D_FACTOR)), spacing=spacing, local_k=LOCAL_K,
+        max_count=MAX_COUNT if invariant else None, dedupe=params["dedupe"], capacity=cap, cell_capacity=cells,
+        cell_edge=cell_edge, params=params)

@@ -1,0 +1,424 @@
+"""Cube and ball neighbourhoods by the traced search (``search="jax"``): the host's
+:func:`hgjax.scores.voxel.neighbourhoods`, built in pure JAX.
+
+The cube of half-width k d_i / 2 around every point (or, turned into the point's local frame,
+the ball of radius sqrt(3) k d_i / 2 that holds it in every orientation), with the voxel
+spacing d_i decided as the host decides it (:func:`hgjax.scores.voxel.resolve`), all traced:
+
+* ``spacing="local"``: d_i = f x the point's local spacing (:func:`hgjax.spatial.local_spacing`
+  of its ``local_k`` nearest locations: :func:`hgjax._search_jax.local_spacing` of a
+  (local_k + 1)-nearest search);
+* ``spacing="mean_other"``: d = f x the mean distance from the seeded sample
+  (:func:`hgjax.spatial.sample_ids`: N is static, so the sample is static NumPy) to each
+  sampled point's nearest other point (1.0 when that mean is 0);
+* a number: d = f x that fixed spacing;
+
+and f either fixed or from the sample's irregularity (std / mean of the nearest distinct
+distances, :meth:`hgjax.spatial.SampleStats.irregularity`) through a linear ramp (``ramp``).
+
+Arithmetic: under x64 every float64 operation of the host is done in the host's order
+(NumPy's pairwise sums, no fused multiply-add, no reciprocal for a division), so the spacing,
+the radius and ``scale`` are the host's bits and the neighbour sets the host's. Without x64
+the distances, means and spacing are carried as float32 pairs (about 46 bits) and ``scale``
+is the pair rounded once to float32, the radius is that float32 rounding of the host's
+float64 radius: a point is listed as the host lists it unless its distance lies between the
+two (relative 2^-24 of the radius), and a ball shrunk by ``max_count`` has its ``scale``
+from the float32 distance of its ``max_count``-th point (within an ulp of the host's). The
+order inside a row is the pairs' (:mod:`hgjax._search_jax`): the host's, except where two
+distances differ by less than the pairs' precision or float64's rounding makes them equal
+(a 1200-point cloud rounded to a 5 cm grid: 5 rows of long balls listed two tied points in
+the other order; the same sets).
+
+Search settings: every search of one build (the spacing's k-nearest, the sample's nearest, the
+cube) runs with one ``cell_capacity`` and ``cell_edge``. Eagerly each grows from its own
+default (a ball's: 1.1 x the 90th percentile of the radii; the rows it misses are searched
+again at a wider edge) and the build settles on a pair that serves all, recorded on the result.
+
+Degenerate clouds: fewer than ``local_k + 1`` locations lower the spacing's k to the number
+of other locations, as the host does (under ``jit`` the count is traced, and a ``lax.switch``
+picks the k); a single location gets spacing 1 and irregularity 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from hgjax import _search_jax, _stream, _traced, _validate, spatial
+from hgjax._search_jax import (
+    _div,
+    _fast_two_sum,
+    _mul,
+    _pair_add,
+    _pair_keys,
+    _two_prod,
+)
+
+__all__ = ["COLUMNS", "cube", "linear_ramp"]
+
+COLUMNS = 128
+"""Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
+FIRST_COLUMNS = 32  # columns of an eager build's first round (grown to the fullest row's bucket)
+EDGE_QUANTILE = 90  # percent: a ball's default cell edge covers this share of the radii (the rest spill)
+
+
+def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp, spacing, local_k: int,
+         max_count: int | None, dedupe: bool, capacity: int | None, cell_capacity: int | None, cell_edge,
+         params: dict) -> spatial.Neighbourhoods:
+    """Cube (``metric="linf"``) or ball (``"l2"``) neighbourhoods and their voxel spacing, traced.
+
+    Args:
+      points: (N, 3) float32 or float64 (a tracer under ``jit``), N >= 2.
+      metric: ``"linf"`` (the axis-aligned cube) or ``"l2"`` (the ball) (static).
+      widen: the radius is widen x k / 2 x d (static float; sqrt(3) for the ball).
+      kernel_size: k (static).
+      d_factor: d = d_factor x spacing: a float, or None for ``ramp`` of the irregularity.
+      ramp: ((x0, x1), (y0, y1)): the factor y0 up to irregularity x0, y1 from x1, linear
+        in between (:func:`hgjax.scores.voxel.default_d_factor`).
+      spacing: ``"local"``, ``"mean_other"`` or a fixed float (see the module docstring).
+      local_k: neighbours of the local spacing (static).
+      max_count: a row that holds this many points or more shrinks (static; None: never).
+      dedupe: count exact duplicates once (static).
+      capacity: columns K of ``idx`` (static) or None: eagerly the host's (the fullest row
+        rounded up to a power of two, at least 8), under ``jit`` ``max_count`` or :data:`COLUMNS`.
+      cell_capacity: the traced searches' candidate slots per query (static; default
+        :data:`hgjax._traced.CELL_CAPACITY`); eagerly only the first round's.
+      cell_edge: their cell edge (traced), or None for one from the data.
+      params: build parameters recorded on the result (``search`` added; eagerly also the
+        ``capacity``, ``cell_capacity`` and ``cell_edge`` it ended with, to pass inside ``jit``).
+
+    Returns:
+      :class:`hgjax.Neighbourhoods` with the host's ``idx`` (N, K) int32 padded with N,
+      ``scale`` (N,) the voxel spacing d_i, ``overflow`` 0 unless a traced build overflowed
+      (the cell capacity it needs, or -1 for a cell edge or columns too small).
+
+    Raises:
+      ValueError: eagerly, a fixed ``capacity`` smaller than the fullest row (as the host).
+    """
+    p = jnp.asarray(points)
+    n = p.shape[0]
+    traced = _stream.is_traced(p)
+    cells = _traced.CELL_CAPACITY if cell_capacity is None else cell_capacity
+    x64 = bool(jax.config.jax_enable_x64)
+    searches = _Searches(p, traced, cells, cell_edge)
+    # the spacing and the d factor
+    near = None
+    if isinstance(spacing, str) and spacing == "local":
+        near = searches.knn(local_k + 1, dedupe)
+        res, res_lo = _local_spacing(p, near, local_k, dedupe, traced, x64)
+    elif isinstance(spacing, str):
+        other = searches.knn(2, False)
+        res, res_lo = _mean_other(p, other, x64)
+    else:
+        res, res_lo = spacing, None
+    if d_factor is None:
+        distinct = near if near is not None and dedupe else searches.knn(2, True)
+        factor, factor_lo = _ramped(p, distinct, ramp, x64)
+        base = widen * kernel_size / 2  # the host's (widen * k / 2) * d_factor
+        if x64:
+            factor, factor_lo = _mul(jnp.float64(base), factor), None
+        else:
+            factor, factor_lo = _p_mul(_p_const(base), (factor, factor_lo))
+    else:
+        factor, factor_lo = widen * kernel_size / 2 * d_factor, None  # a Python float, as the host's
+    radius, radius_lo = _times(factor, factor_lo, res, res_lo, x64)
+    radius = jnp.broadcast_to(jnp.asarray(radius, jnp.float64 if x64 else jnp.float32), (n,))
+    radius_lo = None if radius_lo is None else jnp.broadcast_to(radius_lo, (n,))
+    # the cube or ball
+    columns = capacity if capacity is not None else (max_count or COLUMNS) if traced else FIRST_COLUMNS
+    found = searches.within(radius, columns, metric, dedupe, max_count)
+    if traced:
+        idx = found.idx
+        overflow = searches.overflow
+        record = {**params, "search": "jax"}
+    else:
+        searches.settle()
+        width = int(found.columns_needed)
+        _validate.check_capacity(capacity, width, "cube")
+        cols = spatial.bucket(width) if capacity is None else capacity
+        idx = found.idx[:, :cols]
+        if idx.shape[1] < cols:
+            idx = jnp.concatenate([idx, jnp.full((n, cols - idx.shape[1]), n, idx.dtype)], axis=1)
+        overflow = jnp.zeros((), jnp.int32)
+        record = {**params, "search": "jax", "capacity": cols, "cell_capacity": searches.capacity,
+                  "cell_edge": float(searches.edge)}
+    # scale d = (2 / k) x the radius used / widen, as the host
+    used = found.reach
+    if x64:
+        scale = _div(_mul(2 / kernel_size, used), widen)
+    else:
+        shrunk = used != radius
+        h = (jnp.where(shrunk, used, radius), jnp.where(shrunk, 0, 0 if radius_lo is None else radius_lo))
+        scale = _p_round(_p_div(_p_mul(_p_const(2 / kernel_size), h), _p_const(widen)))
+    local = _local(points, p, traced)
+    scale = lax.stop_gradient(scale).astype(local.dtype)
+    return spatial.Neighbourhoods(local, idx.astype(jnp.int32), scale, params=spatial.record(record),
+                                  overflow=overflow)
+
+
+def _local(points, p, traced: bool):
+    """The points in the host's local frame and working dtype (as :func:`hgjax._traced.knn`)."""
+    if traced:
+        return _traced.local_frame(p)
+    host = np.asarray(points)
+    return jnp.asarray(spatial.local_frame(host)[0].astype(spatial.working_dtype(host.dtype)))
+
+
+class _Searches:
+    """The build's traced searches with one (cell capacity, cell edge): under ``jit`` as given, with
+    their overflow summed up; eagerly grown until none overflows, then settled on one pair that
+    serves every search (recorded, for the same build inside ``jit``)."""
+
+    def __init__(self, p, traced: bool, capacity: int, edge):
+        self.p, self.traced, self.capacity, self.edge, self.given = p, traced, capacity, edge, edge
+        self.overflow = jnp.zeros((), jnp.int32)
+        self.done = []  # eagerly: [query, args, kwargs, the (capacity, edge) it ran without overflow]
+
+    def _run(self, query, *args, default_edge=None, **kwargs):
+        if self.traced:
+            edge = default_edge if self.edge is None else self.edge
+            found = query(self.p, *args, capacity=self.capacity, edge=edge, **kwargs)
+            needed = jnp.where(found.needed > self.capacity, found.needed, 0)
+            bad = found.uncovered | (found.columns_needed > found.idx.shape[-1])
+            this = jnp.where(bad, -1, needed).astype(jnp.int32)
+            self.overflow = jnp.where((self.overflow < 0) | (this < 0), -1, jnp.maximum(self.overflow, this))
+            return found
+        return self._grown([query, args, kwargs, None], default_edge)
+
+    def _grown(self, search, default_edge=None):
+        query, args, kwargs, settled = search
+        # a first run starts from the given edge, else its own default
+        edge = (default_edge if self.given is None else self.given) if settled is None else self.edge
+        found = _search_jax.grown(query, self.p, *args, capacity=self.capacity, edge=edge, **kwargs)
+        self.capacity, self.edge = found.capacity, found.edge
+        if "columns" in kwargs:  # the columns it grew to, for a later run
+            kwargs["columns"] = found.idx.shape[-1]
+        search[3] = self._settings()
+        if not any(s is search for s in self.done):
+            self.done.append(search)
+        return found
+
+    def _settings(self):
+        return self.capacity, float(self.edge)
+
+    def knn(self, k: int, dedupe: bool):
+        return self._run(_search_jax.knn, k, dedupe=dedupe)
+
+    def within(self, radius, columns: int, metric: str, dedupe: bool, max_count):
+        # A default edge from most rows' radius, not the largest (a sparse point's ball would make every
+        # block hold most of the cloud): the few rows it misses are searched again at a wider edge.
+        n = radius.shape[0]
+        typical = jnp.sort(lax.stop_gradient(radius))[(n - 1) * EDGE_QUANTILE // 100]
+        return self._run(_search_jax.within, radius, columns=columns, metric=metric, dedupe=dedupe,
+                         max_count=max_count, default_edge=_search_jax.EDGE_MARGIN * typical)
+
+    def settle(self, rounds: int = 4) -> None:
+        """Grow the last (capacity, edge) until every search of the build runs with it without overflow."""
+        for _ in range(rounds):
+            stale = [search for search in self.done if search[3] != self._settings()]
+            if not stale:
+                return
+            for search in stale:
+                self._grown(search)
+        raise RuntimeError(f"the traced searches found no common cell capacity and edge in {rounds} rounds")
+
+
+# ----------------------------------------------------------------------------- the host's statistics
+
+def _sq_pairs(p, j):
+    """The squared distance from every point to point ``j`` (N,) as a float32 pair (exact differences)."""
+    return _sq_pairs_of(p, np.arange(p.shape[0]), j)
+
+
+def _local_spacing(p, near, local_k: int, dedupe: bool, traced: bool, x64: bool):
+    """(spacing, lo) (N,): :func:`hgjax.spatial.local_spacing` of every point, k lowered to the other locations."""
+    n = p.shape[0]
+    if dedupe:
+        locations = jnp.sum(near.idx[:, 0] == jnp.arange(n, dtype=near.idx.dtype))
+    else:
+        locations = n
+    branches = [lambda kk=kk: _spacing_k(p, near, kk, x64) for kk in range(local_k + 1)]
+    if not traced or not dedupe:
+        return branches[min(local_k, int(locations) - 1)]()
+    return lax.switch(jnp.clip(locations - 1, 0, local_k), branches)
+
+
+def _spacing_k(p, near, kk: int, x64: bool):
+    """The spacing from the kk nearest other locations (the host's k = min(local_k, locations - 1))."""
+    n = p.shape[0]
+    if kk == 0:  # one location: the host's spacing 1
+        one = jnp.ones(n, jnp.float64 if x64 else jnp.float32)
+        return one, (None if x64 else jnp.zeros(n, jnp.float32))
+    idx = near.idx[:, :kk + 1]
+    if x64:
+        found = dataclasses.replace(near, idx=idx, dist=near.dist[:, :kk + 1], reach=near.dist[:, kk])
+        return _search_jax.local_spacing(found)[0], None
+    sh, sl = _sq_pairs(p, idx[:, kk])  # r_j^2 of every point j
+    safe = jnp.minimum(idx, n - 1)
+    total = _p_sum(sh[safe], sl[safe])
+    mean = _p_div(total, _p_const(kk + 1))
+    sh2, sl2 = _p_sqrt(_p_mul(_p_const(math.pi / kk), mean))
+    ok = sh2 > 0
+    return jnp.where(ok, sh2, 1.0), jnp.where(ok, sl2, 0.0)
+
+
+def _sample_column(p, found, x64: bool):
+    """(S,) (hi, lo) of the distance in column 1 of ``found`` (nearest other point) for the sampled ids."""
+    ids = spatial.sample_ids(p.shape[0])
+    if x64:
+        return found.dist[ids, 1], None
+    return _p_sqrt(_sq_pairs_of(p, ids, found.idx[ids, 1]))
+
+
+def _sq_pairs_of(p, rows, j):
+    """Squared distances (float32 pairs) from the points ``rows`` (S,) to points ``j`` (S,)."""
+    q = lax.stop_gradient(p).astype(jnp.float32)
+    n = q.shape[0]
+    valid = j < n
+    hi, lo = _pair_keys(q[rows][:, None, :], q[jnp.minimum(j, n - 1)][:, None, :], "l2")
+    return jnp.where(valid, hi[:, 0], jnp.inf), jnp.where(valid, lo[:, 0], 0)
+
+
+def _mean_other(p, other, x64: bool):
+    """The sample's mean nearest-other distance, 1.0 where it is 0 (:meth:`hgjax.spatial.SampleStats.resolution`)."""
+    d, lo = _sample_column(p, other, x64)
+    s = d.shape[0]
+    if x64:
+        mean = _div(_numpy_sum(d), s)
+        return jnp.where(mean > 0, mean, 1.0), None
+    mh, ml = _p_div(_p_sum(d, lo), _p_const(s))
+    ok = mh > 0
+    return jnp.where(ok, mh, 1.0), jnp.where(ok, ml, 0.0)
+
+
+def _ramped(p, distinct, ramp, x64: bool):
+    """The d factor from the sample's irregularity (std / mean of nearest distinct distances) through ``ramp``."""
+    (x0, x1), (y0, y1) = ramp
+    d, lo = _sample_column(p, distinct, x64)
+    s = d.shape[0]
+    finite = jnp.isfinite(d[0])  # every sampled distance is finite, or none (a single location)
+    d = jnp.where(finite, d, 0)
+    if x64:
+        mean = _div(_numpy_sum(d), s)
+        x = d - mean
+        std = jnp.sqrt(_div(_numpy_sum(_mul(x, x)), s))
+        irr = jnp.where(mean > 0, _div(std, jnp.where(mean > 0, mean, 1)), 0)
+        return linear_ramp(irr, ramp), None
+    lo = jnp.where(finite, lo, 0)
+    mean = _p_div(_p_sum(d, lo), _p_const(s))
+    x = _pair_add(d, lo, -mean[0], -mean[1])
+    var = _p_div(_p_sum(*_p_mul(x, x)), _p_const(s))
+    std = _p_sqrt(var)
+    ok = mean[0] > 0
+    irr = _p_div(std, (jnp.where(ok, mean[0], 1), jnp.where(ok, mean[1], 0)))
+    irr = (jnp.where(ok, irr[0], 0), jnp.where(ok, irr[1], 0))
+    t = _p_div(_pair_add(*irr, *_p_neg(_p_const(x0))), _p_const(x1 - x0))
+    t = _p_clip01(t)
+    return _pair_add(*_p_const(y0), *_p_mul(t, _p_const(y1 - y0)))
+
+
+def linear_ramp(x, ramp):
+    """``ramp`` = ((x0, x1), (y0, y1)) at x: y0 up to x0, y1 from x1, linear in between, traced, in the
+    float64 operations of :func:`hgjax.scores.voxel.default_d_factor` (its bits under x64)."""
+    (x0, x1), (y0, y1) = ramp
+    x = jnp.asarray(x)
+    t = jnp.clip(_div(x - x0, jnp.asarray(x1 - x0, x.dtype)), 0.0, 1.0)
+    return y0 + _mul(t, jnp.asarray(y1 - y0, x.dtype))
+
+
+def _times(a, a_lo, b, b_lo, x64: bool):
+    """a x b (the radius factor x the spacing), as the host's float64 product or a float32 pair."""
+    if x64:
+        if isinstance(a, float) and isinstance(b, float):
+            return np.float64(a) * np.float64(b), None
+        return _mul(jnp.asarray(a, jnp.float64), jnp.asarray(b, jnp.float64)), None
+    if isinstance(a, float) and isinstance(b, float):
+        return _split64(np.float64(a) * np.float64(b))
+    pa = _p_const(a) if isinstance(a, float) else (a, jnp.zeros_like(a) if a_lo is None else a_lo)
+    pb = _p_const(b) if isinstance(b, float) else (b, jnp.zeros_like(b) if b_lo is None else b_lo)
+    return _p_mul(pa, pb)
+
+
+def _numpy_sum(x):
+    """Sum of (S,) float64 in NumPy's pairwise order (8 accumulators up to 128 terms, halves above)."""
+    n = x.shape[-1]
+    if n <= 128:
+        if n < 8:
+            out = jnp.zeros(x.shape[:-1], x.dtype)
+            for i in range(n):
+                out = out + x[..., i]
+            return out
+        r = [x[..., j] for j in range(8)]
+        i = 8
+        while i < n - n % 8:
+            r = [r[j] + x[..., i + j] for j in range(8)]
+            i += 8
+        out = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        for j in range(i, n):
+            out = out + x[..., j]
+        return out
+    half = n // 2
+    half -= half % 8
+    return _numpy_sum(x[..., :half]) + _numpy_sum(x[..., half:])
+
+
+# ----------------------------------------------------------------------------- float32 pairs
+
+def _split64(value):
+    hi = np.float32(value)
+    return jnp.float32(hi), jnp.float32(np.float64(value) - np.float64(hi))
+
+
+def _p_const(c):
+    hi, lo = _split64(c)
+    return hi, lo
+
+
+def _p_neg(a):
+    return -a[0], -a[1]
+
+
+def _p_mul(a, b):
+    p, e = _two_prod(a[0], b[0])
+    return _fast_two_sum(p, e + (_mul(a[0], b[1]) + _mul(a[1], b[0])))
+
+
+def _p_div(a, b):
+    q = _div(a[0], b[0])
+    r = _pair_add(*a, *_p_neg(_p_mul((q, jnp.zeros_like(q)), b)))
+    q2 = _div(r[0], b[0])
+    return _fast_two_sum(q, q2)
+
+
+def _p_sqrt(a):
+    h, lo = a
+    s = jnp.sqrt(jnp.maximum(h, 0))
+    p, e = _two_prod(s, s)
+    pos = s > 0
+    r = _div(((h - p) - e) + lo, jnp.where(pos, 2 * s, 1))
+    hi, lo2 = _fast_two_sum(s, jnp.where(pos & jnp.isfinite(s), r, 0))
+    return jnp.where(jnp.isfinite(s), hi, s), jnp.where(jnp.isfinite(s), lo2, 0)
+
+
+def _p_sum(hi, lo):
+    """Sum over the last axis of pairs, by halving (float32 pairs, order immaterial at their precision)."""
+    while hi.shape[-1] > 1:
+        if hi.shape[-1] % 2:
+            pad = [(0, 0)] * (hi.ndim - 1) + [(0, 1)]
+            hi, lo = jnp.pad(hi, pad), jnp.pad(lo, pad)
+        hi, lo = _pair_add(hi[..., 0::2], lo[..., 0::2], hi[..., 1::2], lo[..., 1::2])
+    return hi[..., 0], lo[..., 0]
+
+
+def _p_clip01(a):
+    below, above = a[0] < 0, a[0] > 1
+    return (jnp.where(below, 0, jnp.where(above, 1, a[0])), jnp.where(below | above, 0, a[1]))
+
+
+def _p_round(a):
+    return a[0] + a[1]
