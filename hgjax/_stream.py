@@ -32,6 +32,7 @@ import numpy as np
 from hgjax import _validate
 
 BLOCK = 1024  # rows per vmapped block
+ACCELERATOR_BLOCK = 16384  # rows per vmapped block of a traced map on a GPU/TPU: fewer sequential steps
 CHUNK_BLOCKS = 8  # blocks per streamed chunk (per device)
 MIN_POINT_ROWS = 1 << 16  # the smallest device copy of a cloud's points (see point_rows)
 MIN_WIDTH = 8  # the narrowest kernel of a NarrowStream (columns)
@@ -72,10 +73,10 @@ def chunk_rows(chunk_size: int | None = None, total: int = 0) -> int:
     return blocks * unit
 
 
-def _blocks(fn: Callable, offsets, valid, row_args, args):
-    """vmap ``fn`` over (C, ...) rows, C a multiple of BLOCK, block by block."""
+def _blocks(fn: Callable, offsets, valid, row_args, args, block: int = BLOCK):
+    """vmap ``fn`` over (C, ...) rows, C a multiple of ``block``, block by block."""
     c = offsets.shape[0]
-    split = lambda x: x.reshape((c // BLOCK, BLOCK) + x.shape[1:])  # noqa: E731
+    split = lambda x: x.reshape((c // block, block) + x.shape[1:])  # noqa: E731
     batched = jax.vmap(fn, in_axes=(0, 0) + (0,) * len(row_args) + (None,) * len(args))
     out = jax.lax.map(lambda b: batched(b[0], b[1], *b[2], *args),
                       (split(offsets), split(valid), tuple(split(a) for a in row_args)))
@@ -85,7 +86,8 @@ def _blocks(fn: Callable, offsets, valid, row_args, args):
 def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
     """``fn`` on every row of (points (N, 3), idx (N, K)) as one pure JAX program (jit, vmap, grad).
 
-    The rows are padded to a multiple of BLOCK with copies of the last row (a real
+    The rows are padded to a multiple of the block (:data:`BLOCK` rows on CPU,
+    :data:`ACCELERATOR_BLOCK` on a GPU/TPU) with copies of the last row (a real
     neighbourhood, so the padding's zero cotangents meet finite derivatives and gradients
     stay finite) and run as one chunk of :func:`_gathered`, the program that
     :func:`map_rows` streams chunk by chunk.
@@ -100,11 +102,13 @@ def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
     """
     points, idx = jnp.asarray(points), jnp.asarray(idx)
     n = points.shape[0]
-    pad = -n % BLOCK
+    block = BLOCK if jax.default_backend() == "cpu" else ACCELERATOR_BLOCK
+    block = min(block, -(-n // BLOCK) * BLOCK)  # no more padding than a CPU block's
+    pad = -n % block
     padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode="edge")  # noqa: E731
     hi = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])  # row N: the sentinel's
     out = _gathered(fn, hi, None, n, padded(jnp.arange(n, dtype=idx.dtype)), padded(idx),
-                    tuple(padded(jnp.asarray(a)) for a in row_args), args)
+                    tuple(padded(jnp.asarray(a)) for a in row_args), args, block)
     return jax.tree.map(lambda x: x[:n], out)
 
 
@@ -328,13 +332,13 @@ class NarrowStream:
         return jax.tree.map(lambda *xs: np.concatenate(xs)[back], *parts)
 
 
-def _gathered(fn: Callable, hi, lo, n, own, nbr, row_args, args):
+def _gathered(fn: Callable, hi, lo, n, own, nbr, row_args, args, block: int = BLOCK):
     """Offsets of the chunk's neighbourhoods gathered on the device, then the block map of ``fn``."""
     valid = nbr < n
     offsets = hi[nbr] - hi[own][:, None, :]
     if lo is not None:
         offsets = offsets + (lo[nbr] - lo[own][:, None, :])
-    return _blocks(fn, jnp.where(valid[..., None], offsets, 0), valid, row_args, args)
+    return _blocks(fn, jnp.where(valid[..., None], offsets, 0), valid, row_args, args, block)
 
 
 @functools.lru_cache(maxsize=None)
