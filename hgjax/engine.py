@@ -207,7 +207,7 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
         (:data:`hgjax.engine.STAGES`).
       **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
         ``chunk_size``, ``progress``), and ``search="jax"`` for the methods that take it
-        (:data:`hgjax.METHODS`' build parameters: the k-nearest ones, and GFR with
+        (:data:`hgjax.METHODS`' build parameters: the k-nearest ones, HKC and HKF, and GFR with
         ``mode="top"``, a selection that keeps the top scores): the whole resample in
         pure JAX, neighbourhoods included, so it runs inside a caller's ``jax.jit`` (``ratio``
         and shape parameters static) and returns a JAX int32 array, equal to the host's.

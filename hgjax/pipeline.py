@@ -27,8 +27,8 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
     """The neighbourhoods a method scores, built on the host with SciPy, or traced (``search="jax"``).
 
     With ``search="jax"`` (the methods whose build parameters list ``search``: the k-nearest
-    ones and GFR's graph) the build is pure JAX: it runs under ``jax.jit`` and ``jax.vmap`` and inside
-    ``jax.grad``, with the host's neighbour sets; eagerly it grows its static
+    ones, HKC/HKF's cubes and GFR's graph) the build is pure JAX: it runs under ``jax.jit`` and
+    ``jax.vmap`` and inside ``jax.grad``, with the host's neighbour sets; eagerly it grows its static
     ``cell_capacity`` until nothing overflows and records the capacity and ``cell_edge`` it
     ended with in ``nb.params``, to pass back inside ``jit``, where an overflow is recorded
     on ``nb.overflow`` instead (:func:`score` refuses it eagerly).
