@@ -23,7 +23,7 @@ FALLBACK_MEMORY = 8 * 2**30
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 INPUT_EXTENSIONS = (".ply", ".pcd", ".las", ".laz", ".xyz", ".txt", ".npy") + MESH_EXTENSIONS[1:]
 CLI_PARAMS = {"ratio": "--ratio or --count", "voxel_size": "--voxel-size", "progress": "--quiet",
-              "key": "--key"}
+              "key": "--key", "search": "--search"}
 """Method parameters set by options of their own, not by ``-p``."""
 
 
@@ -214,8 +214,11 @@ def _load(path: str, args):
 
 
 def _method_params(args, entry) -> dict:
-    """``-p`` and ``--variant`` parameters, checked against the registry entry's parameters of
-    the stages the CLI runs (build, score, select: not the soft score's ``tau``)."""
+    """``-p``, ``--variant`` and ``--search`` parameters, checked against the registry entry's
+    parameters of the stages the CLI runs (build, score, select: not the soft score's ``tau``);
+    a ``--search`` the method's tiles cannot build with is refused by the engine's own check
+    (:func:`hgjax.engine.searched`), before any input is read. Without ``--search`` the engine
+    picks the backend's default."""
     params = {}
     for name, value in args.param:
         if name in CLI_PARAMS:
@@ -233,6 +236,12 @@ def _method_params(args, entry) -> dict:
         takes = ", ".join(sorted(accepted - set(CLI_PARAMS))) or "no parameters"
         raise UsageError(f"method {entry.name!r} does not take {', '.join(unknown)} (from -p/--variant);"
                          f" it takes: {takes}")
+    if args.search is not None:
+        if "search" not in accepted:
+            raise UsageError(f"method {entry.name!r} does not take --search: it builds no neighbourhoods")
+        from hgjax import engine
+
+        params = engine.searched(entry, {**params, "search": args.search})
     return params
 
 
@@ -260,8 +269,11 @@ def _seconds(args, name: str, seconds: float) -> None:
 def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):
     """(kept indices in keep-priority order, scores of every point or None for samplers, seconds).
 
-    :func:`hgjax.resample`, reporting each stage's seconds with ``--verbose`` (its
-    ``on_stage``). The points are moved to their local frame in float64 first, so that no
+    :func:`hgjax.tiles.resample` in one tile, which is :func:`hgjax.resample` (the engine's run),
+    reporting each stage's seconds with ``--verbose`` (its ``on_stage``); a ``search`` in
+    ``params`` (``--search``) is the search of the engine's tiles, as the backend's default is
+    (:func:`hgjax.engine.searched`), where :func:`hgjax.resample` would run ``search="jax"`` as
+    one pure-JAX program. The points are moved to their local frame in float64 first, so that no
     method, the samplers included, ever casts georeferenced coordinates to float32.
     """
     import numpy as np
@@ -273,8 +285,9 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
     extra = {} if voxel_size is None else {"voxel_size": voxel_size}
     if progress and "progress" in entry.resample_params:
         extra["progress"] = True
-    idx, scores = hgjax.resample(points, ratio, method=entry.name, key=key, return_scores=True,
-                                 on_stage=lambda name, seconds: _seconds(args, name, seconds), **params, **extra)
+    idx, scores = hgjax.tiles.resample(points, ratio, method=entry.name, key=key, return_scores=True,
+                                       on_stage=lambda name, seconds: _seconds(args, name, seconds), **params,
+                                       **extra)
     return np.asarray(idx), scores, time.perf_counter() - start
 
 

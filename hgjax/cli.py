@@ -221,6 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                        help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")
+        p.add_argument("--search", choices=["host", "jax"], default=None,
+                       help="neighbour search: host (SciPy's k-d tree, the CPU default) or jax (the traced search,"
+                       " the GPU/TPU default; same neighbours)")
 
     p = sub.add_parser("resample", parents=[common], help="keep a fraction of the points",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,

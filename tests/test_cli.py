@@ -149,11 +149,42 @@ def test_parameters_come_from_the_registry(capsys, tmp_path, monkeypatch):
     (["--ratio", "0.2", "--count", "5"], "not allowed with argument --ratio"),
     (["--count", "100000"], "--count 100000 is more than the 1771 points"),
     (["--count", "0"], "must be >= 1"),
+    (["--search", "bogus"], "argument --search: invalid choice: 'bogus'"),
+    (["--method", "fps", "--search", "jax"], "method 'fps' does not take --search"),
+    (["-p", "search=jax"], "-p search: set it with --search"),
 ])
 def test_parameter_errors_exit_2(capsys, tmp_path, args, message):
     code, out, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.ply", *args)
     assert code == 2 and out == ""
     assert message in err, err
+    assert not (tmp_path / "k.ply").exists()
+
+
+def test_search_is_the_engines_and_keeps_the_same_points(capsys, tmp_path, runs):
+    """--search names the search of the engine's tiles (the backend's default without it): the
+    traced search keeps and writes what the host's k-d tree does."""
+    written = {}
+    for search in (None, "jax"):
+        out = tmp_path / f"{search}.ply"
+        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--samples", 600, "--method", "ea",
+                                *([] if search is None else ["--search", search]))
+        assert code == 0, err
+        written[search] = io.read_points(out)
+    assert [params.get("search") for _, _, params in runs] == [None, "jax"]
+    assert len(written["jax"]) == 120
+    np.testing.assert_array_equal(written["jax"].points, written[None].points)
+    np.testing.assert_array_equal(written["jax"].attributes["score"], written[None].attributes["score"])
+
+
+def test_a_search_the_tiles_cannot_build_with_is_the_engines_error(capsys, tmp_path):
+    host_only = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method) and e.tiling is not None
+                       and "jax" not in e.tiling.searches)
+    if not host_only:
+        pytest.skip("every method's tiles build with the traced search")
+    code, out, err = run_here(capsys, "score", LAMPPOST, "-o", tmp_path / "k.ply", "--method", host_only[0],
+                              "--search", "jax")
+    assert code == 2 and out == "" and len(err.splitlines()) == 1, err
+    assert f"method {host_only[0]!r}" in err and "search='jax'" in err, err
     assert not (tmp_path / "k.ply").exists()
 
 
