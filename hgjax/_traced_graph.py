@@ -23,8 +23,12 @@ Exact: under x64 every value is the host's float64 value (the search's keys are 
 the radius the host's operations in the host's order). Without x64 (float32 input) the
 search's keys are float32 pairs (about 46 bits) and the radius is carried as a pair: a pair
 or a radius that the host tells apart from another by less than about 2^-44 relative may
-compare otherwise (not seen on a test cloud); float64 input without x64 is searched in
-float32 (JAX casts it on entry), so its graph may differ from the host's float64 one.
+compare otherwise. That includes a pair whose length equals the radius in exact arithmetic,
+where the host's float64 rounding of q and r decides (measured: ten equal steps on a line,
+the invariant radius being ten resolutions; no such pair on the smooth or rounded test
+clouds, nor on the GPU at 2e4 points): use x64 for the host's bits on lattices. float64
+input without x64 is searched in float32 (JAX casts it on entry), so its graph may differ
+from the host's float64 one.
 
 Widths: the kept lists are (N, max_nn + 1), the reference balls (N, cell capacity) (a ball
 lies inside its 27-cell block), the output (N, columns): memory is bounded by these, never
@@ -51,6 +55,7 @@ __all__ = ["build"]
 MAX_ROUNDS = 12  # eager rounds of growth before giving up
 BALL_MARGIN = 2.0 ** -18  # the reference ball's squared radius over r: beyond float32 q's rounding (< 2^-21)
 RADIUS_MARGIN = 2.0 ** -20  # float32 pairs: the search's radius over r's leading part (then the exact pair test)
+ROW_BLOCK = 4096  # rows per block of the graph's own per-row work (exact keys, the reference's ranking)
 SKIP_SQ = np.float32(_graph.SKIP_SQ_DIST)  # the host compares float32 q with it in float32 (NumPy 2)
 
 _sx = _search_jax  # the search's exact arithmetic (pairs, keys), shared so that keys are the search's own
@@ -263,12 +268,19 @@ def _invariant_lists(points, edge_near, edge_main, cells: int, factor: float, ma
     return (kept, near.idx[:, 0]), near, main  # (a radius of 0, one location: only kept's own row lists itself)
 
 
-def _chunked(fn, rows, cols, block: int = 4096):
-    """``fn(rows, cols)`` over blocks of rows (bounds the (R, K, 3) gathers)."""
-    n = rows.shape[0]
+def _chunked(fn, rows, cols):
+    """``fn(rows, cols)`` over blocks of :data:`ROW_BLOCK` rows (bounds the (R, K, 3) gathers), the last
+    block padded with copies of the last row; ``fn`` maps (B,), (B, K) to arrays (B, ...)."""
+    n, block = rows.shape[0], ROW_BLOCK
     if n <= block:
         return fn(rows, cols)
-    return lax.map(lambda rc: fn(*rc), (rows, cols), batch_size=block)
+    blocks = -(-n // block)
+    pad = blocks * block - n
+    r = jnp.concatenate([rows, jnp.broadcast_to(rows[-1:], (pad,))]).reshape(blocks, block)
+    c = jnp.concatenate([cols, jnp.broadcast_to(cols[-1:], (pad,) + cols.shape[1:])]).reshape(
+        (blocks, block) + cols.shape[1:])
+    out = lax.map(lambda rc: fn(*rc), (r, c))
+    return jax.tree.map(lambda x: x.reshape((blocks * block,) + x.shape[2:])[:n], out)
 
 
 def _q32(a, b):

@@ -108,6 +108,16 @@ def test_jitted_graph_without_duplicates_scores_as_the_host(clouds, built):
     np.testing.assert_array_equal(np.asarray(hgjax.score(jitted, "gfr")), np.asarray(hgjax.score(host, "gfr")))
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_rows_in_blocks_give_the_same_graph(clouds, built, monkeypatch, variant):
+    """The per-row work in blocks of rows (the last one padded) as in one block."""
+    monkeypatch.setattr(hgjax._traced_graph, "ROW_BLOCK", 500)
+    host, eager = built["smooth", variant]
+    settings = _searched(eager)
+    jitted = jax.jit(lambda q: hgjax.neighbourhoods(q, "gfr", variant=variant, search="jax", **settings))
+    _assert_same_graph(jitted(clouds["smooth"]), host, first_may_be_identity=True)
+
+
 def test_traced_graph_equals_the_host_in_float64(clouds):
     with jax.enable_x64(True):
         p = clouds["rounded"].astype(np.float64)
