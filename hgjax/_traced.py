@@ -127,8 +127,9 @@ def check(nb: spatial.Neighbourhoods) -> None:
     worst = np.asarray(overflow)
     if (worst != 0).any():
         needed = int(worst.max())
-        how = (f"cell_capacity={needed}" if needed > 0 else "a wider cell edge (build it outside jit: an eager"
-               " hgjax.neighbourhoods(..., search='jax') grows both)")
+        how = (f"cell_capacity={needed}" if needed > 0 else "a wider cell edge or more columns (capacity) (build"
+               " it outside jit: an eager hgjax.neighbourhoods(..., search='jax') grows them and records them in"
+               " nb.params)")
         raise ValueError(f"nb overflowed the traced search's capacity: some neighbourhoods may be truncated; rebuild"
                          f" them with {how}")
 
