@@ -118,6 +118,16 @@ def test_rows_in_blocks_give_the_same_graph(clouds, built, monkeypatch, variant)
     _assert_same_graph(jitted(clouds["smooth"]), host, first_may_be_identity=True)
 
 
+def test_vmap_over_a_batch_equals_the_host(clouds, built):
+    batch = np.stack([clouds["smooth"], clouds["smooth"][::-1] + np.float32(0.25)])
+    settings = _searched(built["smooth", "invariant"][1])
+    nbs = jax.vmap(lambda q: hgjax.neighbourhoods(q, "gfr", search="jax", **settings))(batch)
+    assert not np.asarray(nbs.overflow).any()
+    for b in range(2):
+        host = hgjax.neighbourhoods(batch[b], "gfr", capacity=settings["capacity"])
+        np.testing.assert_array_equal(np.asarray(nbs.idx[b]), host.idx)
+
+
 def test_traced_graph_equals_the_host_in_float64(clouds):
     with jax.enable_x64(True):
         p = clouds["rounded"].astype(np.float64)
