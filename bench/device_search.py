@@ -33,6 +33,7 @@ sys.path.insert(0, str(HERE))
 import _report  # noqa: E402
 
 RATIO = 0.2
+PARAMS = {"gfr": {"mode": "top"}}  # GFR's deterministic top scores: the selection a traced resample can run
 
 
 def _timed(fn) -> float:
@@ -47,7 +48,8 @@ def searchable() -> list[str]:
     """The methods whose neighbourhoods the traced search builds."""
     import hgjax
 
-    return [name for name, entry in hgjax.METHODS.items() if "search" in entry.params.get("build", ())]
+    return [name for name, entry in hgjax.METHODS.items()
+            if isinstance(entry, hgjax.Method) and "search" in entry.params["build"]]
 
 
 def measure(n: int, method: str, repeats: int) -> dict:
@@ -60,22 +62,23 @@ def measure(n: int, method: str, repeats: int) -> dict:
     p = _report.box_cloud(n, np.float32)
     q = _report.morton_copy(p)
     entry = hgjax.METHODS[method]
+    extra = PARAMS.get(method, {})
     host = hgjax.neighbourhoods(p, method)
     eager = hgjax.neighbourhoods(p, method, search="jax")
-    cells = {k: v for k, v in eager.params if k.startswith("cell_") or k == "columns"}
+    cells = {k: v for k, v in eager.params if k in ("cell_capacity", "cell_edge", "capacity")}
     build = jax.jit(lambda x: hgjax.neighbourhoods(x, method, search="jax", **cells))
     traced = build(p)
     same = bool(np.array_equal(np.asarray(traced.idx), host.idx)) and int(traced.overflow) == 0
-    kept = hgjax.resample(p, RATIO, method=method)
+    kept = hgjax.resample(p, RATIO, method=method, **extra)
     calls = {"host build": lambda: hgjax.neighbourhoods(p, method).idx, "traced build": lambda: build(p).idx,
-             "host resample": lambda: hgjax.resample(p, RATIO, method=method)}
+             "host resample": lambda: hgjax.resample(p, RATIO, method=method, **extra)}
     differ = {}
-    if entry.select is None:
-        whole = jax.jit(lambda x: hgjax.resample(x, RATIO, method=method, search="jax", **cells))
+    if entry.select is None or (entry.keeps_top is not None and entry.keeps_top(extra)):
+        whole = jax.jit(lambda x: hgjax.resample(x, RATIO, method=method, search="jax", **cells, **extra))
         calls["jitted resample"] = lambda: whole(p)
         differ["jitted resample"] = len(set(kept.tolist()) - set(np.asarray(whole(p)).tolist()))
     if "jax" in entry.tiling.searches:
-        calls["engine, traced tiles"] = lambda: hgjax.tiles.resample(p, RATIO, method=method, search="jax")
+        calls["engine, traced tiles"] = lambda: hgjax.tiles.resample(p, RATIO, method=method, search="jax", **extra)
         differ["engine, traced tiles"] = len(set(kept.tolist()) - set(calls["engine, traced tiles"]().tolist()))
     times = {"floor": [], **{name: [] for name in calls}}
     for _ in range(repeats):
@@ -110,6 +113,12 @@ def main() -> None:
             r = _report.spawn(Path(__file__), ["--one", f"{n},{m}", "--repeats", args.repeats])
             rows.append({"n": n, "method": m, **r})
             print(json.dumps(rows[-1]), flush=True)
+            if args.out:  # rewritten after every row: a run cut short keeps the rows it measured
+                _write(args.out, rows)
+    print("\n".join(_table(rows)))
+
+
+def _table(rows: list[dict]) -> list[str]:
     table = ["| N | method | floor s | host build | traced build | jitted resample | host resample |"
              " engine, traced tiles | cells (capacity, edge) | traced sets == host | kept differing"
              " (jitted; engine) | peak MB |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -123,14 +132,16 @@ def main() -> None:
                      f" {_ratio(r, 'traced build')} | {_ratio(r, 'jitted resample')} | {_ratio(r, 'host resample')} |"
                      f" {_ratio(r, 'engine, traced tiles')} | {cells} | {r['same']} |"
                      f" {d.get('jitted resample', '-')}; {d.get('engine, traced tiles', '-')} | {r['peak_mb']:.0f} |")
-    print("\n".join(table))
-    if args.out:
-        _report.write(args.out, "device_search.py", None, title="The traced neighbour search beside the host's",
-                      paragraphs=[_report.machine(), "Times are medians / the floor measured beside each call"
-                                  f" (the floor in seconds); kept differing: of the {RATIO:g} N kept by the host"
-                                  " resample, how many the other path does not keep; peak MB: the process of"
-                                  " that row (one per method and size)."],
-                      table=table)
+    return table
+
+
+def _write(out: Path, rows: list[dict]) -> None:
+    _report.write(out, "device_search.py", None, title="The traced neighbour search beside the host's",
+                  paragraphs=[_report.machine(), "Times are medians / the floor measured beside each call"
+                              f" (the floor in seconds); kept differing: of the {RATIO:g} N kept by the host"
+                              " resample, how many the other path does not keep; peak MB: the process of"
+                              " that row (one per method and size)."],
+                  table=_table(rows))
 
 
 if __name__ == "__main__":
