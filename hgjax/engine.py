@@ -140,7 +140,7 @@ def searched(entry: Method | Sampler, params: dict) -> dict:
         search = _validate.check_choice(params["search"], "search", _traced.SEARCHES)
         if search not in searches:
             raise ValueError(f"method {entry.name!r} builds its tiles with search in {searches}; got"
-                             f" search={search!r} (hgjax.resample(..., search={search!r}) runs it as one traced tile)")
+                             f" search={search!r}")
         return params
     default = _traced.default_search()
     return {**params, "search": default} if default in searches else params
