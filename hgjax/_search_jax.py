@@ -35,7 +35,7 @@ with a capacity):
    (:attr:`Found.needed`, :attr:`Found.edge_needed`). :func:`grown` re-runs eagerly until no
    overflow: a neighbourhood is never silently truncated.
 
-Same answers as the host, bit for bit:
+Same answers as the host, bit for bit, by the exact arithmetic of :mod:`hgjax._exact`:
 
 * Under x64 (``jax.enable_x64``) the search computes exactly what the host computes: the float64
   local frame of :func:`hgjax.spatial.local_frame` (the bounding-box centre subtracted in
@@ -81,6 +81,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+
+from hgjax import _exact
 
 __all__ = ["Found", "grown", "knn", "local_spacing", "within"]
 
@@ -144,74 +146,13 @@ class Found:
         return (self.needed > self.capacity) | (self.columns_needed > self.idx.shape[-1]) | self.uncovered
 
 
-# ----------------------------------------------------------------------------- exact arithmetic
-# XLA does not reassociate floating-point additions, but its CPU backend contracts a product
-# feeding an addition into one fused multiply-add (one rounding instead of two: measured, 21%
-# of ``(dx*dx + dy*dy) + dz*dz`` differ from NumPy's and cKDTree's in float64), and divides by a
-# constant through its reciprocal. Every product and quotient whose rounding matters goes
-# through :func:`_mul` or :func:`_div`, whose select stops the rewrite.
-
-
-def _mul(a, b):
-    """a * b rounded on its own, as NumPy and C compute it (never fused into a later addition)."""
-    return jnp.where(a == a, a * b, a)
-
-
-def _div(a, b):
-    """a / b correctly rounded, as NumPy computes it. XLA turns a division by a constant or a
-    broadcast scalar into a multiplication by its rounded reciprocal (measured: 9% of x / 17
-    differ from NumPy's); a select hides the divisor."""
-    return a / jnp.where(a == a, b, a)
-
-
-# Error-free transformations (Knuth's TwoSum, Dekker's product) for the float32 pairs.
-
-def _two_sum(a, b):
-    s = a + b
-    bb = s - a
-    return s, (a - (s - bb)) + (b - bb)
-
-
-def _fast_two_sum(a, b):  # |a| >= |b| or a == 0
-    s = a + b
-    return s, b - (s - a)
-
-
-def _split(a):
-    c = _mul(a, 4097.0)
-    hi = c - (c - a)
-    return hi, a - hi
-
-
-def _two_prod(a, b):
-    p = _mul(a, b)
-    ah, al = _split(a)
-    bh, bl = _split(b)
-    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
-
-
-def _pair_add(ah, al, bh, bl):
-    """(ah + al) + (bh + bl) as a normalised pair (accurate double-float addition)."""
-    s, e = _two_sum(ah, bh)
-    t, f = _two_sum(al, bl)
-    s, e = _fast_two_sum(s, e + t)
-    return _fast_two_sum(s, e + f)
-
-
-def _pair_square(h, l):
-    """(h + l)^2 as a normalised pair, for |l| <= ulp(h) / 2."""
-    p, e = _two_prod(h, h)
-    m, f = _two_prod(h, l)
-    return _fast_two_sum(p, e + (2 * m + (2 * f + _mul(l, l))))
-
-
-def _pair_less(ah, al, bh, bl):
-    return (ah < bh) | ((ah == bh) & (al < bl))
+# ----------------------------------------------------------------------------- distance keys
+# (the exact arithmetic they are built on: :mod:`hgjax._exact`)
 
 
 def _abs_diffs(q, c):
     """Per axis |q - c| as exact normalised pairs (hi, lo), each (..., 3)."""
-    h, l = _two_sum(q, -c)
+    h, l = _exact.two_sum(q, -c)
     neg = h < 0
     return jnp.where(neg, -h, h), jnp.where(neg, -l, l)
 
@@ -220,7 +161,7 @@ def _sorted3(h, l):
     """The three pairs (..., 3) sorted ascending (a compare-exchange network): a canonical order."""
     hs, ls = [h[..., a] for a in range(3)], [l[..., a] for a in range(3)]
     for i, j in ((0, 1), (1, 2), (0, 1)):
-        swap = _pair_less(hs[j], ls[j], hs[i], ls[i])
+        swap = _exact.pair_less(hs[j], ls[j], hs[i], ls[i])
         hs[i], hs[j] = jnp.where(swap, hs[j], hs[i]), jnp.where(swap, hs[i], hs[j])
         ls[i], ls[j] = jnp.where(swap, ls[j], ls[i]), jnp.where(swap, ls[i], ls[j])
     return hs, ls
@@ -232,9 +173,9 @@ def _pair_keys(q, c, metric):
     hs, ls = _sorted3(h, l)
     if metric == "linf":
         return hs[2], ls[2]
-    sq = [_pair_square(hs[a], ls[a]) for a in range(3)]
-    s = _pair_add(*sq[2], *sq[1])
-    return _pair_add(*s, *sq[0])
+    sq = [_exact.pair_square(hs[a], ls[a]) for a in range(3)]
+    s = _exact.pair_add(*sq[2], *sq[1])
+    return _exact.pair_add(*s, *sq[0])
 
 
 def _host_keys(q, c, metric):
@@ -242,7 +183,7 @@ def _host_keys(q, c, metric):
     d = q - c
     if metric == "linf":
         return jnp.max(jnp.abs(d), axis=-1), None
-    sq = _mul(d, d)
+    sq = _exact.mul(d, d)
     s = (sq[..., 0] + sq[..., 1]) + sq[..., 2]
     return (s if metric == "l2sq" else jnp.sqrt(s)), None
 
@@ -263,10 +204,10 @@ def _below(hi, lo, h, metric):
     if lo is None:
         return hi < h
     if metric == "l2":  # the squared radius as an exact pair (an infinite radius stays infinite)
-        hh, hl = _fast_two_sum(*_two_prod(h, h))
+        hh, hl = _exact.fast_two_sum(*_exact.two_prod(h, h))
         finite = jnp.isfinite(h)
-        return _pair_less(hi, lo, jnp.where(finite, hh, h), jnp.where(finite, hl, 0))
-    return _pair_less(hi, lo, h, jnp.zeros_like(h))
+        return _exact.pair_less(hi, lo, jnp.where(finite, hh, h), jnp.where(finite, hl, 0))
+    return _exact.pair_less(hi, lo, h, jnp.zeros_like(h))
 
 
 def _x64() -> bool:
@@ -804,15 +745,15 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
                                                        jnp.where(s["hi"][:, m] < 0, 0, s["lo"][:, m]))
 
             cut = lax.cond(jnp.any(full), kth, lambda: (jnp.zeros_like(c["hi"][:, 0]),) * 2)
-            below_cut = _pair_less(c["hi"], jnp.zeros_like(c["hi"]) if c["lo"] is None else c["lo"],
-                                   cut[0][:, None], cut[1][:, None])
+            below_cut = _exact.pair_less(c["hi"], jnp.zeros_like(c["hi"]) if c["lo"] is None else c["lo"],
+                                         cut[0][:, None], cut[1][:, None])
             inside = jnp.where(full[:, None], below_cut, inside)
             used = jnp.where(full, _in_units(cut[0], metric), h)
         s = _select(c, columns)
         take = _below(s["hi"], s["lo"], h, metric)
         if cut is not None:
-            below_cut = _pair_less(s["hi"], jnp.zeros_like(s["hi"]) if s["lo"] is None else s["lo"],
-                                   cut[0][:, None], cut[1][:, None])
+            below_cut = _exact.pair_less(s["hi"], jnp.zeros_like(s["hi"]) if s["lo"] is None else s["lo"],
+                                         cut[0][:, None], cut[1][:, None])
             take = jnp.where(full[:, None], below_cut, take)
         ok = c["complete"] | (_as_distance(used, metric) < c["slack"]) | (c["count"] > capacity)
         return dict(idx=jnp.where(take, s["cidx"], n), dist=jnp.where(take, _in_units(s["hi"], metric), jnp.inf),
@@ -825,27 +766,6 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
 
 
 # ----------------------------------------------------------------------------- HKC/HKF's spacing
-
-def _numpy_sum(x):
-    """Sum over the last axis (length < 128) in NumPy's pairwise order, so float64 sums are NumPy's bits."""
-    n = x.shape[-1]
-    if n < 8:
-        out = jnp.zeros(x.shape[:-1], x.dtype)
-        for i in range(n):
-            out = out + x[..., i]
-        return out
-    if n >= 128:
-        raise ValueError(f"NumPy's pairwise order is emulated for fewer than 128 terms; got {n}")
-    r = [x[..., j] for j in range(8)]
-    i = 8
-    while i < n - n % 8:
-        r = [r[j] + x[..., i + j] for j in range(8)]
-        i += 8
-    out = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    for j in range(i, n):
-        out = out + x[..., j]
-    return out
-
 
 def local_spacing(found: Found):
     """HKC/HKF's per-point sample spacing, :func:`hgjax.spatial.local_spacing`, from a traced kNN.
@@ -878,7 +798,7 @@ def local_spacing(found: Found):
     k = width - 1
     real = idx[:, 0] < n
     near = jnp.where(real[:, None], rk[jnp.minimum(idx, n - 1)], 0)
-    mean = _div(_numpy_sum(_mul(near, near)), width)
+    mean = _exact.div(_exact.numpy_sum(_exact.mul(near, near)), width)
     spacing = jnp.sqrt((math.pi / k) * mean)
     spacing = jnp.where(real & (spacing > 0), spacing, 1.0)
     reach = jnp.where(real, rk + jnp.max(near, axis=1), 0)

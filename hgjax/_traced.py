@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _search_jax, _stream, _validate, spatial
+from hgjax import _exact, _search_jax, _stream, _validate, spatial
 
 __all__ = ["CELL_CAPACITY", "SEARCHES", "build_knn", "check", "default_search", "index_knn", "knn", "local_frame"]
 
@@ -74,8 +74,8 @@ def local_frame(points) -> jax.Array:
         return p - (lo + hi) / 2
     p = p.astype(jnp.float32)
     lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
-    s, e = _search_jax._two_sum(lo, hi)  # lo + hi == s + e exactly
-    a, err = _search_jax._two_sum(p, -s / 2)  # p - s / 2 == a + err exactly
+    s, e = _exact.two_sum(lo, hi)  # lo + hi == s + e exactly
+    a, err = _exact.two_sum(p, -s / 2)  # p - s / 2 == a + err exactly
     return a + (err - e / 2)
 
 

@@ -16,18 +16,18 @@ spacing d_i decided as the host decides it (:func:`hgjax.scores.voxel.resolve`),
 and f either fixed or from the sample's irregularity (std / mean of the nearest distinct
 distances, :meth:`hgjax.spatial.SampleStats.irregularity`) through a linear ramp (``ramp``).
 
-Arithmetic: under x64 every float64 operation of the host is done in the host's order
-(NumPy's pairwise sums, no fused multiply-add, no reciprocal for a division), so the spacing,
-the radius and ``scale`` are the host's bits and the neighbour sets the host's. Without x64
-the distances, means and spacing are carried as float32 pairs (about 46 bits) and ``scale``
-is the pair rounded once to float32, the radius is that float32 rounding of the host's
-float64 radius: a point is listed as the host lists it unless its distance lies between the
-two (relative 2^-24 of the radius), and a ball shrunk by ``max_count`` has its ``scale``
+Arithmetic (:mod:`hgjax._exact`): under x64 every float64 operation of the host is done in the
+host's order (NumPy's pairwise sums, no fused multiply-add, no reciprocal for a division), so
+the spacing, the radius and ``scale`` are the host's bits and the neighbour sets the host's.
+Without x64 the distances, means and spacing are carried as float32 pairs (about 46 bits) and
+``scale`` is the pair rounded once to float32, the radius is that float32 rounding of the
+host's float64 radius: a point is listed as the host lists it unless its distance lies between
+the two (relative 2^-24 of the radius), and a ball shrunk by ``max_count`` has its ``scale``
 from the float32 distance of its ``max_count``-th point (within an ulp of the host's). The
 order inside a row is the pairs' (:mod:`hgjax._search_jax`): the host's, except where two
-distances differ by less than the pairs' precision or float64's rounding makes them equal
-(a 1200-point cloud rounded to a 5 cm grid: 5 rows of long balls listed two tied points in
-the other order; the same sets).
+distances differ by less than the pairs' precision or float64's rounding makes them equal (a
+1200-point cloud rounded to a 5 cm grid: 5 rows of long balls listed two tied points in the
+other order; the same sets).
 
 Search settings: every search of one build (the spacing's k-nearest, the sample's nearest, the
 cube) runs with one ``cell_capacity`` and ``cell_edge``. Eagerly each grows from its own
@@ -49,15 +49,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from hgjax import _search_jax, _stream, _traced, _validate, spatial
-from hgjax._search_jax import (
-    _div,
-    _fast_two_sum,
-    _mul,
-    _pair_add,
-    _pair_keys,
-    _two_prod,
-)
+from hgjax import _exact, _search_jax, _stream, _traced, _validate, spatial
+from hgjax._search_jax import _pair_keys
 
 __all__ = ["COLUMNS", "cube", "linear_ramp"]
 
@@ -121,9 +114,9 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
         factor, factor_lo = _ramped(p, distinct, ramp, x64)
         base = widen * kernel_size / 2  # the host's (widen * k / 2) * d_factor
         if x64:
-            factor, factor_lo = _mul(jnp.float64(base), factor), None
+            factor, factor_lo = _exact.mul(jnp.float64(base), factor), None
         else:
-            factor, factor_lo = _p_mul(_p_const(base), (factor, factor_lo))
+            factor, factor_lo = _exact.pair_mul(*_exact.pair_const(base), factor, factor_lo)
     else:
         factor, factor_lo = widen * kernel_size / 2 * d_factor, None  # a Python float, as the host's
     radius, radius_lo = _times(factor, factor_lo, res, res_lo, x64)
@@ -150,11 +143,12 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     # scale d = (2 / k) x the radius used / widen, as the host
     used = found.reach
     if x64:
-        scale = _div(_mul(2 / kernel_size, used), widen)
+        scale = _exact.div(_exact.mul(2 / kernel_size, used), widen)
     else:
         shrunk = used != radius
         h = (jnp.where(shrunk, used, radius), jnp.where(shrunk, 0, 0 if radius_lo is None else radius_lo))
-        scale = _p_round(_p_div(_p_mul(_p_const(2 / kernel_size), h), _p_const(widen)))
+        scaled = _exact.pair_mul(*_exact.pair_const(2 / kernel_size), *h)
+        scale = _p_round(_exact.pair_div(*scaled, *_exact.pair_const(widen)))
     local = _local(points, p, traced)
     scale = lax.stop_gradient(scale).astype(local.dtype)
     return spatial.Neighbourhoods(local, idx.astype(jnp.int32), scale, params=spatial.record(record),
@@ -260,9 +254,9 @@ def _spacing_k(p, near, kk: int, x64: bool):
         return _search_jax.local_spacing(found)[0], None
     sh, sl = _sq_pairs(p, idx[:, kk])  # r_j^2 of every point j
     safe = jnp.minimum(idx, n - 1)
-    total = _p_sum(sh[safe], sl[safe])
-    mean = _p_div(total, _p_const(kk + 1))
-    sh2, sl2 = _p_sqrt(_p_mul(_p_const(math.pi / kk), mean))
+    total = _exact.pair_sum(sh[safe], sl[safe])
+    mean = _exact.pair_div(*total, *_exact.pair_const(kk + 1))
+    sh2, sl2 = _exact.pair_sqrt(*_exact.pair_mul(*_exact.pair_const(math.pi / kk), *mean))
     ok = sh2 > 0
     return jnp.where(ok, sh2, 1.0), jnp.where(ok, sl2, 0.0)
 
@@ -272,7 +266,7 @@ def _sample_column(p, found, x64: bool):
     ids = spatial.sample_ids(p.shape[0])
     if x64:
         return found.dist[ids, 1], None
-    return _p_sqrt(_sq_pairs_of(p, ids, found.idx[ids, 1]))
+    return _exact.pair_sqrt(*_sq_pairs_of(p, ids, found.idx[ids, 1]))
 
 
 def _sq_pairs_of(p, rows, j):
@@ -289,9 +283,9 @@ def _mean_other(p, other, x64: bool):
     d, lo = _sample_column(p, other, x64)
     s = d.shape[0]
     if x64:
-        mean = _div(_numpy_sum(d), s)
+        mean = _exact.div(_exact.numpy_sum(d), s)
         return jnp.where(mean > 0, mean, 1.0), None
-    mh, ml = _p_div(_p_sum(d, lo), _p_const(s))
+    mh, ml = _exact.pair_div(*_exact.pair_sum(d, lo), *_exact.pair_const(s))
     ok = mh > 0
     return jnp.where(ok, mh, 1.0), jnp.where(ok, ml, 0.0)
 
@@ -304,22 +298,23 @@ def _ramped(p, distinct, ramp, x64: bool):
     finite = jnp.isfinite(d[0])  # every sampled distance is finite, or none (a single location)
     d = jnp.where(finite, d, 0)
     if x64:
-        mean = _div(_numpy_sum(d), s)
+        mean = _exact.div(_exact.numpy_sum(d), s)
         x = d - mean
-        std = jnp.sqrt(_div(_numpy_sum(_mul(x, x)), s))
-        irr = jnp.where(mean > 0, _div(std, jnp.where(mean > 0, mean, 1)), 0)
+        std = jnp.sqrt(_exact.div(_exact.numpy_sum(_exact.mul(x, x)), s))
+        irr = jnp.where(mean > 0, _exact.div(std, jnp.where(mean > 0, mean, 1)), 0)
         return linear_ramp(irr, ramp), None
     lo = jnp.where(finite, lo, 0)
-    mean = _p_div(_p_sum(d, lo), _p_const(s))
-    x = _pair_add(d, lo, -mean[0], -mean[1])
-    var = _p_div(_p_sum(*_p_mul(x, x)), _p_const(s))
-    std = _p_sqrt(var)
+    mean = _exact.pair_div(*_exact.pair_sum(d, lo), *_exact.pair_const(s))
+    x = _exact.pair_add(d, lo, -mean[0], -mean[1])
+    var = _exact.pair_div(*_exact.pair_sum(*_exact.pair_mul(*x, *x)), *_exact.pair_const(s))
+    std = _exact.pair_sqrt(*var)
     ok = mean[0] > 0
-    irr = _p_div(std, (jnp.where(ok, mean[0], 1), jnp.where(ok, mean[1], 0)))
+    irr = _exact.pair_div(*std, jnp.where(ok, mean[0], 1), jnp.where(ok, mean[1], 0))
     irr = (jnp.where(ok, irr[0], 0), jnp.where(ok, irr[1], 0))
-    t = _p_div(_pair_add(*irr, *_p_neg(_p_const(x0))), _p_const(x1 - x0))
+    x0h, x0l = _exact.pair_const(x0)
+    t = _exact.pair_div(*_exact.pair_add(*irr, -x0h, -x0l), *_exact.pair_const(x1 - x0))
     t = _p_clip01(t)
-    return _pair_add(*_p_const(y0), *_p_mul(t, _p_const(y1 - y0)))
+    return _exact.pair_add(*_exact.pair_const(y0), *_exact.pair_mul(*t, *_exact.pair_const(y1 - y0)))
 
 
 def linear_ramp(x, ramp):
@@ -327,8 +322,8 @@ def linear_ramp(x, ramp):
     float64 operations of :func:`hgjax.scores.voxel.default_d_factor` (its bits under x64)."""
     (x0, x1), (y0, y1) = ramp
     x = jnp.asarray(x)
-    t = jnp.clip(_div(x - x0, jnp.asarray(x1 - x0, x.dtype)), 0.0, 1.0)
-    return y0 + _mul(t, jnp.asarray(y1 - y0, x.dtype))
+    t = jnp.clip(_exact.div(x - x0, jnp.asarray(x1 - x0, x.dtype)), 0.0, 1.0)
+    return y0 + _exact.mul(t, jnp.asarray(y1 - y0, x.dtype))
 
 
 def _times(a, a_lo, b, b_lo, x64: bool):
@@ -336,84 +331,15 @@ def _times(a, a_lo, b, b_lo, x64: bool):
     if x64:
         if isinstance(a, float) and isinstance(b, float):
             return np.float64(a) * np.float64(b), None
-        return _mul(jnp.asarray(a, jnp.float64), jnp.asarray(b, jnp.float64)), None
+        return _exact.mul(jnp.asarray(a, jnp.float64), jnp.asarray(b, jnp.float64)), None
     if isinstance(a, float) and isinstance(b, float):
-        return _split64(np.float64(a) * np.float64(b))
-    pa = _p_const(a) if isinstance(a, float) else (a, jnp.zeros_like(a) if a_lo is None else a_lo)
-    pb = _p_const(b) if isinstance(b, float) else (b, jnp.zeros_like(b) if b_lo is None else b_lo)
-    return _p_mul(pa, pb)
-
-
-def _numpy_sum(x):
-    """Sum of (S,) float64 in NumPy's pairwise order (8 accumulators up to 128 terms, halves above)."""
-    n = x.shape[-1]
-    if n <= 128:
-        if n < 8:
-            out = jnp.zeros(x.shape[:-1], x.dtype)
-            for i in range(n):
-                out = out + x[..., i]
-            return out
-        r = [x[..., j] for j in range(8)]
-        i = 8
-        while i < n - n % 8:
-            r = [r[j] + x[..., i + j] for j in range(8)]
-            i += 8
-        out = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-        for j in range(i, n):
-            out = out + x[..., j]
-        return out
-    half = n // 2
-    half -= half % 8
-    return _numpy_sum(x[..., :half]) + _numpy_sum(x[..., half:])
+        return _exact.pair_const(np.float64(a) * np.float64(b))
+    pa = _exact.pair_const(a) if isinstance(a, float) else (a, jnp.zeros_like(a) if a_lo is None else a_lo)
+    pb = _exact.pair_const(b) if isinstance(b, float) else (b, jnp.zeros_like(b) if b_lo is None else b_lo)
+    return _exact.pair_mul(*pa, *pb)
 
 
 # ----------------------------------------------------------------------------- float32 pairs
-
-def _split64(value):
-    hi = np.float32(value)
-    return jnp.float32(hi), jnp.float32(np.float64(value) - np.float64(hi))
-
-
-def _p_const(c):
-    hi, lo = _split64(c)
-    return hi, lo
-
-
-def _p_neg(a):
-    return -a[0], -a[1]
-
-
-def _p_mul(a, b):
-    p, e = _two_prod(a[0], b[0])
-    return _fast_two_sum(p, e + (_mul(a[0], b[1]) + _mul(a[1], b[0])))
-
-
-def _p_div(a, b):
-    q = _div(a[0], b[0])
-    r = _pair_add(*a, *_p_neg(_p_mul((q, jnp.zeros_like(q)), b)))
-    q2 = _div(r[0], b[0])
-    return _fast_two_sum(q, q2)
-
-
-def _p_sqrt(a):
-    h, lo = a
-    s = jnp.sqrt(jnp.maximum(h, 0))
-    p, e = _two_prod(s, s)
-    pos = s > 0
-    r = _div(((h - p) - e) + lo, jnp.where(pos, 2 * s, 1))
-    hi, lo2 = _fast_two_sum(s, jnp.where(pos & jnp.isfinite(s), r, 0))
-    return jnp.where(jnp.isfinite(s), hi, s), jnp.where(jnp.isfinite(s), lo2, 0)
-
-
-def _p_sum(hi, lo):
-    """Sum over the last axis of pairs, by halving (float32 pairs, order immaterial at their precision)."""
-    while hi.shape[-1] > 1:
-        if hi.shape[-1] % 2:
-            pad = [(0, 0)] * (hi.ndim - 1) + [(0, 1)]
-            hi, lo = jnp.pad(hi, pad), jnp.pad(lo, pad)
-        hi, lo = _pair_add(hi[..., 0::2], lo[..., 0::2], hi[..., 1::2], lo[..., 1::2])
-    return hi[..., 0], lo[..., 0]
-
 
 def _p_clip01(a):
     below, above = a[0] < 0, a[0] > 1

@@ -19,16 +19,16 @@ graph is discrete: no gradient flows through its choice). Both graphs of
   float32 as the host compares them), ranked by (q, j), from the ball of each point
   (:func:`hgjax._search_jax.within`, a hair wider than sqrt(r)).
 
-Exact: under x64 every value is the host's float64 value (the search's keys are the host's,
-the radius the host's operations in the host's order). Without x64 (float32 input) the
-search's keys are float32 pairs (about 46 bits) and the radius is carried as a pair: a pair
-or a radius that the host tells apart from another by less than about 2^-44 relative may
-compare otherwise. That includes a pair whose length equals the radius in exact arithmetic,
-where the host's float64 rounding of q and r decides (measured: ten equal steps on a line,
-the invariant radius being ten resolutions; no such pair on the smooth or rounded test
-clouds, nor on the GPU at 2e4 points): use x64 for the host's bits on lattices. float64
-input without x64 is searched in float32 (JAX casts it on entry), so its graph may differ
-from the host's float64 one.
+Exact (:mod:`hgjax._exact`): under x64 every value is the host's float64 value (the search's
+keys are the host's, the radius the host's operations in the host's order). Without x64
+(float32 input) the search's keys are float32 pairs (about 46 bits) and the radius is carried
+as a pair: a pair or a radius that the host tells apart from another by less than about 2^-44
+relative may compare otherwise. That includes a pair whose length equals the radius in exact
+arithmetic, where the host's float64 rounding of q and r decides (measured: ten equal steps on
+a line, the invariant radius being ten resolutions; no such pair on the smooth or rounded test
+clouds, nor on the GPU at 2e4 points): use x64 for the host's bits on lattices. float64 input
+without x64 is searched in float32 (JAX casts it on entry), so its graph may differ from the
+host's float64 one.
 
 Widths: the kept lists are (N, max_nn + 1), the reference balls (N, cell capacity) (a ball
 lies inside its 27-cell block), the output (N, columns): memory is bounded by these, never
@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from hgjax import _graph, _search_jax, _stream, _traced, _validate, spatial
+from hgjax import _exact, _graph, _search_jax, _stream, _traced, _validate, spatial
 
 __all__ = ["build"]
 
@@ -58,7 +58,7 @@ RADIUS_MARGIN = 2.0 ** -20  # float32 pairs: the search's radius over r's leadin
 ROW_BLOCK = 4096  # rows per block of the graph's own per-row work (exact keys, the reference's ranking)
 SKIP_SQ = np.float32(_graph.SKIP_SQ_DIST)  # the host compares float32 q with it in float32 (NumPy 2)
 
-_sx = _search_jax  # the search's exact arithmetic (pairs, keys), shared so that keys are the search's own
+_sx = _search_jax  # the search, and its pair keys: the graph's keys are the search's own
 
 
 def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | None, cell_capacity: int | None,
@@ -185,26 +185,6 @@ def _search(points, edge_near, edge_main, *, cells: int, variant: str, factor, m
     return lists, report
 
 
-def _pair_sqrt(h, l):
-    """sqrt(h + l) as a normalised float32 pair (one Newton step on float32's root; 0 stays 0)."""
-    s = jnp.sqrt(jnp.maximum(h, 0))
-    p, e = _sx._two_prod(s, s)
-    corr = (((h - p) - e) + l) / jnp.where(s > 0, 2 * s, 1)
-    return _sx._fast_two_sum(s, jnp.where(s > 0, corr, 0))
-
-
-def _pair_mul(ah, al, bh, bl):
-    """(ah + al)(bh + bl) as a normalised float32 pair."""
-    p, e = _sx._two_prod(ah, bh)
-    return _sx._fast_two_sum(p, e + (_sx._mul(ah, bl) + _sx._mul(al, bh)))
-
-
-def _as_pair(value: float):
-    """A Python float as a float32 pair (hi, lo)."""
-    hi = np.float32(value)
-    return jnp.float32(hi), jnp.float32(value - float(hi))
-
-
 def _median(h, l, valid):
     """NumPy's median of the valid values (S,) (the mean of the two middle ones for an even count;
     0.0 if none), ``l`` None for float64 values, else float32 pairs (h, l)."""
@@ -218,7 +198,7 @@ def _median(h, l, valid):
         return jnp.where(c > 0, mid, 0.0), None
     vh, vl = lax.sort((big, jnp.where(valid, l, 0)), num_keys=2)
     top = jnp.minimum(hi_at, vh.shape[0] - 1)
-    sh, sl = _sx._pair_add(vh[lo_at], vl[lo_at], vh[top], vl[top])
+    sh, sl = _exact.pair_add(vh[lo_at], vl[lo_at], vh[top], vl[top])
     odd = c % 2 == 1
     mh, ml = jnp.where(odd, vh[top], sh / 2), jnp.where(odd, vl[top], sl / 2)
     return jnp.where(c > 0, mh, 0), jnp.where(c > 0, ml, 0)
@@ -247,15 +227,15 @@ def _invariant_lists(points, edge_near, edge_main, cells: int, factor: float, ma
         j, valid = jnp.zeros(ids.shape, jnp.int32), jnp.zeros(ids.shape, bool)
     if x64:  # the k-d tree's distance of the nearest distinct location: the search's own bits
         res, _ = _median(near.reach[ids] if n >= 2 else jnp.zeros(ids.shape), None, valid)
-        t = _sx._mul(jnp.asarray(factor, res.dtype), res)
-        r = _sx._mul(t, t)
+        t = _exact.mul(jnp.asarray(factor, res.dtype), res)
+        r = _exact.mul(t, t)
         radius = r
     else:
         qh, ql = _gathered_pair_keys(points.astype(jnp.float32), jnp.asarray(ids), j[:, None])
-        dh, dl = _pair_sqrt(qh[:, 0], ql[:, 0])
+        dh, dl = _exact.pair_sqrt(qh[:, 0], ql[:, 0])
         mh, ml = _median(dh, dl, valid)
-        th, tl = _pair_mul(*_as_pair(factor), mh, ml)
-        rh, rl = _sx._pair_square(th, tl)
+        th, tl = _exact.pair_mul(*_exact.pair_const(factor), mh, ml)
+        rh, rl = _exact.pair_square(th, tl)
         radius = rh * (1 + RADIUS_MARGIN)  # a superset; the exact pair test below
     k = min(max_nn + 1, n)
     main = _sx.knn(points, k, dedupe=True, capacity=cells, edge=edge_main, radius=radius, metric="l2sq")
@@ -263,7 +243,7 @@ def _invariant_lists(points, edge_near, edge_main, cells: int, factor: float, ma
     if not x64:
         rows = jnp.arange(n, dtype=jnp.int32)
         kh, kl = _chunked(lambda r, c: _gathered_pair_keys(points.astype(jnp.float32), r, c), rows, kept)
-        inside = _sx._pair_less(kh, kl, rh, rl) & (kept < n)
+        inside = _exact.pair_less(kh, kl, rh, rl) & (kept < n)
         kept = jnp.concatenate([kept[:, :1], jnp.where(inside[:, 1:], kept[:, 1:], n)], axis=1)  # itself kept
     return (kept, near.idx[:, 0]), near, main  # (a radius of 0, one location: only kept's own row lists itself)
 
@@ -287,7 +267,7 @@ def _q32(a, b):
     """The host's float32 squared distances ||b - a||^2 (a (..., 3), b (..., 3)): differences, squares
     and sums each rounded to float32, summed x, y, z in order (:func:`hgjax._graph.sq_dist`)."""
     d = b - a
-    sq = _sx._mul(d, d)
+    sq = _exact.mul(d, d)
     return (sq[..., 0] + sq[..., 1]) + sq[..., 2]
 
 
@@ -316,17 +296,17 @@ def _reference_lists(points, edge_near, edge_main, cells: int, max_nn: int):
     qmax = jnp.max(jnp.where(ok, q, -jnp.inf))
     if x64:
         mn, mx = jnp.sqrt(qmin.astype(jnp.float64)), jnp.sqrt(qmax.astype(jnp.float64))
-        mx = jnp.where(mn == mx, _sx._mul(5.0, mn), mx)
-        r = jnp.minimum(_sx._mul(10.0, mn), _sx._mul(2.0, mx))
+        mx = jnp.where(mn == mx, _exact.mul(5.0, mn), mx)
+        r = jnp.minimum(_exact.mul(10.0, mn), _exact.mul(2.0, mx))
         r32 = r.astype(jnp.float32)  # the host compares float32 q with r in float32
     else:
-        mnh, mnl = _pair_sqrt(qmin, jnp.float32(0))
-        mxh, mxl = _pair_sqrt(qmax, jnp.float32(0))
+        mnh, mnl = _exact.pair_sqrt(qmin, jnp.float32(0))
+        mxh, mxl = _exact.pair_sqrt(qmax, jnp.float32(0))
         same = qmin == qmax
         mxh, mxl = jnp.where(same, 5 * mnh, mxh), jnp.where(same, 5 * mnl, mxl)
-        ah, al = _pair_mul(jnp.float32(10), jnp.float32(0), mnh, mnl)
+        ah, al = _exact.pair_mul(jnp.float32(10), jnp.float32(0), mnh, mnl)
         bh, bl = 2 * mxh, 2 * mxl
-        first_a = _sx._pair_less(ah, al, bh, bl)
+        first_a = _exact.pair_less(ah, al, bh, bl)
         r32 = jnp.where(first_a, ah, bh)  # a normalised pair's leading part: r rounded to float32
     r32 = jnp.where(any_ok, r32, 0)
     ball = r32.astype(p32.dtype if not x64 else jnp.float64) * (1 + BALL_MARGIN)
