@@ -70,6 +70,12 @@ def lattice_shell(m):
     return g[((g == 0) | (g == m - 1)).any(axis=1)]
 
 
+def smooth_and_rounded(n=1200, seed=3):
+    """A float32 box union ("smooth") and the same rounded to 1/20 ("rounded": many equal distances and duplicates)."""
+    smooth = box_union(n, seed=seed).astype(np.float32)
+    return {"smooth": smooth, "rounded": (np.round(smooth * 20) / 20).astype(np.float32)}
+
+
 def degenerate_clouds(n=40):
     """Clouds of n points (a multiple of 4) that break naive kernels, by name.
 

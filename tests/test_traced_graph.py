@@ -8,21 +8,15 @@ import numpy as np
 import pytest
 
 import hgjax
-from fixtures import box_union, degenerate_clouds
+from fixtures import degenerate_clouds, smooth_and_rounded
 
 VARIANTS = ["invariant", "reference"]
 SEARCHED = ("capacity", "cell_capacity", "cell_edge")
 
 
-def _clouds():
-    smooth = box_union(1200, seed=3).astype(np.float32)
-    rounded = (np.round(smooth * 20) / 20).astype(np.float32)  # many equal distances and duplicates
-    return {"smooth": smooth, "rounded": rounded}
-
-
 @pytest.fixture(scope="module")
 def clouds():
-    return _clouds()
+    return smooth_and_rounded()
 
 
 @pytest.fixture(scope="module")

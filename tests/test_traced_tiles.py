@@ -6,12 +6,12 @@ import pytest
 
 import hgjax
 from hgjax import _traced, engine, spatial, tiles
-from fixtures import box_union
+from fixtures import smooth_and_rounded
 
 
 @pytest.fixture(scope="module")
 def cloud():
-    return (np.round(box_union(1200, seed=3) * 20) / 20).astype(np.float32)  # ties and duplicates
+    return smooth_and_rounded()["rounded"]  # ties and duplicates
 
 
 def test_the_traced_index_query_is_the_host_query(cloud):
