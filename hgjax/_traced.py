@@ -152,13 +152,15 @@ def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np
 
     Returns:
       (idx, reach): idx (R, k) int32 sorted-frame rows, column 0 the point itself, padded
-      with n when the index holds fewer than k points; reach (R,) float64 the k-th distance (inf when the index holds fewer than k points).
+      with n when the index holds fewer than k points; reach (R,) float64 the k-th
+      distance (inf when the index holds fewer than k points).
 
     Raises:
       ValueError: global ids beyond int32 (the traced search's tie key).
     """
     if index.gid_span > np.iinfo(np.int32).max:
-        raise ValueError(f"search='jax' breaks ties by int32 global ids; this cloud's reach {index.gid_span}")
+        raise ValueError(f"search='jax' breaks ties by int32 global ids; this cloud's go up to {index.gid_span - 1}:"
+                         " use search='host'")
     n, k_eff = index.n, min(k, index.n)
     rows_in = _search_jax.bucket(n)  # the tile padded to a power of two: one program per size class
     with jax.enable_x64(True):

@@ -133,7 +133,7 @@ def searched(entry: Method | Sampler, params: dict) -> dict:
     Raises:
       ValueError: a ``search`` the method's tiles cannot build with.
     """
-    if isinstance(entry, Sampler) or entry.tiling is None:
+    if isinstance(entry, Sampler):
         return params
     searches = entry.tiling.searches
     if "search" in params:

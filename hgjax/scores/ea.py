@@ -135,20 +135,14 @@ def knn_params(n: int, k: int, params: dict) -> dict:
     build = {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}
     _validate.check_capacity_param(params, k)
     _validate.check_min_points(n, k, f"k={k} nearest neighbours")
-    return searched(build, params)
+    return with_search(build, params)
 
 
-def searched(build: dict, params: dict) -> dict:
-    """``build`` with ``"search": "jax"`` when ``params`` ask the tiles for the traced search.
-
-    The host search is recorded by no key, so a host run's plan is what it always was.
-
-    Raises:
-      ValueError: ``search`` not one of :data:`hgjax._traced.SEARCHES`.
-    """
-    if _validate.check_choice(params.get("search", "host"), "search", _traced.SEARCHES) == "jax":
-        return {**build, "search": "jax"}
-    return build
+def with_search(build: dict, params: dict) -> dict:
+    """``build`` with ``"search": "jax"`` when the run's tiles build with the traced search (``params``
+    as :func:`hgjax.engine.searched` validated them); the host search is recorded by no key, so a host
+    run's plan is what it always was."""
+    return {**build, "search": "jax"} if params.get("search") == "jax" else build
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:

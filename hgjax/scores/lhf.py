@@ -484,7 +484,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     solver = _validate.check_choice(params.get("solver", "gram"), "solver", SOLVERS)
     _validate.check_capacity_param(params, max(b["lengths"]))
     _validate.check_min_points(n, max(b["lengths"]), f"LHF lengths={b['lengths']}")
-    return (ea.searched({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
+    return (ea.with_search({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
             {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
 
 
