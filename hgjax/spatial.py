@@ -1,6 +1,7 @@
-"""Host-side spatial queries with SciPy's k-d tree, and the :class:`Neighbourhoods` they fill.
+"""Host-side spatial queries with a k-d tree, and the :class:`Neighbourhoods` they fill.
 
-This is the only module that touches ``scipy.spatial.cKDTree``. Everything here runs on the
+The tree itself (:class:`hgjax._kdtree.Tree`: pykdtree where installed, SciPy's cKDTree
+otherwise, the same distances) is queried only here. Everything here runs on the
 host and is not jittable; the kernels in :mod:`hgjax.scores` consume its padded index arrays
 under ``jax.jit``. The container itself (:class:`Neighbourhoods`, :func:`stack_neighbourhoods`,
 :func:`record`) lives in :mod:`hgjax._neighbourhoods`, re-exported here.
@@ -8,7 +9,7 @@ under ``jax.jit``. The container itself (:class:`Neighbourhoods`, :func:`stack_n
 Conventions (shared with every kernel):
 
 * ``idx`` is int32 of shape (N, K); missing neighbours are padded with the sentinel ``N``
-  (cKDTree's own convention), so a mask is ``idx < N``.
+  (the k-d tree's own convention), so a mask is ``idx < N``.
 * k-nearest neighbourhoods list the point itself first, then its neighbours by increasing
   distance (equal distances by index in the spatially sorted frame, which is deterministic).
 * Before querying, points are put in Morton (Z-curve) order, which makes the tree query
@@ -33,9 +34,8 @@ import dataclasses
 import functools
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from hgjax import _validate
+from hgjax import _kdtree, _validate
 from hgjax._neighbourhoods import Neighbourhoods, record, stack_neighbourhoods
 from hgjax._precision import (  # noqa: F401  (re-exported: the callers' spatial.frame_origin, ...)
     PRECISION_SHARE,
@@ -191,7 +191,7 @@ class SpatialIndex:
         # The tree builds in a background thread (the build releases the GIL) while the maps
         # below and the caller's preparations run; :attr:`tree` waits for it.
         pool = concurrent.futures.ThreadPoolExecutor(1)
-        self._tree = pool.submit(cKDTree, sorted_points, leafsize=16, balanced_tree=False)
+        self._tree = pool.submit(_kdtree.Tree, sorted_points)
         pool.shutdown(wait=False)
         self.order = order[first]  # sorted row -> caller index of its first copy
         self.row = np.empty(self.n_caller, dtype=np.int64)  # caller index -> sorted row
@@ -203,7 +203,7 @@ class SpatialIndex:
         self.gid_span = int(gid.max(initial=-1)) + 1 if gid.min(initial=0) >= 0 else 2**62
 
     @property
-    def tree(self) -> cKDTree:
+    def tree(self) -> _kdtree.Tree:
         """The k-d tree over :attr:`points` (waits for its build)."""
         if isinstance(self._tree, concurrent.futures.Future):
             self._tree = self._tree.result()
@@ -293,7 +293,7 @@ class SpatialIndex:
         todo, width = np.flatnonzero(cut), q
         while todo.size:
             width = min(2 * width, self.n)
-            d, i = self.tree.query(self.points[row_ids[todo]], k=width, workers=-1)
+            d, i = self.tree.query(self.points[row_ids[todo]], width)
             d, i = self._ranked(row_ids[todo], d.reshape(todo.size, width), i.reshape(todo.size, width))
             done = (d[:, -1] > d[:, last]) | (width == self.n)
             out[todo[done]], reach[todo[done]] = i[done, :k_eff], np.maximum(d[done, last], 0.0)
@@ -311,8 +311,7 @@ class SpatialIndex:
         only points nearer than it: the missing ones at distance inf and index n (GFR's balls).
         """
         row_ids = self.row_ids(rows)
-        dist, idx = self.tree.query(self.points[row_ids], k=k, distance_upper_bound=bound, workers=-1)
-        return dist.reshape(row_ids.size, k), idx.reshape(row_ids.size, k)
+        return self.tree.query(self.points[row_ids], k, bound)
 
     def cube(self, half_width, rows: slice | np.ndarray = slice(None), *, capacity: int = 32,
              max_count: int | None = None, norm: float = np.inf,
@@ -382,7 +381,7 @@ class SpatialIndex:
     def _cube_query(self, queries: np.ndarray, k: int, h: np.ndarray, norm: float) -> tuple[np.ndarray, np.ndarray]:
         """(R, k) k-nearest distances (Minkowski ``norm``) and indices, each row searched within about its own h.
 
-        cKDTree takes one distance bound per call; a batch's largest h lets every row of a cloud
+        The tree takes one distance bound per call; a batch's largest h lets every row of a cloud
         whose density varies (a scan: near and far from the sensor) search far past its own cube.
         Rows are grouped by h (spatial order kept inside a group) and each group is bounded by
         its largest h. Every row still gets all its points closer than its h: the same sets.
@@ -391,8 +390,7 @@ class SpatialIndex:
         dist, idx = np.empty((h.size, k)), np.empty((h.size, k), dtype=np.intp)
         for g in np.array_split(np.argsort(h, kind="stable"), groups):
             g = np.sort(g)
-            d, i = self.tree.query(queries[g], k=k, p=norm, distance_upper_bound=float(h[g].max()), workers=-1)
-            dist[g], idx[g] = d.reshape(g.size, k), i.reshape(g.size, k)
+            dist[g], idx[g] = self.tree.query(queries[g], k, float(h[g].max()), p=norm)
         return dist, idx
 
     def row_ids(self, rows: slice | np.ndarray) -> np.ndarray:
@@ -594,7 +592,7 @@ def nearest_distances(index: SpatialIndex, rows: np.ndarray) -> tuple[np.ndarray
     todo, width = np.arange(rows.size), 1
     while todo.size and width < index.n:
         width = min(2 * width, index.n)
-        d = index.tree.query(index.points[rows[todo]], k=width, workers=-1)[0].reshape(todo.size, width)
+        d = index.tree.query(index.points[rows[todo]], width)[0]
         if width == 2:
             other[todo] = d[:, 1]
         positive = np.isfinite(d) & (d > 0)

@@ -67,7 +67,7 @@ def client():
 # the run ends on short groups (other test files, then the doctests of hgjax/): neither worker idles
 # while the other finishes a long one. By test count (xdist's default order) the notebooks came last.
 LONGEST_GROUPS = ("tests/test_traced_neighbourhoods.py", "tests/test_traced_graph.py", "tests/test_search_jax.py",
-                  "tests/test_signals.py", "tests/test_traced_tiles.py",
+                  "tests/test_signals.py", "tests/test_traced_tiles.py", "tests/test_kdtree.py",
                   "tests/test_api.py", "tests/test_soft.py", "tests/test_notebooks.py", "tests/test_mss.py",
                   "tests/test_cli.py", "tests/test_ragged.py", "tests/test_eval_edges.py", "tests/test_survey.py",
                   "tests/test_scores.py", "dask-client", "tests/test_cli_scan.py")

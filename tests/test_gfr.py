@@ -143,9 +143,9 @@ def test_dense_balls_are_asked_once(max_nn):
         def __init__(self, tree):
             self.tree = tree
 
-        def query(self, x, k, **kw):
+        def query(self, x, k, *args, **kw):
             asked.append((k, len(x)))
-            return self.tree.query(x, k=k, **kw)
+            return self.tree.query(x, k, *args, **kw)
 
     index._tree = Counted(index.tree)
     rows = list(graph_module.location_rows(index, r, max_nn, np.ones(index.n, bool)))

@@ -171,8 +171,7 @@ def _nearest(reference: np.ndarray, query: np.ndarray, d_theta: float) -> np.nda
     """Distance from each query point to ``reference``, inf where it is d_theta or more."""
     if reference.shape[0] == 0:
         return np.full(query.shape[0], np.inf)
-    dist, _ = SpatialIndex(reference).tree.query(query, k=1, distance_upper_bound=d_theta,
-                                                 workers=-1)
+    dist = SpatialIndex(reference).tree.query(query, 1, d_theta)[0][:, 0]
     return np.where(dist < d_theta, dist, np.inf)
 
 

@@ -1,0 +1,95 @@
+"""The host k-d tree: the fastest installed engine for Euclidean queries, SciPy's cKDTree for the rest.
+
+Every neighbourhood hgjax builds on the host comes from :meth:`Tree.query`: the k nearest points of
+each query point by Euclidean distance, optionally only those nearer than a bound. Two engines
+answer it with the same distances and the same sets:
+
+* ``"pykdtree"`` (the ``kdtree`` extra; OpenMP over the query points): the default where it is
+  installed, faster than cKDTree for every query hgjax makes (``bench/results/search_engines.md``).
+* ``"scipy"``: ``scipy.spatial.cKDTree`` with ``workers=-1``, the fallback, and the engine of the
+  Chebyshev (``p=inf``) cube queries, which pykdtree does not offer.
+
+Both compute a float64 distance as ``sqrt((dx*dx + dy*dy) + dz*dz)`` and both keep only points
+strictly nearer than the bound, so their distances are bitwise equal (tests/test_kdtree.py). Equal
+distances may come in another order: :class:`hgjax.spatial.SpatialIndex` orders them by global id
+whatever the engine. Missing neighbours are at distance inf with the index n (the tree's size).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+try:
+    from pykdtree.kdtree import KDTree as _PyKDTree
+except ImportError:  # the kdtree extra is not installed: SciPy answers every query
+    _PyKDTree = None
+
+LEAF_SIZE = 16
+PREFERRED = ("pykdtree", "scipy")
+"""The engines in order of preference; the first one installed answers Euclidean queries."""
+
+
+def engine() -> str:
+    """The engine Euclidean queries use: the first of :data:`PREFERRED` that is installed."""
+    installed = {"pykdtree": _PyKDTree is not None, "scipy": True}
+    return next(name for name in PREFERRED if installed[name])
+
+
+class Tree:
+    """A k-d tree over (n, 3) points, built by :func:`engine` (pickled as its points, rebuilt on load).
+
+    Args:
+      points: (n, 3) float array; the tree holds them as float64 (the distances are float64).
+    """
+
+    def __init__(self, points: np.ndarray):
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self.engine = engine()
+        self._lock = threading.Lock()
+        self._trees = {}
+        self._tree(self.engine)
+
+    def _tree(self, name: str):
+        """The engine ``name``'s tree over :attr:`points`, built on first use (thread-safe)."""
+        with self._lock:
+            if name not in self._trees:
+                if name == "pykdtree":
+                    self._trees[name] = _PyKDTree(self.points, leafsize=LEAF_SIZE)
+                else:
+                    self._trees[name] = cKDTree(self.points, leafsize=LEAF_SIZE, balanced_tree=False)
+            return self._trees[name]
+
+    def __getstate__(self) -> dict:
+        return {"points": self.points, "engine": self.engine}
+
+    def __setstate__(self, state: dict) -> None:
+        self.points, self.engine = state["points"], state["engine"]
+        self._lock, self._trees = threading.Lock(), {}
+
+    @property
+    def n(self) -> int:
+        """Points in the tree (the index of a missing neighbour)."""
+        return self.points.shape[0]
+
+    def query(self, x: np.ndarray, k: int, bound: float = np.inf, p: float = 2) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest points of each row of ``x`` (R, 3), nearer than ``bound``, by increasing distance.
+
+        Args:
+          x: (R, 3) query points.
+          k: neighbours per row, 1 <= k <= n.
+          bound: only points at distance < bound (the others: distance inf, index n).
+          p: the Minkowski norm, 2 (any engine) or ``np.inf`` (cKDTree).
+
+        Returns:
+          (dist, idx): (R, k) float64 distances and (R, k) intp indices into the tree's points.
+        """
+        x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, 3)
+        if p == 2 and self.engine == "pykdtree":
+            bound = None if np.isinf(bound) else float(bound)
+            dist, idx = self._tree("pykdtree").query(x, k=k, distance_upper_bound=bound)
+        else:
+            dist, idx = self._tree("scipy").query(x, k=k, p=p, distance_upper_bound=bound, workers=-1)
+        return dist.reshape(x.shape[0], k), idx.reshape(x.shape[0], k).astype(np.intp, copy=False)
