@@ -9,9 +9,10 @@ Two things stand in the way, and this module answers both:
   two: measured, 21% of ``(dx*dx + dy*dy) + dz*dz`` differ from NumPy's and cKDTree's in
   float64), and divides by a constant or a broadcast scalar through its rounded reciprocal
   (measured: 9% of ``x / 17`` differ from NumPy's). Every product and quotient whose rounding
-  matters goes through :func:`mul` or :func:`div`, whose select hides the operation from the
-  rewrite; sums of float64 values follow NumPy's pairwise order (:func:`numpy_sum`: eight
-  accumulators up to 128 terms, halves above), so that a mean is NumPy's to the last bit.
+  matters goes through :func:`mul` or :func:`div`, whose select on a traced operand hides the
+  operation from the rewrite (XLA folds a select on a constant); sums of float64 values follow
+  NumPy's pairwise order (:func:`numpy_sum`: eight accumulators up to 128 terms, halves above),
+  so that a mean is NumPy's to the last bit.
 * Without x64 there is no float64 in JAX. A value is then carried as a normalised float32 pair
   (hi, lo): hi + lo is the value, |lo| <= ulp(hi) / 2, about 46 bits. The pair operations are
   built on the error-free transformations, which give a float32 operation's rounding error
@@ -44,8 +45,13 @@ __all__ = ["div", "fast_two_sum", "mul", "numpy_sum", "pair_add", "pair_const", 
 # ----------------------------------------------------------------------------- NumPy's float64 operations
 
 def mul(a, b):
-    """a * b rounded on its own, as NumPy and C compute it (never fused into a later addition); any dtype."""
-    return jnp.where(a == a, a * b, a)  # noqa: PLR0124 (a select XLA cannot see through)
+    """a * b rounded on its own, as NumPy and C compute it (never fused into a later addition); any dtype.
+
+    The product sits behind a select on each operand (NaN gives NaN, as the product would): XLA folds
+    the select of a compile-time constant (a :func:`pair_const` under ``jit``), so the other
+    operand's still hides the product when one of them is constant.
+    """
+    return jnp.where(a == a, jnp.where(b == b, a * b, b), a)  # noqa: PLR0124 (selects XLA cannot see through)
 
 
 def div(a, b):

@@ -169,6 +169,20 @@ def test_traced_cubes_equal_the_host_in_float64(clouds):
         _assert_same_cubes(eager, hgjax.neighbourhoods(p, "hkc"))
 
 
+@pytest.mark.parametrize("variant", ["invariant", "reference"])
+def test_traced_cubes_in_float32_pairs_are_the_same_under_jit(clouds, variant):
+    """Without x64 the spacing, d factor and scale are float32 pairs: jitted (where XLA fuses a product
+    by a constant into a later addition unless :func:`hgjax._exact.mul` hides it) as eagerly, the host's."""
+    with jax.enable_x64(False):
+        p = clouds["smooth"]
+        host = hgjax.neighbourhoods(p, "hkc", variant=variant)
+        eager = hgjax.neighbourhoods(p, "hkc", variant=variant, search="jax")
+        _assert_same_cubes(eager, host)
+        jitted = _jitted_like(eager, p, variant)
+        assert jitted.scale.dtype == jnp.float32 and int(jitted.overflow) == 0
+        _assert_same_cubes(jitted, host)
+
+
 @pytest.mark.parametrize("params", [{"resolution": 0.1}, {"variant": "reference", "resolution": 0.1, "d_factor": 1.5}],
                          ids=["resolution", "both"])
 def test_traced_cubes_with_a_fixed_resolution_and_factor(clouds, params):
