@@ -147,10 +147,12 @@ ENGINES = {"cKDTree": ("scipy", _scipy), "pykdtree": ("pykdtree", _pykdtree), "n
            "numba-kdtree": ("numba-kdtree", _numba), "sklearn": ("scikit-learn", _sklearn)}
 
 
-def load_engines() -> tuple[dict, list[str]]:
-    """The engines that import (name -> adapter tuple) and one line per engine: version or why absent."""
+def load_engines(wanted) -> tuple[dict, list[str]]:
+    """The ``wanted`` engines that import (name -> adapter tuple) and one line per engine: version or why absent."""
     found, lines = {}, []
     for name, (dist, adapter) in ENGINES.items():
+        if name not in wanted:
+            continue
         try:
             found[name] = adapter()
             lines.append(f"{name} ({dist} {metadata.version(dist)})")
@@ -262,13 +264,16 @@ def main() -> None:
     parser.add_argument("--sizes", default="100000,1000000", help="box-surface sizes, comma-separated")
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds per condition")
     parser.add_argument("--no-scan", action="store_true", help="skip the mug scan")
+    parser.add_argument("--engines", default=",".join(ENGINES), help="engines to time, comma-separated (cKDTree always)")
+    parser.add_argument("--orders", default="Morton,random", help="point orders: Morton (hgjax's), random")
+    parser.add_argument("--dtypes", default="float32,float64", help="dtypes of the points given to the trees")
     parser.add_argument("--out", default=str(HERE / "results" / "search_engines.md"))
     args = parser.parse_args()
 
     import hgjax
     from hgjax.eval import box_surface
 
-    engines, versions = load_engines()
+    engines, versions = load_engines({"cKDTree", *args.engines.split(",")})
     if "cKDTree" not in engines:
         sys.exit("SciPy's cKDTree is the reference and the floor: install scipy")
     clouds = [("box surface (box_surface(N, seed=0))", lambda n=int(float(s)): box_surface(n, seed=0))
@@ -287,9 +292,10 @@ def main() -> None:
         local = hgjax.spatial.local_frame(np.asarray(make(), dtype=np.float64))[0]
         n, qs, done = local.shape[0], queries(local), {}
         floor = _report.morton_copy(local)
-        ordered = {"Morton": floor, "random": local[np.random.default_rng(0).permutation(n)]}
-        for order, points in ordered.items():
-            for dtype in ("float32", "float64"):
+        ordered = {"Morton": lambda: floor, "random": lambda: local[np.random.default_rng(0).permutation(n)]}
+        for order in args.orders.split(","):
+            points = ordered[order]()
+            for dtype in args.dtypes.split(","):
                 print(f"{cloud} N={n} {order} {dtype}", flush=True)
                 x = np.ascontiguousarray(points, dtype=dtype)
                 done[order, dtype] = condition(engines, qs, x, floor, args.repeats)

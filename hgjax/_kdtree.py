@@ -1,13 +1,16 @@
-"""The host k-d tree: the fastest installed engine for Euclidean queries, SciPy's cKDTree for the rest.
+"""The host k-d tree: the fastest installed engine for each query hgjax makes.
 
 Every neighbourhood hgjax builds on the host comes from :meth:`Tree.query`: the k nearest points of
-each query point by Euclidean distance, optionally only those nearer than a bound. Two engines
-answer it with the same distances and the same sets:
+each query point, optionally only those nearer than a bound. Two engines answer it with the same
+distances and the same sets, each where it is fastest (``bench/results/search_engines.md``, 1e6
+Morton-sorted float64 box surface, tree build included, / the cKDTree kNN16 floor):
 
-* ``"pykdtree"`` (the ``kdtree`` extra; OpenMP over the query points): the default where it is
-  installed, faster than cKDTree for every query hgjax makes (``bench/results/search_engines.md``).
-* ``"scipy"``: ``scipy.spatial.cKDTree`` with ``workers=-1``, the fallback, and the engine of the
-  Chebyshev (``p=inf``) cube queries, which pykdtree does not offer.
+* ``"pykdtree"`` (the ``kdtree`` extra; OpenMP over the query points), where installed: the
+  unbounded k-nearest queries (kNN16 0.60 against cKDTree's 0.97, kNN33 1.10 / 1.63, kNN64
+  3.06 / 3.35).
+* ``"scipy"``: ``scipy.spatial.cKDTree`` with ``workers=-1``: the queries bounded by a distance
+  (GFR's k = 109: 3.25 against pykdtree's 6.39; a 64-point ball 2.00 / 2.54), the Chebyshev
+  (``p=inf``) cubes, which pykdtree does not offer, and every query where pykdtree is absent.
 
 Both compute a float64 distance as ``sqrt((dx*dx + dy*dy) + dz*dz)`` and both keep only points
 strictly nearer than the bound, so their distances are bitwise equal (tests/test_kdtree.py). Equal
@@ -29,17 +32,18 @@ except ImportError:  # the kdtree extra is not installed: SciPy answers every qu
 
 LEAF_SIZE = 16
 PREFERRED = ("pykdtree", "scipy")
-"""The engines in order of preference; the first one installed answers Euclidean queries."""
+"""The engines in order of preference; the first one installed answers unbounded Euclidean queries."""
 
 
 def engine() -> str:
-    """The engine Euclidean queries use: the first of :data:`PREFERRED` that is installed."""
+    """The engine of unbounded Euclidean queries: the first of :data:`PREFERRED` that is installed."""
     installed = {"pykdtree": _PyKDTree is not None, "scipy": True}
     return next(name for name in PREFERRED if installed[name])
 
 
 class Tree:
-    """A k-d tree over (n, 3) points, built by :func:`engine` (pickled as its points, rebuilt on load).
+    """A k-d tree over (n, 3) points: :func:`engine`'s, and cKDTree's for the queries it answers
+    (each built on first use; pickled as its points, rebuilt on load).
 
     Args:
       points: (n, 3) float array; the tree holds them as float64 (the distances are float64).
@@ -50,7 +54,7 @@ class Tree:
         self.engine = engine()
         self._lock = threading.Lock()
         self._trees = {}
-        self._tree(self.engine)
+        self._tree(self.engine)  # the other engine's tree is built on its first query
 
     def _tree(self, name: str):
         """The engine ``name``'s tree over :attr:`points`, built on first use (thread-safe)."""
@@ -87,9 +91,8 @@ class Tree:
           (dist, idx): (R, k) float64 distances and (R, k) intp indices into the tree's points.
         """
         x = np.ascontiguousarray(x, dtype=np.float64).reshape(-1, 3)
-        if p == 2 and self.engine == "pykdtree":
-            bound = None if np.isinf(bound) else float(bound)
-            dist, idx = self._tree("pykdtree").query(x, k=k, distance_upper_bound=bound)
+        if p == 2 and np.isinf(bound) and self.engine == "pykdtree":
+            dist, idx = self._tree("pykdtree").query(x, k=k)
         else:
             dist, idx = self._tree("scipy").query(x, k=k, p=p, distance_upper_bound=bound, workers=-1)
         return dist.reshape(x.shape[0], k), idx.reshape(x.shape[0], k).astype(np.intp, copy=False)

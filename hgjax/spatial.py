@@ -282,7 +282,7 @@ class SpatialIndex:
         cut = (dist[:, last] == dist[:, k_eff]) if q > k_eff and last else np.zeros(r, bool)
         if odd.size:  # another point at distance 0 listed first, or the point itself beyond the query
             mine = idx[odd] == row_ids[odd, None]
-            d = np.where(mine, -1.0, dist[odd])
+            d = np.sort(np.where(mine, -1.0, dist[odd]), axis=1)  # as ranked: the point itself first
             tied[odd] = True
             cut[odd] = ~mine.any(axis=1) | ((d[:, last] == d[:, k_eff]) if q > k_eff else False)
         out, reach = idx[:, :k_eff].astype(np.int32), np.maximum(dist[:, last], 0.0)

@@ -7,7 +7,7 @@ import functools
 
 import numpy as np
 import pytest
-from fixtures import box_union, grid, uniform_cloud
+from fixtures import box_union, degenerate_clouds, grid, uniform_cloud
 from scipy.spatial import cKDTree
 
 import hgjax
@@ -104,3 +104,17 @@ def test_every_method_keeps_the_same_points_with_either_engine(name, monkeypatch
     for m, want in run().items():
         for got, wanted in zip(fast[m], want):
             np.testing.assert_array_equal(np.asarray(got), np.asarray(wanted), err_msg=m)
+
+
+@pytest.mark.parametrize("name", list(degenerate_clouds()))
+@pytest.mark.parametrize("k", [1, 5, 16, 39])
+def test_knn_of_degenerate_clouds_is_the_naive_order(name, k, engine):
+    """Each row is the point itself, then the others by (distance, index), whatever order the tree
+    lists equal distances in (two locations of 20 copies each: the point itself may come last)."""
+    points = degenerate_clouds()[name]
+    local = spatial.local_frame(points)[0]  # the frame hgjax measures distances in
+    gap = local[None, :, :] - local[:, None, :]
+    dist = np.sqrt((gap[..., 0] ** 2 + gap[..., 1] ** 2) + gap[..., 2] ** 2)
+    np.fill_diagonal(dist, -1.0)
+    want = np.lexsort((np.broadcast_to(np.arange(len(points)), dist.shape), dist), axis=1)[:, :k]
+    np.testing.assert_array_equal(hgjax.knn(points, k).idx, want)
