@@ -152,8 +152,11 @@ def _kernel_split(p, method: str, repeats: int) -> dict:
     params = voxel.resolve(voxel.build_params(), spatial.sample_stats(index))
     c = _stream.chunk_rows()
     rows = np.arange(index.n // 2, index.n // 2 + c)
-    idx, scale, _ = voxel.build_rows(index, rows, params)
-    idx = idx[:, :max(int((idx < index.n).sum(axis=1).max()), 1)]
+    parts = list(voxel.row_batches(index, rows, params))
+    width = max(max(int((p[1] < index.n).sum(axis=1).max()), 1) for p in parts)
+    idx = np.concatenate([np.pad(p[1], ((0, 0), (0, max(width - p[1].shape[1], 0))), constant_values=index.n)[:, :width]
+                          for p in parts])
+    scale = np.concatenate([p[2] for p in parts])
     hi = jnp.asarray(index.points.astype(p.dtype))
     n = index.n
     own, nbr, d = jnp.asarray(rows.astype(np.int32)), jnp.asarray(idx), jnp.asarray(scale.astype(p.dtype))

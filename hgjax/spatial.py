@@ -217,9 +217,8 @@ class SpatialIndex:
         return values[self.row]
 
     def caller_idx(self, idx_sorted: np.ndarray) -> np.ndarray:
-        """Sorted-frame neighbour rows (n, K) as caller-frame rows and indices (N, K), sentinel N."""
-        ext = np.append(self.order, self.n_caller).astype(np.int32)
-        return ext[np.where(idx_sorted < self.n, idx_sorted, self.n)][self.row]
+        """Sorted-frame neighbour rows (n, K), padded with n, as caller-frame rows and indices (N, K), sentinel N."""
+        return caller_rows(self, [idx_sorted], idx_sorted.shape[1], [slice(None)])
 
     def _ranked(self, row_ids: np.ndarray, dist: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each row's hits (R, q) by (distance, global id), the point itself first (distance -1)."""
@@ -417,40 +416,39 @@ def batches(n_rows: int):
     return [slice(start, min(start + QUERY_ROWS, n_rows)) for start in range(0, n_rows, QUERY_ROWS)]
 
 
-def pad_queries(index: SpatialIndex, query, capacity, what: str, n_rows: int) -> np.ndarray:
-    """Run ``query(part)`` over :func:`batches` of ``range(n_rows)``; pad to ``capacity`` or a bucket.
+def caller_rows(index: SpatialIndex, parts: list, width: int, where: list | None = None) -> np.ndarray:
+    """(N, width) int32 neighbour rows in the caller's frame from sorted-frame ``parts``.
 
-    Raises:
-      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
+    Each part (R_i, W_i), padded with n, holds the sorted-frame rows ``where[i]`` (default the
+    :func:`batches` of all n rows): its indices become the caller's (the sentinel n becomes N) and
+    are written to the caller rows of its points, the rest of those rows N; each exact copy of a
+    location (``dedupe``) then takes its first copy's row. One write per element: no sorted-frame
+    copy of the whole array.
     """
-    return pad_parts(index, [query(part) for part in batches(n_rows)], capacity, what, n_rows)
-
-
-def pad_parts(index: SpatialIndex, parts: list, capacity, what: str, n_rows: int) -> np.ndarray:
-    """The (R_i, W_i) neighbour rows ``parts`` of :func:`batches` as one (n_rows, K) array padded with n.
-
-    K is ``capacity``, or the bucket of the widest part.
-
-    Raises:
-      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
-    """
-    width = max((p.shape[1] for p in parts), default=1)
-    _validate.check_capacity(capacity, width, what)
-    out = np.empty((n_rows, bucket(width) if capacity is None else capacity), dtype=np.int32)
-    for part, p in zip(batches(n_rows), parts):  # each element written once
-        out[part, :p.shape[1]] = p
-        out[part, p.shape[1]:] = index.n
+    ext = np.append(index.order, index.n_caller).astype(np.int32)
+    out = np.empty((index.n_caller, width), dtype=np.int32)
+    for part, p in zip(batches(index.n) if where is None else where, parts):
+        dest = index.order[part]
+        out[dest, :p.shape[1]] = np.take(ext, p)
+        out[dest, p.shape[1]:] = index.n_caller
+    if index.n < index.n_caller:
+        first = index.order[index.row]  # each point's first copy
+        copies = np.flatnonzero(first != np.arange(index.n_caller))
+        out[copies] = out[first[copies]]
     return out
 
 
-def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, scale_sorted=None, *,
+def assemble(points: np.ndarray, index: SpatialIndex, parts: list, capacity, what: str, scale_sorted=None, *,
              params: dict | None = None) -> Neighbourhoods:
-    """Neighbourhoods in the caller's order from sorted-frame query results.
+    """Neighbourhoods in the caller's order from the sorted-frame query results of every index row.
 
     Args:
       points: (N, 3) the caller's validated points.
       index: the index the query ran on.
-      idx_sorted: (n, K) sorted-frame neighbour rows, padded with n.
+      parts: the (R_i, W_i) sorted-frame neighbour rows of the :func:`batches` of all n rows,
+        padded with n.
+      capacity: the columns K of ``idx``, or None for the bucket of the widest part.
+      what: the neighbourhood's name in a capacity error.
       scale_sorted: optional (n,) per-row length.
       params: the build parameters to record (see :attr:`Neighbourhoods.params`).
 
@@ -458,12 +456,18 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx_sorted: np.ndarray, sc
       :class:`Neighbourhoods` whose points are the caller's in a local frame, cast to the
       working dtype (see :func:`working_dtype`; a cast that loses the cloud's finest spacing,
       read from ``index``, warns).
+
+    Raises:
+      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
     """
+    width = max((p.shape[1] for p in parts), default=1)
+    _validate.check_capacity(capacity, width, what)
+    idx = caller_rows(index, parts, bucket(width) if capacity is None else capacity)
     local = local_frame(points)[0]
     dtype = working_dtype(points.dtype, extent=frame_extent(local), spacing=lambda: index_spacing(index))
     local = local.astype(dtype)
     scale = None if scale_sorted is None else index.to_caller(np.asarray(scale_sorted)).astype(dtype)
-    return Neighbourhoods(local, index.caller_idx(idx_sorted), scale, params=record(params or {}))
+    return Neighbourhoods(local, idx, scale, params=record(params or {}))
 
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -497,8 +501,7 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) ->
     dedupe = _validate.check_bool(dedupe, "dedupe")
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
     parts = [idx for _, idx, _ in knn_batches(index, k, np.arange(index.n))]
-    idx = pad_parts(index, parts, cap, "k-nearest neighbourhood", index.n)
-    return assemble(pts, index, idx, params={"k": k, "dedupe": dedupe})
+    return assemble(pts, index, parts, cap, "k-nearest neighbourhood", params={"k": k, "dedupe": dedupe})
 
 
 def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -530,8 +533,7 @@ def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = Non
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
     half_sorted = np.broadcast_to(half, (pts.shape[0],))[index.order]
-    idx = pad_queries(index, lambda part: index.cube(half_sorted[part], part)[0], cap, "cube", index.n)
-    return assemble(pts, index, idx)
+    return assemble(pts, index, [index.cube(half_sorted[part], part)[0] for part in batches(index.n)], cap, "cube")
 
 
 def intrinsic_resolution(points, *, robust: bool = False) -> float:

@@ -415,23 +415,6 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
         yield part, idx, 2 / k * half / widen, reach
 
 
-def build_rows(index: spatial.SpatialIndex, rows: np.ndarray, params: dict,
-               capacity: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params``: :func:`row_batches` in one array.
-
-    Returns:
-      (idx, scale, reach): idx (R, K) int32 padded with n (K: ``capacity``, or the bucket of
-      the fullest row); scale (R,) and reach (R,) as :func:`row_batches`.
-
-    Raises:
-      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
-    """
-    parts = list(row_batches(index, rows, params))
-    idx = spatial.pad_parts(index, [p[1] for p in parts], capacity, "cube", len(rows))
-    scale, reach = (np.concatenate([np.empty(0)] + [p[i] for p in parts]) for i in (2, 3))
-    return idx, scale, reach
-
-
 def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                    resolution: float | None = None, dedupe: bool | None = None,
                    capacity: int | None = None, search: str = "host", cell_capacity: int | None = None,
@@ -499,8 +482,9 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=params["dedupe"])
     resolved = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
-    idx, scale, _ = build_rows(index, np.arange(index.n), resolved, cap)
-    return spatial.assemble(pts, index, idx, scale, params=params)
+    parts = list(row_batches(index, np.arange(index.n), resolved))
+    scale = np.concatenate([np.empty(0)] + [p[2] for p in parts])
+    return spatial.assemble(pts, index, [p[1] for p in parts], cap, "cube", scale, params=params)
 
 
 def _traced_neighbourhoods(points, params: dict, capacity, cell_capacity, cell_edge) -> spatial.Neighbourhoods:
