@@ -43,7 +43,7 @@ def engine() -> str:
 
 class Tree:
     """A k-d tree over (n, 3) points: :func:`engine`'s, and cKDTree's for the queries it answers
-    (each built on first use; pickled as its points, rebuilt on load).
+    (each built on first use; pickled as its points, rebuilt on load by the engine installed there).
 
     Args:
       points: (n, 3) float array; the tree holds them as float64 (the distances are float64).
@@ -67,16 +67,11 @@ class Tree:
             return self._trees[name]
 
     def __getstate__(self) -> dict:
-        return {"points": self.points, "engine": self.engine}
+        return {"points": self.points}
 
-    def __setstate__(self, state: dict) -> None:
-        self.points, self.engine = state["points"], state["engine"]
+    def __setstate__(self, state: dict) -> None:  # the engine installed where it is loaded
+        self.points, self.engine = state["points"], engine()
         self._lock, self._trees = threading.Lock(), {}
-
-    @property
-    def n(self) -> int:
-        """Points in the tree (the index of a missing neighbour)."""
-        return self.points.shape[0]
 
     def query(self, x: np.ndarray, k: int, bound: float = np.inf, p: float = 2) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` nearest points of each row of ``x`` (R, 3), nearer than ``bound``, by increasing distance.
