@@ -119,18 +119,19 @@ def main() -> None:
 
 
 def _table(rows: list[dict]) -> list[str]:
-    table = ["| N | method | floor s | host build | traced build | jitted resample | host resample |"
-             " engine, traced tiles | cells (capacity, edge) | traced sets == host | kept differing"
-             " (jitted; engine) | peak MB |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    table = ["| N | method | floor s | host build | traced build | jitted resample | jitted resample s |"
+             " host resample | engine, traced tiles | cells (capacity, edge) | traced sets == host | kept differing"
+             " (jitted; engine) | peak MB |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            table.append(f"| {r['n']:,} | {r['method']} | {r['error']} |" + " |" * 9)
+            table.append(f"| {r['n']:,} | {r['method']} | {r['error']} |" + " |" * 10)
             continue
         d = r["differ"]
         cells = ", ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in r["cells"].values())
+        seconds = f"{r['jitted resample']:.3f}" if "jitted resample" in r else "-"
         table.append(f"| {r['n']:,} | {r['method']} | {r['floor']:.3f} | {_ratio(r, 'host build')} |"
-                     f" {_ratio(r, 'traced build')} | {_ratio(r, 'jitted resample')} | {_ratio(r, 'host resample')} |"
-                     f" {_ratio(r, 'engine, traced tiles')} | {cells} | {r['same']} |"
+                     f" {_ratio(r, 'traced build')} | {_ratio(r, 'jitted resample')} | {seconds} |"
+                     f" {_ratio(r, 'host resample')} | {_ratio(r, 'engine, traced tiles')} | {cells} | {r['same']} |"
                      f" {d.get('jitted resample', '-')}; {d.get('engine, traced tiles', '-')} | {r['peak_mb']:.0f} |")
     return table
 
