@@ -198,16 +198,18 @@ def _as_distance(value, metric):
     return jnp.sqrt(value) if metric == "l2sq" else value
 
 
-def _below(hi, lo, h, metric):
-    """Whether keys (B, W) lie strictly below the radii ``h`` (B,), in the metric's units."""
+def _below(hi, lo, h, metric, h_lo=None):
+    """Whether keys (B, W) lie strictly below the radii ``h`` (B,) (plus their pairs' trailing parts
+    ``h_lo`` (B,), where given), in the metric's units."""
     h = h[:, None]
     if lo is None:
         return hi < h
+    h_lo = jnp.zeros_like(h) if h_lo is None else h_lo[:, None]
     if metric == "l2":  # the squared radius as an exact pair (an infinite radius stays infinite)
-        hh, hl = _exact.fast_two_sum(*_exact.two_prod(h, h))
+        hh, hl = _exact.pair_square(h, h_lo)
         finite = jnp.isfinite(h)
         return _exact.pair_less(hi, lo, jnp.where(finite, hh, h), jnp.where(finite, hl, 0))
-    return _exact.pair_less(hi, lo, h, jnp.zeros_like(h))
+    return _exact.pair_less(hi, lo, h, h_lo)
 
 
 def _x64() -> bool:
@@ -685,7 +687,7 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
 
 def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int = 128, edge=None, count=None,
            gid=None, metric: str = "l2", max_count: int | None = None, chunk: int | None = None,
-           spill: int | None = None) -> Found:
+           spill: int | None = None, radius_lo=None) -> Found:
     """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
     :meth:`hgjax.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
     variant; ``"l2"``: the ball of their invariant variant), traced.
@@ -702,6 +704,8 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
       max_count: the host's ``max_count`` (static): a row whose ball holds ``max_count``
         points or more shrinks its radius to the distance of its ``max_count``-th nearest
         point, so it holds fewer, all of them.
+      radius_lo: without x64, the trailing part of a float32 pair (``radius``, ``radius_lo``)
+        that carries a float64 radius (scalar or (N,)), compared exactly; None: 0.
 
     Returns:
       :class:`Found` with idx (N, K) int32 padded with N, dist (N, K), reach (N,) the radius
@@ -726,13 +730,15 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
     real = jnp.arange(n) < (n if count is None else count)
     dtype = _coordinates(jnp.zeros((1, 3), points.dtype), jnp.ones(1, bool)).dtype
     bound = jnp.broadcast_to(jnp.asarray(radius, dtype), (n,))
+    bound_lo = None if radius_lo is None else jnp.broadcast_to(jnp.asarray(radius_lo, dtype), (n,))
     if edge is None:
         top = jnp.max(jnp.where(real, bound, 0))
         edge = EDGE_MARGIN * (jnp.sqrt(top) if metric == "l2sq" else top)
     def rows(cloud, qi):
         c = _candidates(cloud, qi, capacity, metric)
         h = bound[cloud.rep[qi]]  # with dedupe, every copy asks its location's first copy's query
-        inside = _below(c["hi"], c["lo"], h, metric)  # (B, C) every candidate, exactly
+        h_lo = None if bound_lo is None else bound_lo[cloud.rep[qi]]
+        inside = _below(c["hi"], c["lo"], h, metric, h_lo)  # (B, C) every candidate, exactly
         used = h
         cut = None
         if max_count is not None:  # a full ball shrinks to exclude its max_count-th point
@@ -750,7 +756,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
             inside = jnp.where(full[:, None], below_cut, inside)
             used = jnp.where(full, _in_units(cut[0], metric), h)
         s = _select(c, columns)
-        take = _below(s["hi"], s["lo"], h, metric)
+        take = _below(s["hi"], s["lo"], h, metric, h_lo)
         if cut is not None:
             below_cut = _exact.pair_less(s["hi"], jnp.zeros_like(s["hi"]) if s["lo"] is None else s["lo"],
                                          cut[0][:, None], cut[1][:, None])

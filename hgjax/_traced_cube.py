@@ -19,10 +19,11 @@ distances, :meth:`hgjax.spatial.SampleStats.irregularity`) through a linear ramp
 Arithmetic (:mod:`hgjax._exact`): under x64 every float64 operation of the host is done in the
 host's order (NumPy's pairwise sums, no fused multiply-add, no reciprocal for a division), so
 the spacing, the radius and ``scale`` are the host's bits and the neighbour sets the host's.
-Without x64 the distances, means and spacing are carried as float32 pairs (about 46 bits) and
-``scale`` is the pair rounded once to float32, the radius is that float32 rounding of the
-host's float64 radius: a point is listed as the host lists it unless its distance lies between
-the two (relative 2^-24 of the radius), and a ball shrunk by ``max_count`` has its ``scale``
+Without x64 the distances, means, spacing and radius are carried as float32 pairs (about 46
+bits) and ``scale`` is the pair rounded once to float32: a point is listed as the host lists it
+unless its distance lies within the pairs' precision of the radius (relative 2^-44; a radius
+rounded to float32 instead missed 1 point of 1e6 on the box surface, 7e-9 inside it), and a
+ball shrunk by ``max_count`` has its ``scale``
 from the float32 distance of its ``max_count``-th point (within an ulp of the host's). The
 order inside a row is the pairs' (:mod:`hgjax._search_jax`): the host's, except where two
 distances differ by less than the pairs' precision or float64's rounding makes them equal (a
@@ -124,7 +125,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     radius_lo = None if radius_lo is None else jnp.broadcast_to(radius_lo, (n,))
     # the cube or ball
     columns = capacity if capacity is not None else (max_count or COLUMNS) if traced else FIRST_COLUMNS
-    found = searches.within(radius, columns, metric, dedupe, max_count)
+    found = searches.within(radius, radius_lo, columns, metric, dedupe, max_count)
     if traced:
         idx = found.idx
         overflow = searches.overflow
@@ -203,13 +204,13 @@ class _Searches:
     def knn(self, k: int, dedupe: bool):
         return self._run(_search_jax.knn, k, dedupe=dedupe)
 
-    def within(self, radius, columns: int, metric: str, dedupe: bool, max_count):
+    def within(self, radius, radius_lo, columns: int, metric: str, dedupe: bool, max_count):
         # A default edge from most rows' radius, not the largest (a sparse point's ball would make every
         # block hold most of the cloud): the few rows it misses are searched again at a wider edge.
         n = radius.shape[0]
         typical = jnp.sort(lax.stop_gradient(radius))[(n - 1) * EDGE_QUANTILE // 100]
         return self._run(_search_jax.within, radius, columns=columns, metric=metric, dedupe=dedupe,
-                         max_count=max_count, default_edge=_search_jax.EDGE_MARGIN * typical)
+                         max_count=max_count, radius_lo=radius_lo, default_edge=_search_jax.EDGE_MARGIN * typical)
 
     def settle(self, rounds: int = 4) -> None:
         """Grow the last (capacity, edge) until every search of the build runs with it without overflow."""

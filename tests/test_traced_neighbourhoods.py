@@ -183,6 +183,25 @@ def test_traced_cubes_in_float32_pairs_are_the_same_under_jit(clouds, variant):
         _assert_same_cubes(jitted, host)
 
 
+@pytest.mark.parametrize("variant", ["invariant", "reference"])
+def test_a_point_between_the_float32_radius_and_the_hosts_is_listed_as_the_host_lists_it(variant):
+    """Without x64 the radius stays a float32 pair: a point whose distance lies above the radius rounded
+    to float32 but below the host's float64 radius is inside both balls (1 row of 1e6 on the box surface
+    was short of it when the radius was rounded)."""
+    widen = np.sqrt(3.0) if variant == "invariant" else 1.0
+    half = widen * 3 / 2 * 1.3 * 0.1  # the host's float64 radius: widen x k / 2 x d_factor x resolution
+    below = np.float32(half)
+    if float(below) > half:
+        below = np.nextafter(below, np.float32(0))
+    gap = np.float32((half - float(below)) / 2)  # the query at -gap, the point at `below`: in between
+    p = np.array([[-gap, 0, 0], [below, 0, 0], [5, 5, 5], [6, 5, 5]], np.float32)
+    params = {"variant": variant, "resolution": 0.1, "d_factor": 1.3}
+    with jax.enable_x64(False):
+        host = hgjax.neighbourhoods(p, "hkc", **params)
+        assert host.idx[0, 1] == 1  # inside the host's ball, by construction
+        _assert_same_cubes(hgjax.neighbourhoods(p, "hkc", search="jax", **params), host)
+
+
 @pytest.mark.parametrize("params", [{"resolution": 0.1}, {"variant": "reference", "resolution": 0.1, "d_factor": 1.5}],
                          ids=["resolution", "both"])
 def test_traced_cubes_with_a_fixed_resolution_and_factor(clouds, params):
