@@ -478,13 +478,17 @@ def _fps_fpsample(p: np.ndarray, m: int, start: int) -> np.ndarray | None:
     fpsample building differently), fpsample's plain O(N M) FPS, which takes ``start_idx``
     as given, serves instead. Once every distinct point left is at float32 squared distance
     0 from the kept ones (a far outlier shrinks the rest below float32's range of squares),
-    fpsample repeats a point: None is returned then, and the caller runs the JAX loop.
+    fpsample repeats a point; and where the float32 cast makes distinct points of ``p`` one,
+    their order would be the tree's: None is returned in both cases, and the caller runs the
+    JAX loop.
     """
     import fpsample
 
     q = np.ascontiguousarray(p, dtype=np.float32)
     first, group = _distinct_rows(q)
     unique = first.size == q.shape[0]
+    if not unique and (p != p[first[group]]).any():  # distinct points made one by float32: the exact JAX loop instead
+        return None
     rep = np.arange(q.shape[0]) if unique else np.sort(first)
     at = int(np.searchsorted(rep, first[group[start]]))
     rep[at] = start
@@ -541,7 +545,8 @@ def farthest_point_sample(points, ratio: float, *, start: int = 0, backend: str 
       exact, unlike fpsample's NPDU variants) on the distinct points, in float32 whatever
       the input dtype. Far faster than O(N M) on the host; ties between distinct points are
       broken by the tree, deterministically. Where float32 squared distances underflow (a
-      far outlier shrinks the other points' spacing below them, x64 on), the JAX loop runs.
+      far outlier shrinks the other points' spacing below them, x64 on), or the float32 cast
+      makes distinct points one, the JAX loop runs.
     * ``"jax"``: a jitted ``lax.fori_loop`` over one (N,) array of squared distances to the
       kept set, in the working dtype (float64 for float64 input with x64): O(N M) time,
       O(N) memory, and M is static (a new M compiles). Ties go to the lowest index.

@@ -184,6 +184,15 @@ def test_fps_far_outlier():
         _refused(p, "fps", r"points span 1e\+30 .* float32")
 
 
+def test_fps_keeps_points_that_float32_makes_one():
+    # next to 1e15 the unit-spaced points are one in float32: fpsample took them in its tree's order ([0, 4, 2, 3, 1])
+    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1e15, 0, 0]], dtype=np.float64)
+    with jax.enable_x64(True):
+        np.testing.assert_array_equal(hgjax.resample(p, 1.0, method="fps", backend="jax"), [0, 4, 1, 2, 3])
+        if hgjax.fps_backend("auto") == "fpsample":
+            np.testing.assert_array_equal(hgjax.resample(p, 1.0, method="fps", backend="fpsample"), [0, 4, 1, 2, 3])
+
+
 # ----------------------------------------------------------------------------------- parameters
 @pytest.mark.parametrize("method", SCORING)
 def test_resample_refuses_what_neighbourhoods_refuses(cloud, method):
