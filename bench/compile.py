@@ -16,13 +16,24 @@ of ``--methods`` on one box-union cloud of N = 2000: ``jax.jit(f).lower(points).
 after ``jax.clear_caches()``, medians of ``--repeats``. Writes bench/results/compile_grad.md.
 
     python bench/compile.py --grad --methods lhf hkc ea --repeats 3
+
+``--cold`` times each method's first eager ``hgjax.resample`` of a 3,000-point box-union cloud
+(float64 NumPy input, JAX's defaults: x64 off, no persistent cache) in a fresh process per
+method, against its second call, with the XLA compilations it made and their backend seconds
+(issue 47, item 7: the first call within 3 s), and the whole run of
+``notebooks/soft_resampling.ipynb`` (nbclient, a fresh kernel each time; item 7: within 60 s).
+Writes bench/results/compile_cold.md.
+
+    python bench/compile.py --cold --methods hkc hkf lhf ea gfr pca_ac mss --repeats 3
 """
 
 import argparse
 import dataclasses
+import json
 import os
 import pathlib
 import statistics
+import sys
 import time
 
 import jax
@@ -46,7 +57,13 @@ def main():
     parser.add_argument("--methods", nargs="+", default=["hkc", "hkf", "lhf", "ea", "gfr", "pca_ac"])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--grad", action="store_true", help="forward against value_and_grad compile times")
+    parser.add_argument("--cold", action="store_true", help="first eager call per method in a fresh process")
+    parser.add_argument("--one", default=None, help=argparse.SUPPRESS)  # --cold: this method, in this process
     args = parser.parse_args()
+    if args.one:
+        return print(json.dumps(cold_call(args.one)))
+    if args.cold:
+        return cold_calls(args)
     jax.config.update("jax_enable_x64", True)
     if args.grad:
         return grad_compiles(args)
@@ -119,6 +136,68 @@ def grad_compiles(args) -> None:
              "| method | forward s | value_and_grad s | grad / forward |", "|---|---|---|---|"]
     lines += [f"| {m} | {f:.2f} | {g:.2f} | {g / f:.2f} |" for m, f, g in rows]
     (pathlib.Path(__file__).parent / "results" / "compile_grad.md").write_text("\n".join(lines) + "\n")
+
+
+COLD_N = 3000
+NOTEBOOK = pathlib.Path(__file__).resolve().parents[1] / "notebooks" / "soft_resampling.ipynb"
+
+
+def _notebook_seconds(path: pathlib.Path) -> float:
+    """Seconds to run a notebook whole in a fresh kernel (nbclient)."""
+    import nbclient
+    import nbformat
+
+    nb = nbformat.read(path, as_version=4)
+    start = time.perf_counter()
+    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                            resources={"metadata": {"path": str(path.parent)}}).execute()
+    return time.perf_counter() - start
+
+
+def cold_call(method: str) -> dict:
+    """Seconds of this fresh process's first and second eager resample with ``method``, and its compilations."""
+    points = hgjax.eval.box_union_cloud(seed=0, n_points=COLD_N).points
+    params = SELECT.get(method, {})
+    start = time.perf_counter()
+    hgjax.resample(points, 0.2, method=method, **params)
+    first = time.perf_counter() - start
+    compiles = list(_compiles)
+    start = time.perf_counter()
+    hgjax.resample(points, 0.2, method=method, **params)
+    return {"first": first, "second": time.perf_counter() - start, "compilations": len(compiles),
+            "compile_s": sum(compiles)}
+
+
+def cold_calls(args) -> None:
+    """Each method's first call in ``--repeats`` fresh processes; medians."""
+    import subprocess
+
+    rows = []
+    for method in args.methods:
+        runs = []
+        for _ in range(args.repeats):
+            env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "XLA_"))}
+            out = subprocess.run([sys.executable, __file__, "--one", method], capture_output=True, text=True,
+                                 check=True, env=env)
+            runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        row = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+        rows.append((method, row))
+        print(method, json.dumps(row), flush=True)
+    notebook = statistics.median(_notebook_seconds(NOTEBOOK) for _ in range(args.repeats))
+    print(NOTEBOOK.name, round(notebook, 1), flush=True)
+    lines = ["# The first eager call of each method, from a cold start", "",
+             f"Command: `python bench/compile.py --cold --methods {' '.join(args.methods)} --repeats {args.repeats}`"
+             f" (jax {jax.__version__}, {os.cpu_count()} cores).", "",
+             f"A box-union cloud of N = {COLD_N} (float64 NumPy), `hgjax.resample(points, 0.2, method=m)` in a fresh"
+             " process per run (JAX's defaults: x64 off, no persistent compilation cache; hgjax imported before the"
+             f" clock starts), medians of {args.repeats} processes. Compilations: XLA backend compiles during the first"
+             " call, and their summed seconds. Target (issue 47, item 7): the first call within 3 s.", "",
+             "| method | first call s | second call s | compilations | backend compile s |", "|---|---|---|---|---|"]
+    lines += [f"| {m} | {r['first']:.2f} | {r['second']:.3f} | {r['compilations']:.0f} | {r['compile_s']:.2f} |"
+              for m, r in rows]
+    lines += ["", f"`notebooks/{NOTEBOOK.name}` run whole (nbclient, a fresh kernel each run, cells' compilations"
+              f" included): {notebook:.1f} s, the median of {args.repeats}."]
+    (pathlib.Path(__file__).parent / "results" / "compile_cold.md").write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":
