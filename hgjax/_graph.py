@@ -461,26 +461,28 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     variant, radius_factor, max_nn = graph_params(variant, radius_factor, max_nn)
     pts = np.asarray(points)
     n = pts.shape[0]
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    first = None
     if variant == "reference":
         p = pts.astype(np.float32)
         index = spatial.SpatialIndex(p.astype(np.float64))
         r = _reference_radius(p, index)
-        rows, cols = _pairs(p, index, r, max_nn) if r > 0 else empty
-    else:
-        index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
-        r = squared_radius(radius_factor, spatial.sample_stats(index))
-        a, b = [], []
-        for own, sym in location_rows(index, r, max_nn, np.ones(index.n, bool)):
-            valid = sym < index.n
-            a.append(np.repeat(own, valid.sum(axis=1)))
-            b.append(sym[valid])
-        a, b = np.concatenate(a), np.concatenate(b)
-        i, j = index.order[a[a < b]], index.order[b[a < b]]  # the first point of each location
-        rows, cols = split_keys(np.minimum(i, j) * n + np.maximum(i, j), n)
-        if index.n < n:
-            first = index.order[index.row].astype(np.int32)
+        rows, cols = _pairs(p, index, r, max_nn) if r > 0 else (np.zeros(0, np.int64),) * 2
+        counts = np.bincount(rows, minlength=n)
+        idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
+        idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
+        return idx, None
+    index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
+    r = squared_radius(radius_factor, spatial.sample_stats(index))
+    caller = np.append(index.order, n).astype(np.int32)  # the first point of each location; padding n
+    parts = []
+    for own, sym in location_rows(index, r, max_nn, np.ones(index.n, bool)):
+        # every pair is in both ends' rows: the row of its lower caller index lists it, ascending
+        i, j = caller[own], caller[sym]
+        j = np.sort(np.where(j > i[:, None], j, n), axis=1)
+        parts.append((i, j[:, :int((j < n).sum(axis=1).max(initial=0))]))
+    idx = np.full((n, max([1, *(j.shape[1] for _, j in parts)])), n, dtype=np.int32)
+    for i, j in parts:
+        idx[i, :j.shape[1]] = j
+    return idx, (index.order[index.row].astype(np.int32) if index.n < n else None)
     counts = np.bincount(rows, minlength=n)
     idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
     idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
