@@ -42,6 +42,9 @@ import numpy as np
 
 import hgjax
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _report  # noqa: E402
+
 _compiles = []
 jax.monitoring.register_event_duration_secs_listener(
     lambda event, duration, **kw: _compiles.append(duration) if event == "/jax/core/compile/backend_compile_duration"
@@ -156,6 +159,8 @@ def _notebook_seconds(path: pathlib.Path) -> float:
 
 def cold_call(method: str) -> dict:
     """Seconds of this fresh process's first and second eager resample with ``method``, and its compilations."""
+    jax.config.update("jax_enable_x64", False)  # JAX's defaults, whatever the environment sets
+    jax.config.update("jax_compilation_cache_dir", None)
     points = hgjax.eval.box_union_cloud(seed=0, n_points=COLD_N).points
     params = SELECT.get(method, {})
     start = time.perf_counter()
@@ -170,16 +175,12 @@ def cold_call(method: str) -> dict:
 
 def cold_calls(args) -> None:
     """Each method's first call in ``--repeats`` fresh processes; medians."""
-    import subprocess
-
     rows = []
     for method in args.methods:
-        runs = []
-        for _ in range(args.repeats):
-            env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "XLA_"))}
-            out = subprocess.run([sys.executable, __file__, "--one", method], capture_output=True, text=True,
-                                 check=True, env=env)
-            runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        runs = [_report.spawn(pathlib.Path(__file__).resolve(), ["--one", method]) for _ in range(args.repeats)]
+        failed = [r["error"] for r in runs if "error" in r]
+        if failed:
+            raise RuntimeError(f"{method}: {failed[0]}")
         row = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
         rows.append((method, row))
         print(method, json.dumps(row), flush=True)

@@ -483,7 +483,3 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
     for i, j in parts:
         idx[i, :j.shape[1]] = j
     return idx, (index.order[index.row].astype(np.int32) if index.n < n else None)
-    counts = np.bincount(rows, minlength=n)
-    idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
-    idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
-    return idx, first
