@@ -393,10 +393,13 @@ class Dask(Here):
     The tiled cloud is the result of one task whose recipe holds it (a ``np.memmap`` travels
     as its file name): the scheduler keeps that recipe, so a worker that dies with the only
     copy of the cloud loses nothing (scattered data has no recipe, and Dask's active memory
-    manager drops the extra copies a broadcast made). A task is a function of the cloud, its
-    cell and the resolved plan only, so a task retried after a worker died computes the same
-    bits. Smaller tiles run first (a higher Dask priority): a tile that kills the workers it runs
-    on then takes no smaller tile queued behind it down with it.
+    manager drops the extra copies a broadcast made). Each worker that runs tiles holds a copy
+    of it, the result of a task of its own on that task's result, made before its first tile
+    starts (a copy fetched from a worker busy with tiles waits for that worker's interpreter).
+    A task is a function of the cloud, its cell and the resolved plan only, so a task retried
+    after a worker died computes the same bits. Smaller tiles run first (a higher Dask
+    priority): a tile that kills the workers it runs on then takes no smaller tile queued
+    behind it down with it.
     """
 
     def __init__(self, cloud: Cloud, client, k: int):
@@ -407,12 +410,16 @@ class Dask(Here):
         # sent once. A fresh key per run: a key shared with an earlier run can be released under this one.
         with dask.config.set({"distributed.admin.large-graph-warning-threshold": "1 PiB"}):
             self.shared = client.submit(held, cloud, pure=False)
+        self.copies = {}  # worker address -> the future of its copy of the cloud
         self.x64 = bool(jax.config.jax_enable_x64)  # the workers compute in the client's precision
         self.cells = {}  # task key -> the tile it computes or derives from
 
     def tiles(self, fn, *args, cells=None) -> list:
         cells = cells or self.cloud.occupied()
-        futures = [self.client.submit(task, self.x64, fn, self.shared, cell, *args, pure=True,
+        where = self.placed(cells)
+        self.copied(where.values())
+        futures = [self.client.submit(task, self.x64, fn, self.copies.get(where[cell], self.shared), cell, *args, pure=True,
+                                      workers=where[cell], allow_other_workers=True,
                                       priority=-self.cloud.core_size(cell)) for cell in cells]
         self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
         if self.cloud.progress:
@@ -420,6 +427,33 @@ class Dask(Here):
             for f, cell in zip(futures, cells):
                 f.add_done_callback(lambda _, cell=cell: tick(cell))
         return futures
+
+    def placed(self, cells: list) -> dict:
+        """{cell: the address of the worker it runs on}: largest tile first to the least loaded worker, in points (ties to
+        the first worker by address), or None for each where the cluster has no worker yet.
+
+        Left to itself, the scheduler runs every tile where the cloud is held (the transfer looks
+        dearer than an unknown task) and the other workers idle; the placement is a preference
+        (``allow_other_workers``): a tile whose worker died runs elsewhere, with the same bits.
+        """
+        workers = sorted(self.client.ncores())
+        if not workers:
+            return dict.fromkeys(cells)
+        load, where = [0] * len(workers), {}
+        for cell in sorted(cells, key=lambda c: (-self.cloud.core_size(c), c)):
+            w = min(range(len(workers)), key=lambda i: (load[i], i))
+            load[w] += self.cloud.core_size(cell)
+            where[cell] = workers[w]
+        return where
+
+    def copied(self, workers) -> None:
+        """Make each of ``workers`` (addresses) hold its copy of the cloud, and wait for the copies."""
+        from distributed import wait
+
+        new = sorted({w for w in workers if w is not None} - set(self.copies))
+        for w in new:
+            self.copies[w] = self.client.submit(held, self.shared, pure=False, workers=w, allow_other_workers=True)
+        wait([self.copies[w] for w in new])
 
     def each(self, fn, parts, *args) -> list:
         futures = [self.client.submit(task, self.x64, fn, part, *args, pure=True) for part in parts]

@@ -41,6 +41,26 @@ def test_a_memmap_travels_as_its_file(client, tmp_path):
                                   hgjax.resample(p, 0.2, method="ea"))
 
 
+def test_tiles_are_spread_over_the_workers_largest_first(client, clouds):
+    """Every worker runs tiles, the largest first to the least loaded (the scheduler alone ran them all
+    where the cloud was held); the placement is stable and the indices those of one process."""
+    p = clouds["smooth"]
+    plan, cloud = tiles.plan(p, 0.2, method="ea", tile=1.0)
+    runner = _tiling.Dask(cloud, client, 16)
+    cells = runner.cloud.occupied()
+    where = runner.placed(cells)
+    assert set(where.values()) == set(client.ncores()) and where == runner.placed(cells[::-1])
+    load = {w: sum(runner.cloud.core_size(c) for c in cells if where[c] == w) for w in client.ncores()}
+    assert max(load.values()) - min(load.values()) <= max(map(runner.cloud.core_size, cells))
+    parts = runner.tiles(_tiling.tile_scores, plan)
+    distributed.wait(parts)
+    ran = client.who_has(parts)
+    assert {ran[f.key][0] for f in parts} == set(client.ncores())
+    assert all(ran[f.key] == (where[c],) for f, c in zip(parts, cells))
+    np.testing.assert_array_equal(tiles.resample(p, 0.2, method="ea", tile=1.0, client=client),
+                                  hgjax.resample(p, 0.2, method="ea"))
+
+
 def test_a_worker_killed_mid_run_changes_nothing(client):
     p = hgjax.eval.box_union_cloud(seed=5, n_points=6000).points
     want = hgjax.resample(p, 0.2, method="hkc")
