@@ -32,6 +32,7 @@ import collections
 import concurrent.futures
 import dataclasses
 import functools
+import os
 
 import numpy as np
 
@@ -423,14 +424,19 @@ def caller_rows(index: SpatialIndex, parts: list, width: int, where: list | None
     :func:`batches` of all n rows): its indices become the caller's (the sentinel n becomes N) and
     are written to the caller rows of its points, the rest of those rows N; each exact copy of a
     location (``dedupe``) then takes its first copy's row. One write per element: no sorted-frame
-    copy of the whole array.
+    copy of the whole array. The parts are written by one thread per core (NumPy's scattered
+    writes release the GIL; parts write disjoint rows, so the result is the same bits).
     """
     ext = np.append(index.order, index.n_caller).astype(np.int32)
     out = np.empty((index.n_caller, width), dtype=np.int32)
-    for part, p in zip(batches(index.n) if where is None else where, parts):
+
+    def write(part, p):
         dest = index.order[part]
         out[dest, :p.shape[1]] = np.take(ext, p)
         out[dest, p.shape[1]:] = index.n_caller
+
+    with concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+        list(pool.map(write, batches(index.n) if where is None else where, parts))
     if index.n < index.n_caller:
         first = index.order[index.row]  # each point's first copy
         copies = np.flatnonzero(first != np.arange(index.n_caller))
