@@ -422,7 +422,7 @@ def graph_params(variant: str, radius_factor: float | None, max_nn: int) -> tupl
 
 
 def graph(points, *, variant: str = "invariant", radius_factor: float | None = None,
-          max_nn: int = MAX_NN) -> tuple[np.ndarray, np.ndarray | None]:
+          max_nn: int = MAX_NN, columns=None) -> tuple[np.ndarray, np.ndarray | None]:
     """The GFR graph W0 as padded neighbour rows (host, SciPy; not jittable).
 
     Args:
@@ -438,11 +438,13 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
       radius_factor: the invariant radius in resolutions (default ``RADIUS_FACTOR`` = 10,
         chosen on the edge benchmark, bench/results/gfr_radius.md). Only for ``"invariant"``.
       max_nn: the most partners a point ranks (reference: 100).
+      columns: ``columns(width) -> K``, the columns of ``idx`` for the largest row count
+        ``width`` (at least ``width``; it may raise), so that the rows are written once at
+        the width the caller keeps; default ``max(1, width)``.
 
     Returns:
       idx: (N, K) int32, caller's order. Row i lists the partners j > i of its stored
-      pairs (i, j), ascending, padded with the sentinel N; K is the largest row count (at
-      least 1). Invariant graph: only the first point of each location has pairs.
+      pairs (i, j), ascending, padded with the sentinel N. Invariant graph: only the first point of each location has pairs.
       first: (N,) int32 index of the first point at each point's location (invariant graph
       of a cloud with exact duplicates), else None.
 
@@ -459,6 +461,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
       ([[1, 2], [2, 4], [4, 4], [4, 4]], None)
     """
     variant, radius_factor, max_nn = graph_params(variant, radius_factor, max_nn)
+    columns = columns or (lambda width: max(1, width))
     pts = np.asarray(points)
     n = pts.shape[0]
     if variant == "reference":
@@ -467,7 +470,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         r = _reference_radius(p, index)
         rows, cols = _pairs(p, index, r, max_nn) if r > 0 else (np.zeros(0, np.int64),) * 2
         counts = np.bincount(rows, minlength=n)
-        idx = np.full((n, max(1, int(counts.max(initial=0)))), n, dtype=np.int32)
+        idx = np.full((n, columns(int(counts.max(initial=0)))), n, dtype=np.int32)
         idx[rows, np.arange(rows.size) - (np.cumsum(counts) - counts)[rows]] = cols
         return idx, None
     index = spatial.SpatialIndex(pts.astype(np.float64), dedupe=True)
@@ -479,7 +482,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         i, j = caller[own], caller[sym]
         j = np.sort(np.where(j > i[:, None], j, n), axis=1)
         parts.append((i, j[:, :int((j < n).sum(axis=1).max(initial=0))]))
-    idx = np.full((n, max([1, *(j.shape[1] for _, j in parts)])), n, dtype=np.int32)
+    idx = np.full((n, columns(max([0, *(j.shape[1] for _, j in parts)]))), n, dtype=np.int32)
     for i, j in parts:
         idx[i, :j.shape[1]] = j
     return idx, (index.order[index.row].astype(np.int32) if index.n < n else None)

@@ -272,15 +272,19 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
                                    capacity=capacity, cell_capacity=cell_capacity, cell_edge=cell_edge)
     pts = _validate.check_points(points)
     local = spatial.local_frame(pts)[0]
-    idx, first = _graph.graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn)
-    width = int((idx < pts.shape[0]).sum(axis=1).max(initial=0))
     if capacity is not None:
-        _validate.check_capacity(_validate.check_int(capacity, "capacity", minimum=1), width, "GFR row")
-    cols = spatial.bucket(width) if capacity is None else capacity
-    idx = np.pad(idx[:, :cols], ((0, 0), (0, cols - min(cols, idx.shape[1]))), constant_values=pts.shape[0])
+        capacity = _validate.check_int(capacity, "capacity", minimum=1)
+
+    def columns(width: int) -> int:
+        if capacity is None:
+            return spatial.bucket(width)
+        _validate.check_capacity(capacity, width, "GFR row")
+        return capacity
+
+    idx, first = _graph.graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn, columns=columns)
     dtype = spatial.working_dtype(pts.dtype, extent=spatial.frame_extent(local),
                                   spacing=lambda: spatial.pair_spacing(local, idx, first))  # warns where the cast loses detail
-    return spatial.Neighbourhoods(local.astype(dtype), idx.astype(np.int32), first=first,
+    return spatial.Neighbourhoods(local.astype(dtype), idx, first=first,
                                   params=spatial.record({"variant": variant, "radius_factor": radius_factor,
                                                          "max_nn": max_nn}))
 
