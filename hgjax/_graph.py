@@ -444,7 +444,8 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
 
     Returns:
       idx: (N, K) int32, caller's order. Row i lists the partners j > i of its stored
-      pairs (i, j), ascending, padded with the sentinel N. Invariant graph: only the first point of each location has pairs.
+      pairs (i, j), ascending, padded with the sentinel N. Invariant graph: only the first
+      point of each location has pairs.
       first: (N,) int32 index of the first point at each point's location (invariant graph
       of a cloud with exact duplicates), else None.
 

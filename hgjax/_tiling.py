@@ -418,8 +418,8 @@ class Dask(Here):
         cells = cells or self.cloud.occupied()
         where = self.placed(cells)
         self.copied(where.values())
-        futures = [self.client.submit(task, self.x64, fn, self.copies.get(where[cell], self.shared), cell, *args, pure=True,
-                                      workers=where[cell], allow_other_workers=True,
+        futures = [self.client.submit(task, self.x64, fn, self.copies.get(where[cell], self.shared), cell, *args,
+                                      pure=True, workers=where[cell], allow_other_workers=True,
                                       priority=-self.cloud.core_size(cell)) for cell in cells]
         self.cells.update((f.key, cell) for f, cell in zip(futures, cells))
         if self.cloud.progress:
@@ -429,8 +429,9 @@ class Dask(Here):
         return futures
 
     def placed(self, cells: list) -> dict:
-        """{cell: the address of the worker it runs on}: largest tile first to the least loaded worker, in points (ties to
-        the first worker by address), or None for each where the cluster has no worker yet.
+        """{cell: the address of the worker it runs on}: largest tile first to the least loaded worker,
+        in points (ties to the first worker by address), or None for each where the cluster has no
+        worker yet.
 
         Left to itself, the scheduler runs every tile where the cloud is held (the transfer looks
         dearer than an unknown task) and the other workers idle; the placement is a preference
