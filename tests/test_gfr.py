@@ -511,3 +511,18 @@ def test_symmetric_pairs_of_int32_indices_beyond_46341_points():
     sym = gfr_module.symmetric(a, b, n, np.arange(n))
     partners = {i: sorted(int(j) for j in sym[i] if j < n) for i in (0, 3, 12_345, n - 2, n - 1)}
     assert partners == {0: [n - 2], 3: [n - 1], 12_345: [n - 1], n - 2: [0], n - 1: [3, 12_345]}
+
+
+@pytest.mark.parametrize("variant", ["invariant", "reference"])
+def test_host_rows_at_a_fixed_capacity_are_the_bucketed_rows_widened(variant):
+    """The public host graph is written once at the caller's width: the bucket of its fullest row, or a
+    fixed ``capacity`` (the same rows, more sentinel columns); a capacity below the fullest row names it."""
+    p = box_surface(600, seed=2)
+    nb = hgjax.neighbourhoods(p, "gfr", variant=variant)
+    width = int((np.asarray(nb.idx) < len(p)).sum(axis=1).max())
+    assert nb.idx.dtype == np.int32 and nb.idx.shape == (len(p), spatial.bucket(width))
+    wide = hgjax.neighbourhoods(p, "gfr", variant=variant, capacity=nb.idx.shape[1] + 5)
+    np.testing.assert_array_equal(np.asarray(wide.idx)[:, :nb.idx.shape[1]], nb.idx)
+    assert (np.asarray(wide.idx)[:, nb.idx.shape[1]:] == len(p)).all()
+    with pytest.raises(ValueError, match=rf"capacity={width - 1} is too small: a GFR row holds {width} points"):
+        hgjax.neighbourhoods(p, "gfr", variant=variant, capacity=width - 1)
