@@ -5,6 +5,7 @@ Usage:
   python bench/tiles.py --quick          # smoke run at small N (a few minutes) -> /tmp/tiles_quick.md
   python bench/tiles.py --sizes 1e6 --methods hkc,ea --repeats 5 --stream 0 --out /tmp/tiles.md
   python bench/tiles.py --sizes 1e6,1e7 --no-scan --stream 1e8 --stream-method ea
+  python bench/tiles.py --sizes "" --no-scan --stream 0 --survey 4e5 --methods ea,lhf --dask 1,2
 
 (a) For each cloud -- ``hgjax.eval.box_surface(n, seed=0)`` as float32 at each ``--sizes`` N,
 and the real scan ``shared/data/scans/scan_table_mug.ply`` read with ``hgjax.io`` at its own N
@@ -30,6 +31,13 @@ time (compile included) and peak RSS (the mapped file's resident pages included)
 
 (c) "Scale on paper": 1e10 points on 100 machines like this one, computed by
 :func:`scale_on_paper` from the measured numbers of (a) and (b).
+
+(d) ``--survey N`` (default 0: none): the box surface of N points scaled to a 100 m box, cut
+into 4 LAZ files by its x and y medians (:func:`write_survey`), resampled as one survey,
+``hgjax.survey.resample_files(paths, out, 0.2, method=m, tile=edge)`` (tiles of about N / 8
+points), in one process and on a LocalCluster of each ``--dask`` worker count (1 thread each),
+timed in turn in one fresh process per method (a warm-up of each, then ``--repeats`` rounds;
+medians); the outputs of every run are checked equal to one process's.
 
 Every cloud a worker reads is saved by this process first (``--tmpdir``), so a worker's peak
 RSS holds no sampler temporaries. Expected run time of the defaults on a quiet 2-core machine
@@ -176,6 +184,59 @@ def dask_worker(cloud: str, n: int, method: str, workers: int, repeats: int, edg
             "worker_peak_mb": max(peaks.values()) / 1024}
 
 
+def write_survey(directory: str, n: int) -> list[str]:
+    """The box surface of ``n`` points, x 100 (a 100 m box), as 4 LAZ files cut at its x and y medians."""
+    import numpy as np
+
+    import hgjax
+
+    p = _report.box_cloud(n, np.float64) * 100.0
+    mx, my = np.median(p[:, 0]), np.median(p[:, 1])
+    paths = []
+    for i, part in enumerate([(p[:, 0] < mx) & (p[:, 1] < my), (p[:, 0] < mx) & (p[:, 1] >= my),
+                              (p[:, 0] >= mx) & (p[:, 1] < my), (p[:, 0] >= mx) & (p[:, 1] >= my)]):
+        paths.append(str(Path(directory) / f"survey_{i}.laz"))
+        hgjax.io.write_points(paths[-1], p[part])
+    return paths
+
+
+def survey_worker(method: str, workers: str, repeats: int, *paths: str) -> dict:
+    """A survey of ``paths`` in one process and on LocalClusters of ``workers`` (comma list), timed in turn."""
+    import hashlib
+
+    import numpy as np
+    from distributed import Client, LocalCluster
+
+    import hgjax
+
+    pts = np.concatenate([hgjax.io.read_points(q).points for q in paths])
+    edge = _report.tile_edge(pts, pts.shape[0] / 8)
+    del pts
+
+    def run(client) -> tuple[float, str]:
+        with tempfile.TemporaryDirectory(prefix="hgjax_survey_out_") as out:
+            t = time.perf_counter()
+            hgjax.survey.resample_files(list(paths), out, RATIO, method=method, tile=edge, client=client)
+            wall = time.perf_counter() - t
+            digest = hashlib.sha256()
+            for q in paths:
+                digest.update(np.ascontiguousarray(hgjax.io.read_points(Path(out) / Path(q).name).points).tobytes())
+        return wall, digest.hexdigest()
+
+    run(None)
+    one = [run(None) for _ in range(repeats)]
+    res = {"n": sum(hgjax.io.header_count(q) for q in paths), "edge": edge,
+           "one": statistics.median(w for w, _ in one), "dask": {}}
+    for w in [int(x) for x in workers.split(",") if x]:
+        with LocalCluster(n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None,
+                          host="127.0.0.1") as cluster, Client(cluster) as client:
+            run(client)
+            got = [run(client) for _ in range(repeats)]
+        res["dask"][w] = {"wall": statistics.median(t for t, _ in got),
+                          "identical": all(d == one[0][1] for _, d in got)}
+    return res
+
+
 def knn_worker(cloud: str, n: int, repeats: int, clouds: str) -> dict:
     return {**_report.knn_times(_points(cloud, n, clouds), repeats), "peak_mb": _report.peak_mb()}
 
@@ -252,6 +313,11 @@ def measure(args) -> dict:
                         row[f"dask{w}"] = _spawn("dask", cloud, n, m, w, args.repeats, edge, tmp, timeout=args.timeout)
                 res["rows"].append(row)
                 _log(name, m, row)
+        if args.survey:
+            paths = write_survey(tmp, args.survey)
+            res["survey"] = {m: _spawn("survey", m, args.dask, args.repeats, *paths, timeout=args.timeout)
+                             for m in methods}
+            _log("survey", res["survey"])
         if args.stream:
             path = Path(tmp) / f"stream_{args.stream}.npy"
             try:
@@ -377,8 +443,25 @@ def report(res: dict, args) -> tuple[list[str], list[str], list[str]]:
                 table.append(f"| {r['cloud']} | {r['method']} | {one:.3f} | {k[4:]} | {d['wall']:.3f} | "
                              f"{d['wall'] / one:.2f} | {d['tasks']} | {d['overhead_ms']:.1f} | "
                              f"{d['worker_peak_mb']:.0f} | {same} |")
-    table += ["", "kNN16 yardsticks of the same clouds (s, medians; peak of their process):", "",
-              "| cloud | bare kNN (random order) | floor (Morton order) | bare / floor | peak MB |", "|---|---|---|---|---|"]
+    if res.get("survey"):
+        table += ["", f"(d) A survey of 4 LAZ files (`--survey`: the box surface x 100 cut at its x and y medians), "
+                  "`hgjax.survey.resample_files(paths, out, 0.2, method=m, tile=edge)` with tiles of about N / 8 "
+                  "points, in one process and on a LocalCluster of 1 thread per worker; medians after a warm-up:", "",
+                  "| survey points | method | one process s | workers | wall s | / one process | outputs |",
+                  "|---|---|---|---|---|---|---|"]
+        for m, r in res["survey"].items():
+            if "error" in r:
+                table.append(f"| | {m} | error: {r['error']} | | | | |")
+                continue
+            for w, d in r["dask"].items():
+                if not d["identical"]:
+                    bad.append(f"survey {m} dask {w}")
+                table.append(f"| {r['n']:,} | {m} | {r['one']:.3f} | {w} | {d['wall']:.3f} | {d['wall'] / r['one']:.2f} |"
+                             f" {'identical' if d['identical'] else '**differ**'} |")
+    if res["knn"]:
+        table += ["", "kNN16 yardsticks of the same clouds (s, medians; peak of their process):", "",
+                  "| cloud | bare kNN (random order) | floor (Morton order) | bare / floor | peak MB |",
+                  "|---|---|---|---|---|"]
     for name, k in res["knn"].items():
         if "error" in k:
             table.append(f"| {name} | error: {k['error']} | | | |")
@@ -450,6 +533,7 @@ def main(argv=None) -> None:
     parser.add_argument("--tmpdir", default=None, help="where the clouds are saved (default: the system's)")
     parser.add_argument("--timeout", type=float, default=None, help="seconds per worker process (default none)")
     parser.add_argument("--dask", default="1,2", help="Dask worker counts to time beside one process ('' for none)")
+    parser.add_argument("--survey", type=float, default=0, help="N of the 4-file LAZ survey rows (default 0: none)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: --sizes 2e4,1e5 --repeats 1 --stream 2e5 --per-tile 2.5e4 (scan included)")
     parser.add_argument("--out", default=None, help="default results/tiles.md (--quick: /tmp/tiles_quick.md)")
@@ -461,6 +545,7 @@ def main(argv=None) -> None:
               "mem": lambda c, n, m, e, d: mem_worker(c, int(n), m, e, d),
               "knn": lambda c, n, r, d: knn_worker(c, int(n), int(r), d),
               "dask": lambda c, n, m, w, r, e, d: dask_worker(c, int(n), m, int(w), int(r), float(e), d),
+              "survey": lambda m, w, r, *paths: survey_worker(m, w, int(r), *paths),
               "stream": stream_worker}[kind]
         print(json.dumps(fn(*a)))
         return
@@ -470,7 +555,7 @@ def main(argv=None) -> None:
             if getattr(args, k) == defaults[k]:
                 setattr(args, k, v)
         args.out = args.out or "/tmp/tiles_quick.md"
-    args.stream = int(args.stream)
+    args.stream, args.survey = int(args.stream), int(args.survey)
     out = Path(args.out or HERE / "results" / "tiles.md")
     res = measure(args)
     paragraphs, table, bad = report(res, args)
