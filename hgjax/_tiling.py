@@ -300,6 +300,7 @@ class Ticker:
     """
 
     PERIOD = 1.0
+    SAYING = threading.Lock()
 
     def __init__(self, what, sizes: dict, *, task: str = "tile", unit: str = "points", prefix: str = "hgjax tiles"):
         self.what = what if isinstance(what, str) else what.__name__.strip("_").replace("_", " ")
@@ -316,8 +317,7 @@ class Ticker:
                 self.bar = tqdm(total=self.total, unit=f" {unit}", unit_scale=True, file=sys.stderr,
                                 desc=f"{prefix}: {self.what} ({len(sizes)} {task}s)", dynamic_ncols=True)
         if self.bar is None:
-            print(f"{prefix}: {self.what}: {len(sizes)} {task}s, {self.si(self.total)} {unit}", file=sys.stderr,
-                  flush=True)
+            self.say(f"{prefix}: {self.what}: {len(sizes)} {task}s, {self.si(self.total)} {unit}")
 
     def __call__(self, key) -> None:
         with self.lock:
@@ -334,9 +334,17 @@ class Ticker:
                 return
             self.said, rate = now, self.amount / max(now - self.start, 1e-9)
             left = f"{(self.total - self.amount) / rate:.0f} s" if rate > 0 else "unknown"
-            print(f"{self.prefix}: {self.what} {self.done}/{len(self.sizes)} {self.task}s, {self.si(self.amount)}/"
-                  f"{self.si(self.total)} {self.unit}, {self.si(rate)} {self.unit}/s, ETA {left}", file=sys.stderr,
-                  flush=True)
+            self.say(f"{self.prefix}: {self.what} {self.done}/{len(self.sizes)} {self.task}s, {self.si(self.amount)}/"
+                     f"{self.si(self.total)} {self.unit}, {self.si(rate)} {self.unit}/s, ETA {left}")
+
+    @classmethod
+    def say(cls, line: str) -> None:
+        """``line`` on stderr in one write, one line at a time across every ticker and thread (a pass's
+        last line comes from a Dask callback thread while the next pass starts: two ``print`` calls,
+        each a text write and a newline write, would interleave)."""
+        with cls.SAYING:
+            sys.stderr.write(line + "\n")
+            sys.stderr.flush()
 
     @staticmethod
     def si(value: float) -> str:

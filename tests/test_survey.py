@@ -275,6 +275,40 @@ def test_ticker_lines_and_bar(capsys, monkeypatch):
     assert "hgjax tiles: tile scores (2 tiles)" in err and "100%" in err and "ETA" not in err
 
 
+def test_tickers_in_many_threads_print_whole_lines(monkeypatch):
+    """A pass's last line comes from a Dask callback thread while the next pass's first line comes from the
+    main thread: every line is whole, none empty, even on a stream that lets another thread run inside a write."""
+    import threading
+    from io import StringIO
+
+    class Slow(StringIO):
+        def write(self, text):
+            time.sleep(0.001)  # another thread runs here
+            return super().write(text)
+
+        def isatty(self):
+            return False
+
+    stream = Slow()
+    monkeypatch.setattr(sys, "stderr", stream)
+    monkeypatch.setattr(_tiling.Ticker, "PERIOD", 0.0)
+    sizes = {i: 10 for i in range(20)}
+
+    def one_pass(name):
+        tick = _tiling.Ticker(name, sizes)
+        for key in sizes:
+            tick(key)
+
+    threads = [threading.Thread(target=one_pass, args=(f"pass {i}",)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 4 * 21
+    assert all(re.fullmatch(r"hgjax tiles: pass \d:? [^:]*", line) for line in lines), lines
+
+
 @pytest.mark.parametrize("method,stages", [("ea", ["plan", "tiles", "keep"]), ("voxel", ["copy", "sample"])])
 def test_cli_survey_verbose_prints_every_stage(tmp_path, capsys, method, stages):
     from hgjax import cli
