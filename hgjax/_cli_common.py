@@ -263,7 +263,15 @@ def _stage(args, name: str, start: float) -> None:
 def _seconds(args, name: str, seconds: float) -> None:
     """With ``--verbose``, print the ``seconds`` spent in stage ``name``."""
     if args.verbose:
-        print(f"  {name}: {seconds:.3f} s", file=sys.stderr)
+        _say(f"  {name}: {seconds:.3f} s")
+
+
+def _say(line: str) -> None:
+    """``line`` on stderr, written whole between the progress lines that Dask callback threads print
+    (:meth:`hgjax._tiling.Ticker.say`)."""
+    from hgjax._tiling import Ticker
+
+    Ticker.say(line)
 
 
 def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):

@@ -21,6 +21,7 @@ from hgjax._cli_common import (
     _expand,
     _key,
     _refuse_stdout,
+    _say,
     _seconds,
     _stage,
 )
@@ -98,11 +99,10 @@ def _resample_survey(args, params: dict) -> None:
                                        key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
                                        progress=args.progress,
                                        on_stage=lambda name, seconds: _seconds(args, name, seconds),
-                                       on_resume=lambda line: print(line, file=sys.stderr, flush=True), **params)
+                                       on_resume=_say, **params)
     _stage(args, "total", start)
     for message in result.failures.values():
-        print(f"hgjax resample: failed: {message}", file=sys.stderr)
-    print(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs to {args.output}"
-          f" ({result.manifest})", file=sys.stderr)
+        _say(f"hgjax resample: failed: {message}")
+    _say(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs to {args.output} ({result.manifest})")
     if result.failures:
         raise BatchFailure(f"{len(result.failures)} of {len(inputs)} inputs failed: {', '.join(result.failures)}")
