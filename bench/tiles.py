@@ -456,8 +456,8 @@ def report(res: dict, args) -> tuple[list[str], list[str], list[str]]:
             for w, d in r["dask"].items():
                 if not d["identical"]:
                     bad.append(f"survey {m} dask {w}")
-                table.append(f"| {r['n']:,} | {m} | {r['one']:.3f} | {w} | {d['wall']:.3f} | {d['wall'] / r['one']:.2f} |"
-                             f" {'identical' if d['identical'] else '**differ**'} |")
+                table.append(f"| {r['n']:,} | {m} | {r['one']:.3f} | {w} | {d['wall']:.3f} | "
+                             f"{d['wall'] / r['one']:.2f} | {'identical' if d['identical'] else '**differ**'} |")
     if res["knn"]:
         table += ["", "kNN16 yardsticks of the same clouds (s, medians; peak of their process):", "",
                   "| cloud | bare kNN (random order) | floor (Morton order) | bare / floor | peak MB |",

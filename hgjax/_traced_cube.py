@@ -24,10 +24,10 @@ bits) and ``scale`` is the pair rounded once to float32: a point is listed as th
 unless its distance lies within the pairs' precision of the radius (relative 2^-44; a radius
 rounded to float32 instead missed 1 point of 1e6 on the box surface, 7e-9 inside it), and a
 ball shrunk by ``max_count`` has its ``scale`` from the float32 distance of its
-``max_count``-th point (within an ulp of the host's). The order inside a row is the pairs' (:mod:`hgjax._search_jax`): the host's, except where two
-distances differ by less than the pairs' precision or float64's rounding makes them equal (a
-1200-point cloud rounded to a 5 cm grid: 5 rows of long balls listed two tied points in the
-other order; the same sets).
+``max_count``-th point (within an ulp of the host's). The order inside a row is the pairs'
+(:mod:`hgjax._search_jax`): the host's, except where two distances differ by less than the
+pairs' precision or float64's rounding makes them equal (a 1200-point cloud rounded to a 5 cm
+grid: 5 rows of long balls listed two tied points in the other order; the same sets).
 
 Search settings: every search of one build (the spacing's k-nearest, the sample's nearest, the
 cube) runs with one ``cell_capacity`` and ``cell_edge``. Eagerly each grows from its own
