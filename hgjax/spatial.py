@@ -417,26 +417,52 @@ def batches(n_rows: int):
     return [slice(start, min(start + QUERY_ROWS, n_rows)) for start in range(0, n_rows, QUERY_ROWS)]
 
 
-def caller_rows(index: SpatialIndex, parts: list, width: int, where: list | None = None) -> np.ndarray:
-    """(N, width) int32 neighbour rows in the caller's frame from sorted-frame ``parts``.
+def caller_rows(index: SpatialIndex, parts, capacity: int | None = None, where: list | None = None, *,
+                what: str = "neighbourhood") -> np.ndarray:
+    """(N, K) int32 neighbour rows in the caller's frame from sorted-frame ``parts``.
 
     Each part (R_i, W_i), padded with n, holds the sorted-frame rows ``where[i]`` (default the
     :func:`batches` of all n rows): its indices become the caller's (the sentinel n becomes N) and
     are written to the caller rows of its points, the rest of those rows N; each exact copy of a
     location (``dedupe``) then takes its first copy's row. One write per element: no sorted-frame
-    copy of the whole array. The parts are written by one thread per core (NumPy's scattered
-    writes release the GIL; parts write disjoint rows, so the result is the same bits).
+    copy of the whole array. ``parts`` may be a generator: each part is written as it arrives, by
+    one thread per core (NumPy's scattered writes release the GIL; parts write disjoint rows, so
+    the result is the same bits), while the next part is being found.
+
+    Args:
+      index: the index the parts' rows belong to.
+      parts: iterable of (R_i, W_i) int sorted-frame rows.
+      capacity: the columns K, or None for the :func:`bucket` of the widest part (the array
+        is widened when a wider part arrives).
+      where: the sorted-frame rows of each part, or None for :func:`batches` of all n rows.
+      what: the neighbourhood's name in a capacity error.
+
+    Raises:
+      ValueError: when a fixed ``capacity`` is smaller than the widest part (named, once every
+        part has been read).
     """
     ext = np.append(index.order, index.n_caller).astype(np.int32)
-    out = np.empty((index.n_caller, width), dtype=np.int32)
+    out, widest, pending = None, 1, []
 
-    def write(part, p):
+    def write(rows, part, p):
         dest = index.order[part]
-        out[dest, :p.shape[1]] = np.take(ext, p)
-        out[dest, p.shape[1]:] = index.n_caller
+        rows[dest, :p.shape[1]] = np.take(ext, p)
+        rows[dest, p.shape[1]:] = index.n_caller
 
     with concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1) as pool:
-        list(pool.map(write, batches(index.n) if where is None else where, parts))
+        for part, p in zip(batches(index.n) if where is None else where, parts):
+            widest = max(widest, p.shape[1])
+            width = bucket(widest) if capacity is None else capacity
+            if widest > width:
+                continue  # read on, to name the widest row
+            if out is None or out.shape[1] < width:
+                for done in pending:
+                    done.result()
+                pending, out = [], _widened(out, width, index.n_caller)
+            pending.append(pool.submit(write, out, part, p))
+        for done in pending:
+            done.result()
+    _validate.check_capacity(capacity, widest, what)
     if index.n < index.n_caller:
         first = index.order[index.row]  # each point's first copy
         copies = np.flatnonzero(first != np.arange(index.n_caller))
@@ -444,31 +470,31 @@ def caller_rows(index: SpatialIndex, parts: list, width: int, where: list | None
     return out
 
 
-def assemble(points: np.ndarray, index: SpatialIndex, parts: list, capacity, what: str, scale_sorted=None, *,
+def _widened(rows: np.ndarray | None, width: int, n: int) -> np.ndarray:
+    """A new (n, width) int32 array holding ``rows`` (n, W <= width) in its first columns and ``n`` in the rest."""
+    out = np.empty((n, width), dtype=np.int32)
+    if rows is not None:
+        out[:, :rows.shape[1]] = rows
+        out[:, rows.shape[1]:] = n
+    return out
+
+
+def assemble(points: np.ndarray, index: SpatialIndex, idx: np.ndarray, scale_sorted=None, *,
              params: dict | None = None) -> Neighbourhoods:
-    """Neighbourhoods in the caller's order from the sorted-frame query results of every index row.
+    """Neighbourhoods in the caller's order from caller rows (:func:`caller_rows`) built on ``index``.
 
     Args:
       points: (N, 3) the caller's validated points.
       index: the index the query ran on.
-      parts: the (R_i, W_i) sorted-frame neighbour rows of the :func:`batches` of all n rows,
-        padded with n.
-      capacity: the columns K of ``idx``, or None for the bucket of the widest part.
-      what: the neighbourhood's name in a capacity error.
-      scale_sorted: optional (n,) per-row length.
+      idx: (N, K) int32 caller rows, padded with N.
+      scale_sorted: optional (n,) per-row length in the sorted frame.
       params: the build parameters to record (see :attr:`Neighbourhoods.params`).
 
     Returns:
       :class:`Neighbourhoods` whose points are the caller's in a local frame, cast to the
       working dtype (see :func:`working_dtype`; a cast that loses the cloud's finest spacing,
       read from ``index``, warns).
-
-    Raises:
-      ValueError: when a fixed ``capacity`` is smaller than the fullest row.
     """
-    width = max((p.shape[1] for p in parts), default=1)
-    _validate.check_capacity(capacity, width, what)
-    idx = caller_rows(index, parts, bucket(width) if capacity is None else capacity)
     local = local_frame(points)[0]
     dtype = working_dtype(points.dtype, extent=frame_extent(local), spacing=lambda: index_spacing(index))
     local = local.astype(dtype)
@@ -506,8 +532,9 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) ->
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
     dedupe = _validate.check_bool(dedupe, "dedupe")
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
-    parts = [idx for _, idx, _ in knn_batches(index, k, np.arange(index.n))]
-    return assemble(pts, index, parts, cap, "k-nearest neighbourhood", params={"k": k, "dedupe": dedupe})
+    parts = (idx for _, idx, _ in knn_batches(index, k, np.arange(index.n)))
+    idx = caller_rows(index, parts, cap, what="k-nearest neighbourhood")
+    return assemble(pts, index, idx, params={"k": k, "dedupe": dedupe})
 
 
 def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -539,7 +566,8 @@ def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = Non
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
     half_sorted = np.broadcast_to(half, (pts.shape[0],))[index.order]
-    return assemble(pts, index, [index.cube(half_sorted[part], part)[0] for part in batches(index.n)], cap, "cube")
+    parts = (index.cube(half_sorted[part], part)[0] for part in batches(index.n))
+    return assemble(pts, index, caller_rows(index, parts, cap, what="cube"))
 
 
 def intrinsic_resolution(points, *, robust: bool = False) -> float:

@@ -103,6 +103,24 @@ def test_cube_per_point_half_widths_match_brute_force():
         hgjax.cube(p, h[:10])
 
 
+def test_cube_rows_widen_when_a_later_query_batch_is_wider():
+    # three query batches in spatial order: the first's cubes hold a few points, the later ones' about 70
+    from scipy.spatial import cKDTree
+    p = uniform_cloud(40_000, seed=2)
+    order = SpatialIndex(hgjax.spatial.local_frame(p)[0]).order
+    h = np.full(len(p), 0.06)
+    h[order[:hgjax.spatial.QUERY_ROWS]] = 0.01
+    nb = hgjax.cube(p, h)
+    tree = cKDTree(p)
+    want = [set(tree.query_ball_point(x, hi, p=np.inf)) for x, hi in zip(p, h)]
+    assert row_sets(nb.idx, len(p)) == want
+    first = max(len(want[i]) for i in order[:hgjax.spatial.QUERY_ROWS])
+    width = max(len(w) for w in want)
+    assert hgjax.spatial.bucket(first) < nb.idx.shape[1] == hgjax.spatial.bucket(width)
+    with pytest.raises(ValueError, match=rf"capacity={first} is too small.*holds {width} points"):
+        hgjax.cube(p, h, capacity=first)  # the widest row is named, not the first one over
+
+
 def test_spatial_index_cube_grows_its_capacity():
     p = uniform_cloud(400)
     index = SpatialIndex(p)

@@ -482,9 +482,15 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=params["dedupe"])
     resolved = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
-    parts = list(row_batches(index, np.arange(index.n), resolved))
-    scale = np.concatenate([np.empty(0)] + [p[2] for p in parts])
-    return spatial.assemble(pts, index, [p[1] for p in parts], cap, "cube", scale, params=params)
+    scales = []
+
+    def rows():
+        for _, idx, scale, _ in row_batches(index, np.arange(index.n), resolved):
+            scales.append(scale)
+            yield idx
+
+    idx = spatial.caller_rows(index, rows(), cap, what="cube")
+    return spatial.assemble(pts, index, idx, np.concatenate(scales), params=params)
 
 
 def _traced_neighbourhoods(points, params: dict, capacity, cell_capacity, cell_edge) -> spatial.Neighbourhoods:
