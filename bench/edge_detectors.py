@@ -63,9 +63,25 @@ PUBLISHED = {
 }
 
 
-def detect(points, positives, method):
-    """(MCC keeping exactly E, AP) of one method's default ranking on one labelled cloud."""
+def detect(points, positives, method, candidate=None):
+    """(MCC keeping exactly E, AP) of one method's default ranking on one labelled cloud; ``method`` "candidate":
+    ``candidate(points) -> (N,)`` scores, higher is sharper."""
     e, n = int(positives.sum()), len(points)
+    if method == "candidate":
+        scores = candidate(points)
+        kept, order = hgjax.top_k(scores, e), hgjax.top_k(scores, n)
+    else:
+        kept, order, scores = _ranked(points, e, method)
+    rank = np.empty(n)
+    rank[order] = np.arange(n, 0, -1)
+    m = hgjax.eval.edge_metrics(points, positives, kept, scores=rank, resolution=1.0)
+    assert m["n_kept"] == e
+    return m["mcc"], m["average_precision"]
+
+
+def _ranked(points, e: int, method: str):
+    """(the E kept indices, the full keep order, the scores) of a registered method."""
+    n = len(points)
     params = {"mode": "top"} if method == "gfr" else {}
     entry = hgjax.METHODS[method]
     scores = np.asarray(hgjax.score(hgjax.neighbourhoods(points, method), method))
@@ -75,11 +91,7 @@ def detect(points, positives, method):
         order = hgjax.top_k(scores, n, largest=entry.largest)
     else:
         order = hgjax.keep(scores, 1.0, method=method, **params)
-    rank = np.empty(n)
-    rank[order] = np.arange(n, 0, -1)
-    m = hgjax.eval.edge_metrics(points, positives, kept, scores=rank, resolution=1.0)
-    assert m["n_kept"] == e
-    return m["mcc"], m["average_precision"]
+    return kept, order, scores
 
 
 def pca_normals(points, k=16):
@@ -117,7 +129,9 @@ def bold_best(rows, first=1):
     return out
 
 
-def main(argv=None):
+def main(argv=None, candidate=None):
+    """Writes the report; returns (real, synthetic): {column: {method: (MCC, AP)}}. ``candidate(points) -> (N,)``:
+    a detector under trial (bench/mss_training), reported as the method "candidate" beside the others."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="tiny smoke run")
     parser.add_argument("--out", type=pathlib.Path, default=ROOT / "bench" / "results")
@@ -125,6 +139,7 @@ def main(argv=None):
                         help="comma-separated methods to run (default all; mss and ea are always run)")
     args = parser.parse_args(argv)
     methods = tuple(m for m in METHODS if m in {"mss", "ea", *args.methods.split(",")})
+    methods += ("candidate",) * (candidate is not None)
     t0 = time.time()
     files = sorted(LABELLED.glob("*.gt.ply"))[: 2 if args.quick else None]
     noises = NOISES[:1] if args.quick else NOISES
@@ -144,14 +159,14 @@ def main(argv=None):
                 cols[f"{cloud.name} {kind} {p}"] = (noisy(pts, p, kind, spacing, normals, i + 10 * (kind == "normal")),
                                                     cloud.edge_mask)
         for col, (q, pos) in cols.items():
-            real[col] = {m: detect(q, pos, m) for m in methods}
+            real[col] = {m: detect(q, pos, m, candidate) for m in methods}
             sizes[col] = (len(q), int(pos.sum()))
         print(f"{cloud.name}: {time.time() - t0:.0f} s", flush=True)
     synthetic = {}
     for regime, size in (QUICK_SYNTHETIC if args.quick else SYNTHETIC).items():
         for p in SYNTHETIC_NOISES[:2] if args.quick else SYNTHETIC_NOISES:
             clouds = hgjax.eval.synthetic_set(regime=regime, noise=p, **size)
-            res = [{m: detect(c.points, c.edge_mask, m) for m in methods} for c in clouds]
+            res = [{m: detect(c.points, c.edge_mask, m, candidate) for m in methods} for c in clouds]
             synthetic[f"{regime} p={p}"] = {m: tuple(np.mean([r[m] for r in res], axis=0)) for m in methods}
             print(f"{regime} p={p}: {time.time() - t0:.0f} s", flush=True)
 
@@ -208,6 +223,7 @@ def main(argv=None):
     ]
     _report.write(args.out / "edge_detectors.md", "edge_detectors.py", argv, title="Edge detectors: every scoring "
                   "method, labelled and synthetic clouds", paragraphs=paragraphs, table=table)
+    return real, synthetic
 
 
 def per_model(real, sizes):

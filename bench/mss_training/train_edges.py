@@ -145,10 +145,11 @@ def cloud_features(points):
     return np.asarray(_stream.map_neighbourhoods(mss.inputs, nb, args=(noise,)))
 
 
-def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), near=0.0, regimes=REGIMES):
+def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), near=0.0, regimes=REGIMES,
+            features=cloud_features):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
-    ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
+    ``features(points) -> (N, F)``: the model's inputs of every point. ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
     (the negatives that decide the ranking about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
@@ -160,7 +161,7 @@ def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), nea
             first = negatives[close][:int(near * ROWS // 2)]
             negatives = np.concatenate([first, negatives[~np.isin(negatives, first)]])
         rows = np.sort(np.concatenate([rows[edge[rows]][:ROWS // 2], negatives[:ROWS // 2]]))
-        x, y, t = cloud_features(points)[rows], edge[rows], target[rows]
+        x, y, t = features(points)[rows], edge[rows], target[rows]
         pos, neg = int(y.sum()), int((~y).sum())
         w = np.where(y, 0.5 / max(pos, 1), (0.5 if pos else 1.0) / max(neg, 1))
         xs.append(x), ys.append(t), ws.append(w), names.append(name)
@@ -187,15 +188,18 @@ def init(n_features: int, seed: int):
     return [jnp.asarray(p) for p in params]
 
 
-def loss(params, x, y, w):
-    logit = jax.vmap(mss.mlp, in_axes=(None, 0))(params, x)
+def loss(params, x, y, w, logit_fn=mss.mlp, penalised=None):
+    """The weighted logistic loss of ``logit_fn(params, row)`` over the rows of ``x``, plus L2 times the squared
+    sum of ``penalised`` (default: the weight matrices, ``params[::2]``)."""
+    logit = jax.vmap(logit_fn, in_axes=(None, 0))(params, x)
     nll = jnp.sum(w * (jax.nn.softplus(logit) - y * logit))
-    return nll + L2 * sum(jnp.sum(p * p) for p in params[::2])
+    return nll + L2 * sum(jnp.sum(p * p) for p in (params[::2] if penalised is None else penalised(params)))
 
 
-def adam(params, x, y, w, steps: int, verbose: bool = False):
-    """``steps`` full-batch Adam steps with a cosine-decayed learning rate; (params, losses)."""
-    grad = jax.jit(jax.value_and_grad(loss))
+def adam(params, x, y, w, steps: int, verbose: bool = False, objective=loss):
+    """``steps`` full-batch Adam steps with a cosine-decayed learning rate on ``objective(params, x, y, w)``;
+    (params, losses)."""
+    grad = jax.jit(jax.value_and_grad(objective))
     m = [jnp.zeros_like(p) for p in params]
     v = [jnp.zeros_like(p) for p in params]
     losses = []
@@ -235,9 +239,11 @@ def mcc_at_e(scores, labels) -> float:
     return float((tp * tn - fp * fn) / den) if den > 0 else 0.0
 
 
-def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,), regimes=REGIMES):
+def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,), regimes=REGIMES,
+             features=cloud_features, logit_fn=mss.mlp):
     """Held-out synthetic metrics: {band: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}}, or a list of
-    those for a list of models (``weights`` a list of weight lists, the features computed once).
+    those for a list of models (``weights`` a list of weight lists, the features computed once). A model scores a
+    point by ``logit_fn(weights, row)`` of its row of ``features(points)`` (default: MSS's).
 
     The clouds are those of ``cloud`` for the seed ``seed + HELD_OUT`` (shapes never trained
     on), ``per_noise`` of them (every family, every one of ``regimes``) at each noise of
@@ -247,7 +253,7 @@ def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(
     """
     many = isinstance(weights[0], (list, tuple))
     models = [[jnp.asarray(a) for a in w] for w in (weights if many else [weights])]
-    logits = jax.jit(jax.vmap(mss.mlp, in_axes=(None, 0)))
+    logits = jax.jit(jax.vmap(logit_fn, in_axes=(None, 0)))
     out = [{b: {} for b in bands} for _ in models]
     for noise in VALIDATION_NOISES:
         rows = [{b: [] for b in bands} for _ in models]
@@ -255,7 +261,7 @@ def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(
             points, edge, ignore, _, _ = cloud(i, seed + HELD_OUT, noise, families, regimes=regimes)
             if not edge[~ignore].any():
                 continue
-            x = jnp.asarray(cloud_features(points))
+            x = jnp.asarray(features(points))
             scores = [np.asarray(logits(p, x)) for p in models]
             ea = np.asarray(hgjax.score(hgjax.neighbourhoods(points, "ea"), "ea"))
             for b in bands:
