@@ -63,11 +63,14 @@ def cloud_inputs(points) -> np.ndarray:
 
 def logit(params, row):
     """The candidate's logit of one row of :func:`cloud_inputs`."""
+    return _gated(params, row[:F], row[:F + len(LENGTHS) + 1], row[-2], row[-1])
+
+
+def _gated(params, x, z, irregular, noise):
+    """f_MSS(x) + g(noise, irregular) h(z) (the module's docstring)."""
     *h, gate = params
-    x, z = row[:F], row[:F + len(LENGTHS) + 1]
-    irregular, noise = row[-2], row[-1]
     g = jax.nn.sigmoid(gate[0] + gate[1] * noise + gate[2] * irregular)
-    return mss.mlp(mss.weights(row.dtype), x) + g * mss.mlp(h, z)
+    return mss.mlp(mss.weights(x.dtype), x) + g * mss.mlp(h, z)
 
 
 def init(n_inputs: int, seed: int) -> list:
@@ -90,10 +93,8 @@ def train(n_clouds: int, steps: int, seed: int, families, regimes) -> tuple[list
     z = (x[:, :nz] - mean) / std  # the frozen model reads x as it is; h reads z standardised
 
     def objective(params, rows, y_, w_):
-        def one(p, r):
-            *h, gate = p
-            g = jax.nn.sigmoid(gate[0] + gate[1] * r[-1] + gate[2] * r[-2])
-            return mss.mlp(mss.weights(r.dtype), r[:F]) + g * mss.mlp(h, r[-nz - 2:-2])
+        def one(p, r):  # r = [x (F,), z standardised (nz,), irregularity, noise]
+            return _gated(p, r[:F], r[F:F + nz], r[-2], r[-1])
         return train_edges.loss(params, rows, y_, w_, logit_fn=one, penalised=lambda p: p[:-1:2])
 
     rows = jnp.asarray(np.concatenate([x[:, :F], z, x[:, -2:]], axis=1))
