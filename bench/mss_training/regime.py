@@ -19,6 +19,8 @@ Usage (from the repository root):
   python bench/mss_training/regime.py train --out mss_c11            # C11's recipe
   python bench/mss_training/regime.py validate --weights mss_c11 --per-noise 112 [--regimes even]
   python bench/mss_training/regime.py judge --weights mss_c11        # the labelled columns, once
+  python bench/mss_training/regime.py regimes    # the gate's inputs: labelled clouds (no labels read) and
+                                                 # the training clouds (every third), by regime
 """
 
 from __future__ import annotations
@@ -131,6 +133,29 @@ def scores(points, weights) -> np.ndarray:
     return np.asarray(jax.jit(jax.vmap(logit, in_axes=(None, 0)))([jnp.asarray(a) for a in weights], rows))
 
 
+def cloud_regime(points) -> tuple[float, float]:
+    """(irregularity, noise level) of a cloud: the gate's inputs."""
+    rows = cloud_inputs(points)
+    return float(rows[0, -2]), float(rows[0, -1])
+
+
+def regimes(families, regimes_) -> list[str]:
+    """Lines: the gate's inputs of every labelled cloud (points only, no labels read), then their 5th, 50th and 95th
+    percentiles over every third training cloud of :func:`train_edges.cloud` (seed 0, 360 clouds), by regime."""
+    lines = [f"{f.name}: irregularity, noise {np.round(cloud_regime(hgjax.eval.load_labelled(f).points), 3).tolist()}"
+             for f in sorted((train_edges.ROOT.parent / "shared" / "data" / "labelled").glob("*.gt.ply"))]
+    seen = {}
+    for i in range(0, 360, 3):
+        points, _, _, name, _ = train_edges.cloud(i, 0, families=families, regimes=regimes_)
+        kind = next((k for k in ("grid", "even", "boxes", "sheet") if k in name.split()[0]), "random")
+        seen.setdefault(kind, []).append(cloud_regime(points))
+    for kind, values in seen.items():
+        pct = np.percentile(np.asarray(values), [5, 50, 95], axis=0).round(3)
+        lines.append(f"training {kind} ({len(values)} clouds): irregularity {pct[:, 0].tolist()}, "
+                     f"noise {pct[:, 1].tolist()}")
+    return lines
+
+
 def judgement(real: dict, synthetic: dict) -> list[str]:
     """The rules of mss_candidates7.md on the labelled columns ``real`` and the box unions ``synthetic``
     ({column: {method: (MCC, AP)}}): lines to print."""
@@ -164,7 +189,7 @@ def judgement(real: dict, synthetic: dict) -> list[str]:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("command", choices=("train", "validate", "judge"))
+    parser.add_argument("command", choices=("train", "validate", "judge", "regimes"))
     parser.add_argument("--clouds", type=int, default=360)
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--seed", type=int, default=0)
@@ -182,6 +207,9 @@ def main(argv=None):
         path = write(weights, args.out, sys.argv[1:] if argv is None else argv)
         print(f"{n} rows, loss {losses[0]:.5f} -> {losses[-1]:.5f}, gate {np.round(weights[-1], 3).tolist()}, "
               f"{time.time() - t0:.0f} s -> {path}", flush=True)
+        return
+    if args.command == "regimes":
+        print("\n".join(regimes(families, tuple(args.regimes))))
         return
     folders = args.weights or ["shipped"]
     models = [load(f) for f in folders]
