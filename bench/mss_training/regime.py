@@ -26,6 +26,7 @@ Usage (from the repository root):
 from __future__ import annotations
 
 import argparse
+import functools
 import pathlib
 import sys
 import time
@@ -51,14 +52,16 @@ NAMES = ("a0", "a1", "a2")  # the gate's numbers
 WEIGHTS = ("W1", "B1", "W2", "B2", "W3", "B3", "GATE")
 
 
-def cloud_inputs(points) -> np.ndarray:
-    """(N, 2 F + 4) rows [x (F,), gamma_8, gamma_16, irregularity, noise] of every point (x ends with the noise)."""
+def cloud_inputs(points, irregularity: bool = True) -> np.ndarray:
+    """(N, F + 4) rows [x (F,), gamma_8, gamma_16, irregularity, noise] of every point (x ends with the noise);
+    ``irregularity=False``: that column is 0 (a candidate blind to it, in its gate and in h)."""
     nb = hgjax.neighbourhoods(points, "mss")
     noise = mss.noise_level(nb.points, nb.idx)
     x = np.asarray(_stream.map_neighbourhoods(mss.inputs, nb, args=(noise,)))
     gamma = np.asarray(_stream.map_neighbourhoods(lambda o, v: lhf.gamma(o, v, lengths=LENGTHS), nb))
     pts = np.asarray(points, np.float64)
-    irregular = spatial.sample_stats(spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=True)).irregularity()
+    irregular = (spatial.sample_stats(spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=True)).irregularity()
+                 if irregularity else 0.0)
     cloud = np.broadcast_to([irregular, float(noise)], (len(x), 2))
     return np.concatenate([x, gamma, cloud], axis=1)
 
@@ -86,12 +89,15 @@ def init(n_inputs: int, seed: int) -> list:
     return [jnp.asarray(p) for p in params] + [jnp.zeros(len(NAMES))]
 
 
-def train(n_clouds: int, steps: int, seed: int, families, regimes) -> tuple[list, list, int]:
+def train(n_clouds: int, steps: int, seed: int, families, regimes, irregularity: bool = True
+          ) -> tuple[list, list, int]:
     """Fit h and the gate on :func:`train_edges.dataset`'s rows; (weights with z's standardisation folded into
-    h's first layer, losses, rows)."""
-    x, y, w, _ = train_edges.dataset(n_clouds, seed, families, regimes=regimes, features=cloud_inputs)
+    h's first layer, losses, rows). A constant input (the irregularity, when blind to it) is left unscaled."""
+    x, y, w, _ = train_edges.dataset(n_clouds, seed, families, regimes=regimes,
+                                     features=functools.partial(cloud_inputs, irregularity=irregularity))
     nz = F + len(LENGTHS) + 1
-    mean, std = x[:, :nz].mean(0), x[:, :nz].std(0) + 1e-12
+    mean, std = x[:, :nz].mean(0), x[:, :nz].std(0)
+    std = np.where(std > 0, std + 1e-12, 1.0)
     z = (x[:, :nz] - mean) / std  # the frozen model reads x as it is; h reads z standardised
 
     def objective(params, rows, y_, w_):
@@ -107,29 +113,31 @@ def train(n_clouds: int, steps: int, seed: int, families, regimes) -> tuple[list
     return folded, losses, len(y)
 
 
-def write(weights, folder: pathlib.Path, argv) -> pathlib.Path:
+def write(weights, irregularity: bool, folder: pathlib.Path, argv) -> pathlib.Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "_regime_weights.py"
     lines = [f'"""Weights of the round-7 candidate, written by `python bench/mss_training/regime.py {" ".join(argv)}`."""',
-             ""] + [f"{k} = {np.asarray(a, np.float64).tolist()!r}" for k, a in zip(WEIGHTS, weights)]
+             "", f"IRREGULARITY = {irregularity}"] + [f"{k} = {np.asarray(a, np.float64).tolist()!r}"
+                                                      for k, a in zip(WEIGHTS, weights)]
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
-def load(folder: pathlib.Path) -> list:
-    """The candidate's weights from ``folder/_regime_weights.py``; ``shipped``: h = 0 (the shipped MSS exactly)."""
+def load(folder: pathlib.Path) -> tuple[list, bool | None]:
+    """(weights, whether it reads the irregularity) from ``folder/_regime_weights.py`` (a file without the flag:
+    True); ``shipped``: h = 0 (the shipped MSS exactly), None (it reads neither)."""
     if str(folder) == "shipped":
         nz = F + len(LENGTHS) + 1
         return [np.zeros((nz, HIDDEN)), np.zeros(HIDDEN), np.zeros((HIDDEN, HIDDEN)), np.zeros(HIDDEN),
-                np.zeros((HIDDEN, 1)), np.zeros(1), np.zeros(len(NAMES))]
+                np.zeros((HIDDEN, 1)), np.zeros(1), np.zeros(len(NAMES))], None
     namespace = {}
     exec((pathlib.Path(folder) / "_regime_weights.py").read_text(), namespace)
-    return [np.asarray(namespace[k], np.float64) for k in WEIGHTS]
+    return [np.asarray(namespace[k], np.float64) for k in WEIGHTS], namespace.get("IRREGULARITY", True)
 
 
-def scores(points, weights) -> np.ndarray:
+def scores(points, weights, irregularity: bool = True) -> np.ndarray:
     """(N,) the candidate's logits of a cloud (higher is sharper)."""
-    rows = jnp.asarray(cloud_inputs(points))
+    rows = jnp.asarray(cloud_inputs(points, irregularity))
     return np.asarray(jax.jit(jax.vmap(logit, in_axes=(None, 0)))([jnp.asarray(a) for a in weights], rows))
 
 
@@ -198,13 +206,16 @@ def main(argv=None):
     parser.add_argument("--regimes", nargs="+", default=["random", "grid", "even"])
     parser.add_argument("--no-sheets", action="store_true", help="leave the folded sheets out")
     parser.add_argument("--per-noise", type=int, default=28)
+    parser.add_argument("--without-irregularity", action="store_true",
+                        help="train: a candidate blind to the irregularity (its column 0, in the gate and in h)")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
     families = train_edges.FAMILIES if args.no_sheets else train_edges.SHEET_FAMILIES
     t0 = time.time()
     if args.command == "train":
-        weights, losses, n = train(args.clouds, args.steps, args.seed, families, tuple(args.regimes))
-        path = write(weights, args.out, sys.argv[1:] if argv is None else argv)
+        reads = not args.without_irregularity
+        weights, losses, n = train(args.clouds, args.steps, args.seed, families, tuple(args.regimes), reads)
+        path = write(weights, reads, args.out, sys.argv[1:] if argv is None else argv)
         print(f"{n} rows, loss {losses[0]:.5f} -> {losses[-1]:.5f}, gate {np.round(weights[-1], 3).tolist()}, "
               f"{time.time() - t0:.0f} s -> {path}", flush=True)
         return
@@ -212,10 +223,15 @@ def main(argv=None):
         print("\n".join(regimes(families, tuple(args.regimes))))
         return
     folders = args.weights or ["shipped"]
-    models = [load(f) for f in folders]
+    models, flags = zip(*[load(f) for f in folders])
+    reads = {f for f in flags if f is not None}
+    if len(reads) > 1:
+        parser.error("--weights: give candidates that all read the irregularity, or none that does")
+    irregularity = reads.pop() if reads else True
     if args.command == "validate":
-        results = train_edges.validate(models, args.seed, args.per_noise, families=families,
-                                       regimes=tuple(args.regimes), features=cloud_inputs, logit_fn=logit)
+        results = train_edges.validate(list(models), args.seed, args.per_noise, families=families,
+                                       regimes=tuple(args.regimes), logit_fn=logit,
+                                       features=functools.partial(cloud_inputs, irregularity=irregularity))
         for folder, metrics in zip(folders, results):
             print(f"held-out synthetic clouds ({', '.join(args.regimes)}), band x1: {folder}")
             print(train_edges.validation_table(metrics[1.0]), flush=True)
@@ -223,7 +239,7 @@ def main(argv=None):
         import edge_detectors
         weights = models[0]
         real, synthetic = edge_detectors.main(["--methods", "mss,ea,gfr,hkc,lhf", "--out", str(args.out or "/tmp")],
-                                              candidate=lambda p: scores(p, weights))
+                                              candidate=lambda p: scores(p, weights, irregularity))
         print("\n".join(judgement(real, synthetic)))
     print(f"{time.time() - t0:.0f} s")
 
