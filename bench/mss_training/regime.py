@@ -130,9 +130,8 @@ def load(folder: pathlib.Path) -> tuple[list, bool | None]:
         nz = F + len(LENGTHS) + 1
         return [np.zeros((nz, HIDDEN)), np.zeros(HIDDEN), np.zeros((HIDDEN, HIDDEN)), np.zeros(HIDDEN),
                 np.zeros((HIDDEN, 1)), np.zeros(1), np.zeros(len(NAMES))], None
-    namespace = {}
-    exec((pathlib.Path(folder) / "_regime_weights.py").read_text(), namespace)
-    return [np.asarray(namespace[k], np.float64) for k in WEIGHTS], namespace.get("IRREGULARITY", True)
+    module = train_edges.weights_module(pathlib.Path(folder) / "_regime_weights.py")
+    return [np.asarray(getattr(module, k), np.float64) for k in WEIGHTS], getattr(module, "IRREGULARITY", True)
 
 
 def scores(points, weights, irregularity: bool = True) -> np.ndarray:

@@ -306,11 +306,17 @@ def write_weights(weights, path: pathlib.Path, argv):
     path.write_text("\n".join(lines) + "\n")
 
 
-def load_weights(folder: pathlib.Path):
-    """The six arrays of ``folder/_mss_weights.py`` as float64 NumPy arrays."""
-    spec = importlib.util.spec_from_file_location("_candidate_weights", folder / "_mss_weights.py")
+def weights_module(path: pathlib.Path):
+    """The module of a written weights file (``path``), loaded without importing it by name."""
+    spec = importlib.util.spec_from_file_location("_candidate_weights", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
+    return module
+
+
+def load_weights(folder: pathlib.Path):
+    """The six arrays of ``folder/_mss_weights.py`` as float64 NumPy arrays."""
+    module = weights_module(folder / "_mss_weights.py")
     return [np.asarray(getattr(module, k), np.float64) for k in ("W1", "B1", "W2", "B2", "W3", "B3")]
 
 
