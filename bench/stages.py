@@ -267,16 +267,18 @@ def main() -> None:
     for label, _ in ENGINE_STAGES:  # on_stage reports wall seconds only
         vals = [statistics.median(per[m][label]) for m in methods]
         lines.append(f"| engine stage: {label} | " + " | ".join(f"{v:.3f} | {v / floor:.2f} | - " for v in vals) + " |")
+
+    def row(name: str, vals: list) -> str:
+        """A stage row: each method's (wall s, CPU s) as seconds, / floor and CPU / floor CPU."""
+        return f"| {name} | " + " | ".join(f"{v:.3f} | {v / floor:.2f} | {c / floor_cpu:.2f}" for v, c in vals) + " |"
+
     for label, _, _, depth in STAGES:
         vals = [(statistics.median(per[m][label]), statistics.median(per_cpu[m][label])) for m in methods]
         if not any(v > 0.0005 for v, _ in vals):
             continue
-        name = "&nbsp;&nbsp;" * 2 * depth + label
-        lines.append(f"| {name} | " + " | ".join(f"{v:.3f} | {v / floor:.2f} | {c / floor_cpu:.2f}" for v, c in vals)
-                     + " |")
-    vals = [(statistics.median(per[m][PUBLIC]), statistics.median(per_cpu[m][PUBLIC])) for m in methods]
-    lines.append(f"| {PUBLIC} | " + " | ".join(f"{v:.3f} | {v / floor:.2f} | {c / floor_cpu:.2f}" for v, c in vals)
-                 + " |")
+        lines.append(row("&nbsp;&nbsp;" * 2 * depth + label, vals))
+    lines.append(row(PUBLIC, [(statistics.median(per[m][PUBLIC]), statistics.median(per_cpu[m][PUBLIC]))
+                              for m in methods]))
     yard_lines = ["| yardstick | s | / floor | CPU s | CPU / floor CPU |", "|---|---|---|---|---|"]
     for name, v in yard.items():
         c = med(yard_cpu[name])

@@ -48,6 +48,7 @@ from hgjax.scores import lhf, mss  # noqa: E402
 HIDDEN = 16  # units per hidden layer of the residual expert h
 LENGTHS = (8, 16)  # LHF gamma's lengths among z's inputs
 F = len(mss.FEATURES) + 1  # MSS's inputs x
+NZ = F + len(LENGTHS) + 1  # h's inputs z: x, gamma at each length, the irregularity
 NAMES = ("a0", "a1", "a2")  # the gate's numbers
 WEIGHTS = ("W1", "B1", "W2", "B2", "W3", "B3", "GATE")
 
@@ -68,7 +69,7 @@ def cloud_inputs(points, irregularity: bool = True) -> np.ndarray:
 
 def logit(params, row):
     """The candidate's logit of one row of :func:`cloud_inputs`."""
-    return _gated(params, row[:F], row[:F + len(LENGTHS) + 1], row[-2], row[-1])
+    return _gated(params, row[:F], row[:NZ], row[-2], row[-1])
 
 
 def _gated(params, x, z, irregular, noise):
@@ -78,15 +79,12 @@ def _gated(params, x, z, irregular, noise):
     return mss.mlp(mss.weights(x.dtype), x) + g * mss.mlp(h, z)
 
 
-def init(n_inputs: int, seed: int) -> list:
-    """h's Glorot-uniform weights with a zero last layer (the shipped model exactly), zero gate."""
-    rng = np.random.default_rng([seed, 7])
-    sizes = (n_inputs, HIDDEN, HIDDEN, 1)
-    params = []
-    for a, b in zip(sizes[:-1], sizes[1:]):
-        limit = np.sqrt(6.0 / (a + b)) if b > 1 else 0.0
-        params += [rng.uniform(-limit, limit, (a, b)), np.zeros(b)]
-    return [jnp.asarray(p) for p in params] + [jnp.zeros(len(NAMES))]
+def init(seed: int) -> list:
+    """h's Glorot-uniform weights (:func:`train_edges.init`) with a zero last layer (the shipped model exactly),
+    zero gate."""
+    params = train_edges.init(NZ, seed, hidden=HIDDEN, stream=7)
+    params[-2] = jnp.zeros_like(params[-2])
+    return params + [jnp.zeros(len(NAMES))]
 
 
 def train(n_clouds: int, steps: int, seed: int, families, regimes, irregularity: bool = True
@@ -95,18 +93,17 @@ def train(n_clouds: int, steps: int, seed: int, families, regimes, irregularity:
     h's first layer, losses, rows). A constant input (the irregularity, when blind to it) is left unscaled."""
     x, y, w, _ = train_edges.dataset(n_clouds, seed, families, regimes=regimes,
                                      features=functools.partial(cloud_inputs, irregularity=irregularity))
-    nz = F + len(LENGTHS) + 1
-    mean, std = x[:, :nz].mean(0), x[:, :nz].std(0)
+    mean, std = x[:, :NZ].mean(0), x[:, :NZ].std(0)
     std = np.where(std > 0, std + 1e-12, 1.0)
-    z = (x[:, :nz] - mean) / std  # the frozen model reads x as it is; h reads z standardised
+    z = (x[:, :NZ] - mean) / std  # the frozen model reads x as it is; h reads z standardised
 
     def objective(params, rows, y_, w_):
-        def one(p, r):  # r = [x (F,), z standardised (nz,), irregularity, noise]
-            return _gated(p, r[:F], r[F:F + nz], r[-2], r[-1])
+        def one(p, r):  # r = [x (F,), z standardised (NZ,), irregularity, noise]
+            return _gated(p, r[:F], r[F:F + NZ], r[-2], r[-1])
         return train_edges.loss(params, rows, y_, w_, logit_fn=one, penalised=lambda p: p[:-1:2])
 
     rows = jnp.asarray(np.concatenate([x[:, :F], z, x[:, -2:]], axis=1))
-    params, losses = train_edges.adam(init(nz, seed), rows, jnp.asarray(y), jnp.asarray(w), steps, verbose=True,
+    params, losses = train_edges.adam(init(seed), rows, jnp.asarray(y), jnp.asarray(w), steps, verbose=True,
                                       objective=objective)
     w1, b1 = np.asarray(params[0]), np.asarray(params[1])
     folded = [w1 / std[:, None], b1 - (mean / std) @ w1] + [np.asarray(p) for p in params[2:]]
@@ -116,9 +113,9 @@ def train(n_clouds: int, steps: int, seed: int, families, regimes, irregularity:
 def write(weights, irregularity: bool, folder: pathlib.Path, argv) -> pathlib.Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "_regime_weights.py"
-    lines = [f'"""Weights of the round-7 candidate, written by `python bench/mss_training/regime.py {" ".join(argv)}`."""',
-             "", f"IRREGULARITY = {irregularity}"] + [f"{k} = {np.asarray(a, np.float64).tolist()!r}"
-                                                      for k, a in zip(WEIGHTS, weights)]
+    command = f"python bench/mss_training/regime.py {' '.join(argv)}"
+    lines = [f'"""Weights of the round-7 candidate, written by `{command}`."""', "", f"IRREGULARITY = {irregularity}"]
+    lines += [f"{k} = {np.asarray(a, np.float64).tolist()!r}" for k, a in zip(WEIGHTS, weights)]
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -127,8 +124,7 @@ def load(folder: pathlib.Path) -> tuple[list, bool | None]:
     """(weights, whether it reads the irregularity) from ``folder/_regime_weights.py`` (a file without the flag:
     True); ``shipped``: h = 0 (the shipped MSS exactly), None (it reads neither)."""
     if str(folder) == "shipped":
-        nz = F + len(LENGTHS) + 1
-        return [np.zeros((nz, HIDDEN)), np.zeros(HIDDEN), np.zeros((HIDDEN, HIDDEN)), np.zeros(HIDDEN),
+        return [np.zeros((NZ, HIDDEN)), np.zeros(HIDDEN), np.zeros((HIDDEN, HIDDEN)), np.zeros(HIDDEN),
                 np.zeros((HIDDEN, 1)), np.zeros(1), np.zeros(len(NAMES))], None
     module = train_edges.weights_module(pathlib.Path(folder) / "_regime_weights.py")
     return [np.asarray(getattr(module, k), np.float64) for k in WEIGHTS], getattr(module, "IRREGULARITY", True)

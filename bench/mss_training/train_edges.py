@@ -149,8 +149,9 @@ def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), nea
             features=cloud_features):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
-    ``features(points) -> (N, F)``: the model's inputs of every point. ``near``: the fraction of a cloud's non-edge rows drawn among its points within two spacings of an edge
-    (the negatives that decide the ranking about a crease); the rest at random."""
+    ``features(points) -> (N, F)``: the model's inputs of every point. ``near``: the fraction of a cloud's
+    non-edge rows drawn among its points within two spacings of an edge (the negatives that decide the ranking
+    about a crease); the rest at random."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
         points, edge, ignore, name, target = cloud(i, seed, families=families, grading=grading, regimes=regimes)
@@ -177,10 +178,11 @@ def near_edges(points, edge, candidates):
     return d <= 2.0 * spacing
 
 
-def init(n_features: int, seed: int):
-    """Glorot-uniform weights, zero biases, from ``seed``."""
-    rng = np.random.default_rng([seed, 1])
-    sizes = (n_features, mss.HIDDEN, mss.HIDDEN, 1)
+def init(n_features: int, seed: int, hidden: int = mss.HIDDEN, stream: int = 1):
+    """Glorot-uniform weights, zero biases, of a perceptron of two ``hidden``-unit layers, from the random stream
+    (``seed``, ``stream``)."""
+    rng = np.random.default_rng([seed, stream])
+    sizes = (n_features, hidden, hidden, 1)
     params = []
     for a, b in zip(sizes[:-1], sizes[1:]):
         limit = np.sqrt(6.0 / (a + b))
