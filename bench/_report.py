@@ -181,3 +181,61 @@ def save_box_cloud(n: int, dtype, directory) -> Path:
     if not path.exists():
         np.save(path, box_cloud(n, dtype))
     return path
+
+
+class SearchLog:
+    """The host k-d tree work of calls made inside ``with log:``, kept to be replayed alone.
+
+    Every :class:`hgjax._kdtree.Tree` built inside is recorded with its points, and every
+    query on it with its arguments, in the order made (queries from background threads
+    included). :meth:`seconds` replays them on a quiet process: each tree built anew, its
+    queries run one after another, nothing else beside them: the method's own neighbour
+    search alone, with the engines hgjax chose for each query.
+    """
+
+    def __init__(self):
+        self.trees = []  # [(points, [(x, k, bound, p), ...]), ...]
+
+    def __enter__(self):
+        import threading
+
+        from hgjax import _kdtree
+
+        self._init, self._query, lock = _kdtree.Tree.__init__, _kdtree.Tree.query, threading.Lock()
+        log, init, query = self, self._init, self._query
+
+        def recorded_init(tree, points):
+            init(tree, points)
+            with lock:
+                tree._log = []
+                log.trees.append((tree.points, tree._log))
+
+        def recorded_query(tree, x, k, bound=float("inf"), p=2):
+            with lock:
+                tree._log.append((x, k, bound, p))
+            return query(tree, x, k, bound, p)
+
+        _kdtree.Tree.__init__, _kdtree.Tree.query = recorded_init, recorded_query
+        return self
+
+    def __exit__(self, *exc):
+        from hgjax import _kdtree
+
+        _kdtree.Tree.__init__, _kdtree.Tree.query = self._init, self._query
+
+    @property
+    def queries(self) -> int:
+        return sum(len(q) for _, q in self.trees)
+
+    def seconds(self) -> float:
+        """Wall seconds of building every recorded tree and running its recorded queries, in order."""
+        import time
+
+        from hgjax import _kdtree
+
+        t = time.perf_counter()
+        for points, queries in self.trees:
+            tree = _kdtree.Tree(points)
+            for x, k, bound, p in queries:
+                tree.query(x, k, bound, p)
+        return time.perf_counter() - t

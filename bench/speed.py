@@ -163,19 +163,28 @@ def worker(kind: str, n: int, repeats: int) -> dict:
 
 
 def _beside_floor(method: str, pts, repeats: int) -> dict:
-    """Rounds of (the floor, then one call of ``method``) in this process: their medians.
+    """Rounds of (the floor, one call of ``method``, the method's own search alone) in this process: their medians.
 
     The floor here is the same query as the kNN process's (Morton-sorted copy, tree build
     included), timed in turn with the method, so both see the same load and the same process.
+    The own search is every k-d tree the method's call builds and every query it makes on
+    them (:class:`_report.SearchLog`, recorded from one more call), replayed alone: what the
+    method must find, by the engines hgjax chose, with nothing beside it.
     """
     q = _report.morton_copy(pts)
-    floor, paired = [], []
+    log = _report.SearchLog()
+    with log:
+        _run_method(method, pts)
+    floor, paired, search = [], [], []
     for _ in range(repeats):
         floor.append(_report.knn16_seconds(q))
         t = time.perf_counter()
         _run_method(method, pts)
         paired.append(time.perf_counter() - t)
-    return {"floor_here": statistics.median(floor), "paired": statistics.median(paired)}
+        if log.trees:
+            search.append(log.seconds())
+    return {"floor_here": statistics.median(floor), "paired": statistics.median(paired),
+            "search": statistics.median(search) if search else math.nan}
 
 
 def _scale_worker(method: str, pts, repeats: int) -> dict:
@@ -439,29 +448,31 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
         "/ kNN and / floor = time / that yardstick of the same N in the same run;",
         "/ floor here = in the method's own process, rounds of (the floor, then one call of the method): median of",
         "those calls / median of those floors (side by side: the same process and load; the targets are read here);",
+        "own search = in the same rounds, every k-d tree the method's call builds and every query it makes, recorded",
+        "once and replayed alone (`_report.SearchLog`); / own search = median of the method's calls / median of those;",
         f"clouds {args.dtype}{' (x64 on)' * (args.dtype == 'float64')} below {args.scale_n:.0e}, float32 at {args.scale_n:.0e};",
         "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
         "peak = peak RSS of the process that ran the method (MB; the kNN process holds both orders).",
         "",
-        "| N | method | median s | / kNN | / floor | floor here s | / floor here | build s | JAX part / build | points/s "
-        "| compile s | peak MB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| N | method | median s | / kNN | / floor | floor here s | / floor here | own search s | / own search "
+        "| build s | JAX part / build | points/s | compile s | peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
         knn = results[("knn", n)]
         if "error" in knn:
-            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | | | |")
+            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | | | | | |")
         base, floor = knn.get("median", math.nan), knn.get("floor", math.nan)
-        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} | | | | | {n / base:,.0f} | | "
+        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} | | | | | | | {n / base:,.0f} | | "
                      f"{knn.get('peak_mb', math.nan):.0f} |")
-        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | | | "
+        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | | | | | "
                      f"{n / floor:,.0f} | | |")
         for m in methods:
             r = results.get((m, n))
             if r is None:
                 continue
             if "error" in r:
-                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | | | |")
+                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | | | | | |")
                 continue
             if isinstance(hgjax.METHODS[m.partition(":")[0]], hgjax.Sampler):  # samplers: no neighbourhood build
                 build, jax_part = "", ""
@@ -469,6 +480,8 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
                 ratio = (r["median"] - r["build"]) / r["build"] if r["build"] > 0 else math.nan  # nan at 1e7
                 build, jax_part = (f"{r['build']:.3f}", f"{ratio:.2f}") if not math.isnan(ratio) else ("", "")
             here = (f"{r['floor_here']:.3f} | {r['paired'] / r['floor_here']:.2f}" if "floor_here" in r else " | ")
+            search = r.get("search", math.nan)
+            here += f" | {search:.3f} | {r['paired'] / search:.2f}" if not math.isnan(search) else " | | "
             lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | "
                          f"{r['median'] / floor:.2f} | {here} | {build} | {jax_part} | {n / r['median']:,.0f} | "
                          f"{r['compile']:.2f} | {r['peak_mb']:.0f} |")
