@@ -186,9 +186,9 @@ def save_box_cloud(n: int, dtype, directory) -> Path:
 class SearchLog:
     """The host k-d tree work of calls made inside ``with log:``, kept to be replayed alone.
 
-    Every :class:`hgjax._kdtree.Tree` built inside is recorded with its points, and every
-    query on it with its arguments, in the order made (queries from background threads
-    included). :meth:`seconds` replays them on a quiet process: each tree built anew, its
+    Every :class:`hgjax._kdtree.Tree` built (or first queried) inside is recorded with its
+    points, and every query on it with its arguments, in the order made (queries from
+    background threads included). :meth:`seconds` replays them on a quiet process: each tree built anew, its
     queries run one after another, nothing else beside them: the method's own neighbour
     search alone, with the engines hgjax chose for each query.
     """
@@ -204,15 +204,20 @@ class SearchLog:
         self._init, self._query, lock = _kdtree.Tree.__init__, _kdtree.Tree.query, threading.Lock()
         log, init, query = self, self._init, self._query
 
+        def queries(tree) -> list:
+            if "_log" not in vars(tree):  # built before the log started: recorded from its first query
+                tree._log = []
+                log.trees.append((tree.points, tree._log))
+            return tree._log
+
         def recorded_init(tree, points):
             init(tree, points)
             with lock:
-                tree._log = []
-                log.trees.append((tree.points, tree._log))
+                queries(tree)
 
         def recorded_query(tree, x, k, bound=float("inf"), p=2):
             with lock:
-                tree._log.append((x, k, bound, p))
+                queries(tree).append((x, k, bound, p))
             return query(tree, x, k, bound, p)
 
         _kdtree.Tree.__init__, _kdtree.Tree.query = recorded_init, recorded_query
