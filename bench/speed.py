@@ -36,6 +36,7 @@ same N, is checked against the 1.2x target.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -175,16 +176,40 @@ def _beside_floor(method: str, pts, repeats: int) -> dict:
     log = _report.SearchLog()
     with log:
         _run_method(method, pts)
-    floor, paired, search = [], [], []
+    floor, paired, search, search_cpu = [], [], [], []
     for _ in range(repeats):
         floor.append(_report.knn16_seconds(q))
         t = time.perf_counter()
         _run_method(method, pts)
         paired.append(time.perf_counter() - t)
         if log.trees:
+            c = time.process_time()
             search.append(log.seconds())
-    return {"floor_here": statistics.median(floor), "paired": statistics.median(paired),
-            "search": statistics.median(search) if search else math.nan}
+            search_cpu.append(time.process_time() - c)
+    med = lambda v: statistics.median(v) if v else math.nan  # noqa: E731
+    return {"floor_here": med(floor), "paired": med(paired), "search": med(search), "search_cpu": med(search_cpu),
+            "kernel_cpu": _kernel_cpu(method, q)}
+
+
+def _kernel_cpu(method: str, q) -> float:
+    """CPU seconds (all threads) of ``hgjax.score`` alone on the method's neighbourhoods of ``q`` (compiled first).
+
+    ``q`` is the Morton-sorted copy, so the kernel gathers its rows in the order the resample
+    streams them; NaN for a sampler (no neighbourhoods).
+    """
+    import jax
+
+    import hgjax
+
+    nb = _build(method, q)
+    if nb is None:
+        return math.nan
+    name, _, variant = method.partition(":")
+    params = {"variant": variant} if variant else {}
+    jax.block_until_ready(hgjax.score(nb, name, **params))
+    t = time.process_time()
+    jax.block_until_ready(hgjax.score(nb, name, **params))
+    return time.process_time() - t
 
 
 def _scale_worker(method: str, pts, repeats: int) -> dict:
@@ -256,7 +281,8 @@ def real_worker(methods, repeats: int) -> dict:
 
     jax.config.update("jax_enable_x64", True)
     clouds = _real_clouds()
-    out = {"clouds": [(name, twin, int(p.shape[0])) for name, twin, p in clouds], "times": {}, "beside": {}}
+    out = {"clouds": [(name, twin, int(p.shape[0])) for name, twin, p in clouds], "times": {}, "beside": {},
+           "search": {}}
 
     def timed(fn) -> float:
         t = time.perf_counter()
@@ -273,17 +299,23 @@ def real_worker(methods, repeats: int) -> dict:
         else:
             params = {"mode": "top"} if m == "gfr" else {}
             call = lambda name, p, m=m, params=params: hgjax.resample(p, 0.2, method=m, **params)
-        times, beside = {name: [] for name, _, _ in clouds}, {name: [] for name, _, _ in clouds}
+        times, beside, search = ({name: [] for name, _, _ in clouds} for _ in range(3))
+        logs = {name: _report.SearchLog() for name, _, _ in clouds}
         for name, _, p in clouds:
-            call(name, p)  # warm-up
+            with logs[name] if not yardstick else contextlib.nullcontext():
+                call(name, p)  # warm-up (a method's: its trees and queries recorded)
         for _ in range(repeats):
             for name, _, p in clouds:
                 if not yardstick:  # the floor of this cloud just before each call of a method
                     beside[name].append(_report.knn16_seconds(morton[name]))
                 times[name].append(timed(lambda name=name, p=p, call=call: call(name, p)))
+                if logs[name].trees:  # then the method's own search alone
+                    search[name].append(logs[name].seconds())
         out["times"][m] = times
         if not yardstick:
             out["beside"][m] = beside
+        if all(search.values()):
+            out["search"][m] = search
         print(f"{m}: " + ", ".join(f"{k} {statistics.median(v):.3f}" for k, v in times.items()),
               file=sys.stderr, flush=True)
     out["peak_mb"] = _peak_mb()
@@ -294,6 +326,7 @@ def real_report(r: dict, repeats: int, command: str) -> list[str]:
     """Markdown of :func:`real_worker`'s result."""
     med = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r["times"].items()}
     floor = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r["beside"].items()}
+    search = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r.get("search", {}).items()}
     sizes = {name: n for name, _, n in r["clouds"]}
     real = [(name, twin) for name, twin, _ in r["clouds"] if twin is not None]
     lines = [
@@ -314,11 +347,15 @@ def real_report(r: dict, repeats: int, command: str) -> list[str]:
         "/ its floor = the method's time / the floor of the same cloud timed just before each of the method's calls "
         "(rounds of the floor, then the method: the median of those floors; the floor row is timed on its own); "
         f"ratio = (real / its floor) / (synthetic / its floor), the method's ratio on the real cloud against "
-        f"its ratio on the synthetic cloud of the same N, target <= {REAL_TARGET}.",
+        f"its ratio on the synthetic cloud of the same N, target <= {REAL_TARGET}; own search = every k-d tree "
+        "the method's call builds and every query it makes on that cloud (recorded in the warm-up, "
+        "`_report.SearchLog`), replayed alone right after each of its calls: search ratio = the same ratio "
+        "with each cloud's own search in place of its floor (the method's work beyond its search, real against "
+        "synthetic).",
         "",
         "| cloud | N | method | real s | synthetic s | real / synthetic | real / its floor | synthetic / its floor "
-        "| ratio | within 1.2x |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| ratio | within 1.2x | real / own search | synthetic / own search | search ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     names = {"knn": "bare kNN k=16", "floor": "floor: Morton kNN k=16"}
     for name, twin in real:
@@ -327,8 +364,12 @@ def real_report(r: dict, repeats: int, command: str) -> list[str]:
             base = floor.get(m, med["floor"])
             fa, fb = a / base[name], b / base[twin]
             ok = "" if m in names else "yes" if fa / fb <= REAL_TARGET else "**no**"
+            own = ""
+            if m in search:
+                sa, sb = a / search[m][name], b / search[m][twin]
+                own = f" {sa:.2f} | {sb:.2f} | {sa / sb:.2f}"
             lines.append(f"| {name} | {sizes[name]:,} | {names.get(m, m)} | {a:.3f} | {b:.3f} | {a / b:.2f} | "
-                         f"{fa:.2f} | {fb:.2f} | {fa / fb:.2f} | {ok} |")
+                         f"{fa:.2f} | {fb:.2f} | {fa / fb:.2f} | {ok} |{own or ' | |'} |")
     return lines
 
 
@@ -450,29 +491,32 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
         "those calls / median of those floors (side by side: the same process and load; the targets are read here);",
         "own search = in the same rounds, every k-d tree the method's call builds and every query it makes, recorded",
         "once and replayed alone (`_report.SearchLog`); / own search = median of the method's calls / median of those;",
+        "kernel CPU / search CPU = the process CPU time (all threads) of `hgjax.score` alone on the method's",
+        "neighbourhoods of the Morton-sorted copy, over that of the own search's replays (a search that keeps every",
+        "core busy leaves the kernel no idle core: the method's time / own search is then at least 1 + this);",
         f"clouds {args.dtype}{' (x64 on)' * (args.dtype == 'float64')} below {args.scale_n:.0e}, float32 at {args.scale_n:.0e};",
         "build = host neighbourhood build of that method (index + query); JAX part = total - build;",
         "peak = peak RSS of the process that ran the method (MB; the kNN process holds both orders).",
         "",
         "| N | method | median s | / kNN | / floor | floor here s | / floor here | own search s | / own search "
-        "| build s | JAX part / build | points/s | compile s | peak MB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| kernel CPU / search CPU | build s | JAX part / build | points/s | compile s | peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in sizes:
         knn = results[("knn", n)]
         if "error" in knn:
-            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | | | | | |")
+            lines.append(f"| {n:.0e} | kNN k=16 | error: {knn['error']} | | | | | | | | | | | | |")
         base, floor = knn.get("median", math.nan), knn.get("floor", math.nan)
-        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} | | | | | | | {n / base:,.0f} | | "
+        lines.append(f"| {n:.0e} | bare kNN k=16 | {base:.3f} | 1.00 | {base / floor:.2f} |{' |' * 7} {n / base:,.0f} | | "
                      f"{knn.get('peak_mb', math.nan):.0f} |")
-        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | | | | | "
+        lines.append(f"| {n:.0e} | floor: Morton kNN k=16 | {floor:.3f} | {floor / base:.2f} | 1.00 | | | | | | | | "
                      f"{n / floor:,.0f} | | |")
         for m in methods:
             r = results.get((m, n))
             if r is None:
                 continue
             if "error" in r:
-                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | | | | | |")
+                lines.append(f"| {n:.0e} | {m} | error: {r['error']} | | | | | | | | | | | | |")
                 continue
             if isinstance(hgjax.METHODS[m.partition(":")[0]], hgjax.Sampler):  # samplers: no neighbourhood build
                 build, jax_part = "", ""
@@ -482,6 +526,8 @@ def _table(results: dict, methods, sizes, args, argv) -> list[str]:
             here = (f"{r['floor_here']:.3f} | {r['paired'] / r['floor_here']:.2f}" if "floor_here" in r else " | ")
             search = r.get("search", math.nan)
             here += f" | {search:.3f} | {r['paired'] / search:.2f}" if not math.isnan(search) else " | | "
+            share = r.get("kernel_cpu", math.nan) / r.get("search_cpu", math.nan)
+            here += f" | {share:.2f}" if not math.isnan(share) else " | "
             lines.append(f"| {n:.0e} | {m} | {r['median']:.3f} | {r['median'] / base:.2f} | "
                          f"{r['median'] / floor:.2f} | {here} | {build} | {jax_part} | {n / r['median']:,.0f} | "
                          f"{r['compile']:.2f} | {r['peak_mb']:.0f} |")
