@@ -188,9 +188,9 @@ class SearchLog:
 
     Every :class:`hgjax._kdtree.Tree` built (or first queried) inside is recorded with its
     points, and every query on it with its arguments, in the order made (queries from
-    background threads included). :meth:`seconds` replays them on a quiet process: each tree built anew, its
-    queries run one after another, nothing else beside them: the method's own neighbour
-    search alone, with the engines hgjax chose for each query.
+    background threads included). :meth:`seconds` replays them: each tree built anew, its
+    queries run one after another with nothing beside them: a method's own neighbour search
+    alone, with the engines hgjax chose for each query.
     """
 
     def __init__(self):
