@@ -204,7 +204,8 @@ class SearchLog:
         self._init, self._query, lock = _kdtree.Tree.__init__, _kdtree.Tree.query, threading.Lock()
         log, init, query = self, self._init, self._query
 
-        def queries(tree) -> list:
+        def entry(tree) -> list:
+            """The recorded queries of ``tree``."""
             if "_log" not in vars(tree):  # built before the log started: recorded from its first query
                 tree._log = []
                 log.trees.append((tree.points, tree._log))
@@ -213,11 +214,11 @@ class SearchLog:
         def recorded_init(tree, points):
             init(tree, points)
             with lock:
-                queries(tree)
+                entry(tree)
 
         def recorded_query(tree, x, k, bound=float("inf"), p=2):
             with lock:
-                queries(tree).append((x, k, bound, p))
+                entry(tree).append((x, k, bound, p))
             return query(tree, x, k, bound, p)
 
         _kdtree.Tree.__init__, _kdtree.Tree.query = recorded_init, recorded_query

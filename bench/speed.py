@@ -36,7 +36,6 @@ same N, is checked against the 1.2x target.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
@@ -145,8 +144,10 @@ def worker(kind: str, n: int, repeats: int) -> dict:
     method = kind
     if n >= _scale_conf()[0]:
         return _scale_worker(method, pts, repeats)
+    log = _report.SearchLog()  # the warm-up's trees and queries: the method's own search
     t = time.perf_counter()
-    _run_method(method, pts)
+    with log:
+        _run_method(method, pts)
     first = time.perf_counter() - t
     for _ in range(repeats):
         t = time.perf_counter()
@@ -160,22 +161,19 @@ def worker(kind: str, n: int, repeats: int) -> dict:
         build.append(time.perf_counter() - t)
     med = statistics.median(times)
     return {"median": med, "compile": max(first - med, 0.0), "build": statistics.median(build), "peak_mb": peak,
-            **_beside_floor(method, pts, repeats)}
+            **_beside_floor(method, pts, repeats, log)}
 
 
-def _beside_floor(method: str, pts, repeats: int) -> dict:
+def _beside_floor(method: str, pts, repeats: int, log) -> dict:
     """Rounds of (the floor, one call of ``method``, the method's own search alone) in this process: their medians.
 
     The floor here is the same query as the kNN process's (Morton-sorted copy, tree build
     included), timed in turn with the method, so both see the same load and the same process.
     The own search is every k-d tree the method's call builds and every query it makes on
-    them (:class:`_report.SearchLog`, recorded from one more call), replayed alone: what the
-    method must find, by the engines hgjax chose, with nothing beside it.
+    them (``log``, the :class:`_report.SearchLog` of its warm-up call), replayed alone: what
+    the method must find, by the engines hgjax chose, with nothing beside it.
     """
     q = _report.morton_copy(pts)
-    log = _report.SearchLog()
-    with log:
-        _run_method(method, pts)
     floor, paired, search, search_cpu = [], [], [], []
     for _ in range(repeats):
         floor.append(_report.knn16_seconds(q))
@@ -302,8 +300,8 @@ def real_worker(methods, repeats: int) -> dict:
         times, beside, search = ({name: [] for name, _, _ in clouds} for _ in range(3))
         logs = {name: _report.SearchLog() for name, _, _ in clouds}
         for name, _, p in clouds:
-            with logs[name] if not yardstick else contextlib.nullcontext():
-                call(name, p)  # warm-up (a method's: its trees and queries recorded)
+            with logs[name]:  # warm-up; a method's trees and queries recorded (the yardsticks build none of hgjax's)
+                call(name, p)
         for _ in range(repeats):
             for name, _, p in clouds:
                 if not yardstick:  # the floor of this cloud just before each call of a method
