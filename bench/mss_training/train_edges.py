@@ -146,15 +146,17 @@ def cloud_features(points):
 
 
 def dataset(n_clouds: int, seed: int, families=FAMILIES, grading=(0.0, 0.0), near=0.0, regimes=REGIMES,
-            features=cloud_features):
+            features=cloud_features, noise: float | None = None):
     """(X (R, F), target (R,), w (R,), names) over the clouds 0 .. n_clouds - 1.
 
     ``features(points) -> (N, F)``: the model's inputs of every point. ``near``: the fraction of a cloud's
     non-edge rows drawn among its points within two spacings of an edge (the negatives that decide the ranking
-    about a crease); the rest at random."""
+    about a crease); the rest at random. ``noise``: every cloud's noise (spacings; the same shapes and
+    samplings), or None for each its own draw from ``NOISES``."""
     xs, ys, ws, names = [], [], [], []
     for i in range(n_clouds):
-        points, edge, ignore, name, target = cloud(i, seed, families=families, grading=grading, regimes=regimes)
+        points, edge, ignore, name, target = cloud(i, seed, noise, families=families, grading=grading,
+                                                   regimes=regimes)
         rows = np.random.default_rng([seed, i, 1]).permutation(np.flatnonzero(~ignore))
         negatives = rows[~edge[rows]]
         if near > 0 and edge.any():
@@ -219,9 +221,10 @@ def adam(params, x, y, w, steps: int, verbose: bool = False, objective=loss):
 
 
 def train(n_clouds: int, steps: int, seed: int, verbose: bool = False, families=FAMILIES, grading=(0.0, 0.0),
-          near=0.0, regimes=REGIMES):
-    """Fit the model; returns (weights as float64 NumPy arrays, losses, the training set's size)."""
-    x, y, w, _ = dataset(n_clouds, seed, families, grading, near, regimes)
+          near=0.0, regimes=REGIMES, features=cloud_features, noise: float | None = None):
+    """Fit the model over ``features`` (:func:`dataset`'s); returns (weights as float64 NumPy arrays, losses, the
+    training set's size)."""
+    x, y, w, _ = dataset(n_clouds, seed, families, grading, near, regimes, features, noise)
     mean, std = x.mean(0), x.std(0) + 1e-12
     params = init(x.shape[1], seed)
     params, losses = adam(params, jnp.asarray((x - mean) / std), jnp.asarray(y), jnp.asarray(w), steps, verbose)
@@ -242,14 +245,14 @@ def mcc_at_e(scores, labels) -> float:
 
 
 def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(1.0,), regimes=REGIMES,
-             features=cloud_features, logit_fn=mss.mlp):
+             features=cloud_features, logit_fn=mss.mlp, noises=VALIDATION_NOISES):
     """Held-out synthetic metrics: {band: {noise: [(model MCC, model AP, EA MCC, EA AP) per cloud]}}, or a list of
     those for a list of models (``weights`` a list of weight lists, the features computed once). A model scores a
     point by ``logit_fn(weights, row)`` of its row of ``features(points)`` (default: MSS's).
 
     The clouds are those of ``cloud`` for the seed ``seed + HELD_OUT`` (shapes never trained
     on), ``per_noise`` of them (every family, every one of ``regimes``) at each noise of
-    ``VALIDATION_NOISES``; points near creases of 10 to 20 degrees are left out. ``bands``: the
+    ``noises`` (default ``VALIDATION_NOISES``); points near creases of 10 to 20 degrees are left out. ``bands``: the
     edge labels' band widths in units of the default band (1: the training labels; 0.5: the points
     nearest the crease, which only a ranking by distance to the crease finds).
     """
@@ -257,7 +260,7 @@ def validate(weights, seed: int, per_noise: int = 28, families=FAMILIES, bands=(
     models = [[jnp.asarray(a) for a in w] for w in (weights if many else [weights])]
     logits = jax.jit(jax.vmap(logit_fn, in_axes=(None, 0)))
     out = [{b: {} for b in bands} for _ in models]
-    for noise in VALIDATION_NOISES:
+    for noise in noises:
         rows = [{b: [] for b in bands} for _ in models]
         for i in range(per_noise):
             points, edge, ignore, _, _ = cloud(i, seed + HELD_OUT, noise, families, regimes=regimes)
