@@ -25,7 +25,6 @@ Usage (from the repository root):
 
 from __future__ import annotations
 
-import argparse
 import functools
 import pathlib
 import sys
@@ -70,13 +69,9 @@ def logit(params, row):
 
 
 def write(weights, folder: pathlib.Path, argv) -> pathlib.Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / "_clean_weights.py"
-    command = f"python bench/mss_training/clean_expert.py {' '.join(argv)}"
-    lines = [f'"""Weights of the round-8 clean expert, written by `{command}`."""', "", f"T0 = {T0!r}"]
-    lines += [f"{k} = {np.asarray(a, np.float64).tolist()!r}" for k, a in zip(WEIGHTS, weights)]
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return regime.write_module(folder / "_clean_weights.py", "the round-8 clean expert",
+                               f"python bench/mss_training/clean_expert.py {' '.join(argv)}", {"T0": T0}, WEIGHTS,
+                               weights)
 
 
 def load(folder) -> list:
@@ -115,16 +110,7 @@ def levels(families, regimes_, n_clouds: int = 360) -> list[str]:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("command", choices=("levels", "train", "validate", "judge"))
-    parser.add_argument("--clouds", type=int, default=360)
-    parser.add_argument("--steps", type=int, default=1500)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=pathlib.Path, default=None)
-    parser.add_argument("--weights", type=pathlib.Path, nargs="+", default=None)
-    parser.add_argument("--regimes", nargs="+", default=["random", "grid", "even"])
-    parser.add_argument("--no-sheets", action="store_true", help="leave the folded sheets out")
-    parser.add_argument("--per-noise", type=int, default=28)
+    parser = regime.candidate_parser(__doc__, ("levels", "train", "validate", "judge"))
     parser.add_argument("--noises", type=float, nargs="+", default=list(train_edges.VALIDATION_NOISES),
                         help="validate: the held-out noises (spacings)")
     args = parser.parse_args(argv)
@@ -144,15 +130,10 @@ def main(argv=None):
         results = train_edges.validate([load(f) for f in folders], args.seed, args.per_noise, families=families,
                                        regimes=regimes, logit_fn=logit, features=cloud_inputs,
                                        noises=tuple(args.noises))
-        for folder, metrics in zip(folders, results):
-            print(f"held-out synthetic clouds ({', '.join(regimes)}), band x1: {folder}")
-            print(train_edges.validation_table(metrics[1.0]), flush=True)
+        regime.print_validation(folders, results, regimes)
     else:
-        import edge_detectors
         params = load(args.weights[0])
-        real, synthetic = edge_detectors.main(["--methods", "mss,ea,gfr,hkc,lhf", "--out", str(args.out or "/tmp")],
-                                              candidate=lambda p: scores(p, params))
-        print("\n".join(regime.judgement(real, synthetic)))
+        regime.judge(lambda p: scores(p, params), args.out)
     print(f"{time.time() - t0:.0f} s")
 
 

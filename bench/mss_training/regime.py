@@ -110,14 +110,20 @@ def train(n_clouds: int, steps: int, seed: int, families, regimes, irregularity:
     return folded, losses, len(y)
 
 
-def write(weights, irregularity: bool, folder: pathlib.Path, argv) -> pathlib.Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / "_regime_weights.py"
-    command = f"python bench/mss_training/regime.py {' '.join(argv)}"
-    lines = [f'"""Weights of the round-7 candidate, written by `{command}`."""', "", f"IRREGULARITY = {irregularity}"]
-    lines += [f"{k} = {np.asarray(a, np.float64).tolist()!r}" for k, a in zip(WEIGHTS, weights)]
+def write_module(path: pathlib.Path, what: str, command: str, constants: dict, names, weights) -> pathlib.Path:
+    """Write a candidate's weights module ``path``: ``constants`` ({name: value}), then the arrays ``weights`` under
+    ``names``; its docstring names ``what`` it holds and the ``command`` that wrote it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f'"""Weights of {what}, written by `{command}`."""', ""] + [f"{k} = {v!r}" for k, v in constants.items()]
+    lines += [f"{k} = {np.asarray(a, np.float64).tolist()!r}" for k, a in zip(names, weights)]
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def write(weights, irregularity: bool, folder: pathlib.Path, argv) -> pathlib.Path:
+    return write_module(folder / "_regime_weights.py", "the round-7 candidate",
+                        f"python bench/mss_training/regime.py {' '.join(argv)}", {"IRREGULARITY": irregularity},
+                        WEIGHTS, weights)
 
 
 def load(folder: pathlib.Path) -> tuple[list, bool | None]:
@@ -190,9 +196,10 @@ def judgement(real: dict, synthetic: dict) -> list[str]:
     return lines
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("command", choices=("train", "validate", "judge", "regimes"))
+def candidate_parser(doc: str, commands: tuple) -> argparse.ArgumentParser:
+    """The command line of a round's candidate script: ``commands`` and the options every round shares."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("command", choices=commands)
     parser.add_argument("--clouds", type=int, default=360)
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--seed", type=int, default=0)
@@ -201,6 +208,27 @@ def main(argv=None):
     parser.add_argument("--regimes", nargs="+", default=["random", "grid", "even"])
     parser.add_argument("--no-sheets", action="store_true", help="leave the folded sheets out")
     parser.add_argument("--per-noise", type=int, default=28)
+    return parser
+
+
+def print_validation(folders, results, regimes_) -> None:
+    """Each model's held-out table (:func:`train_edges.validate` of several models, band x1)."""
+    for folder, metrics in zip(folders, results):
+        print(f"held-out synthetic clouds ({', '.join(regimes_)}), band x1: {folder}")
+        print(train_edges.validation_table(metrics[1.0]), flush=True)
+
+
+def judge(candidate, out) -> None:
+    """bench/edge_detectors.py with mss, ea, gfr, hkc, lhf and ``candidate(points) -> (N,)`` beside them (the report
+    written to ``out``, default /tmp); prints :func:`judgement`."""
+    import edge_detectors
+    real, synthetic = edge_detectors.main(["--methods", "mss,ea,gfr,hkc,lhf", "--out", str(out or "/tmp")],
+                                          candidate=candidate)
+    print("\n".join(judgement(real, synthetic)))
+
+
+def main(argv=None):
+    parser = candidate_parser(__doc__, ("train", "validate", "judge", "regimes"))
     parser.add_argument("--without-irregularity", action="store_true",
                         help="train: a candidate blind to the irregularity (its column 0, in the gate and in h)")
     args = parser.parse_args(argv)
@@ -227,15 +255,10 @@ def main(argv=None):
         results = train_edges.validate(list(models), args.seed, args.per_noise, families=families,
                                        regimes=tuple(args.regimes), logit_fn=logit,
                                        features=functools.partial(cloud_inputs, irregularity=irregularity))
-        for folder, metrics in zip(folders, results):
-            print(f"held-out synthetic clouds ({', '.join(args.regimes)}), band x1: {folder}")
-            print(train_edges.validation_table(metrics[1.0]), flush=True)
+        print_validation(folders, results, args.regimes)
     else:
-        import edge_detectors
         weights = models[0]
-        real, synthetic = edge_detectors.main(["--methods", "mss,ea,gfr,hkc,lhf", "--out", str(args.out or "/tmp")],
-                                              candidate=lambda p: scores(p, weights, irregularity))
-        print("\n".join(judgement(real, synthetic)))
+        judge(lambda p: scores(p, weights, irregularity), args.out)
     print(f"{time.time() - t0:.0f} s")
 
 
