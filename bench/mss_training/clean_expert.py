@@ -51,9 +51,12 @@ WEIGHTS = ("W1", "B1", "W2", "B2", "W3", "B3")
 cloud_inputs = functools.partial(regime.cloud_inputs, irregularity=False)  # [x (F,), gamma (2,), 0, noise]
 
 
+U_COLUMNS = np.r_[0:F - 1, F:F + len(regime.LENGTHS)]  # u's columns in a row of cloud_inputs
+
+
 def expert_inputs(rows):
-    """(..., NU) u of rows of :func:`cloud_inputs`."""
-    return np.concatenate([rows[..., :F - 1], rows[..., F:F + len(regime.LENGTHS)]], axis=-1)
+    """(..., NU) u of rows of :func:`cloud_inputs` (NumPy or JAX)."""
+    return rows[..., U_COLUMNS]
 
 
 def clean_features(points) -> np.ndarray:
@@ -64,8 +67,7 @@ def clean_features(points) -> np.ndarray:
 def logit(params, row):
     """The candidate's logit of one row of :func:`cloud_inputs`; ``params``: the expert's weights, then (T0,)."""
     *clean, t0 = params
-    u = jnp.concatenate([row[:F - 1], row[F:F + len(regime.LENGTHS)]])
-    return jnp.where(row[-1] < t0[0], mss.mlp(clean, u), mss.mlp(mss.weights(row.dtype), row[:F]))
+    return jnp.where(row[-1] < t0[0], mss.mlp(clean, expert_inputs(row)), mss.mlp(mss.weights(row.dtype), row[:F]))
 
 
 def write(weights, folder: pathlib.Path, argv) -> pathlib.Path:
@@ -98,7 +100,8 @@ def levels(families, regimes_, n_clouds: int = 360) -> list[str]:
     for i in range(n_clouds):
         points, _, _, name, _ = train_edges.cloud(i, 0, families=families, regimes=regimes_)
         noise = float(name.split("p=")[1].split()[0])
-        kind = name.split()[0].split("-")[0] if "-" in name.split()[0] else "random"
+        head, second = name.split()[:2]  # "boxes<seed> <regime> ...", "<regime>-<family><seed> ...", "<family><seed> ..."
+        kind = second if head.startswith("boxes") else head.split("-")[0] if "-" in head else "random"
         nb = hgjax.neighbourhoods(points, "mss")
         seen.setdefault(noise, {}).setdefault(kind, []).append(float(mss.noise_level(nb.points, nb.idx)))
     lines = []
