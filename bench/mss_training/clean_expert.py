@@ -49,8 +49,6 @@ F = regime.F  # MSS's inputs x: its features, then the noise level
 NU = F - 1 + len(regime.LENGTHS)  # the clean expert's inputs u: MSS's features, LHF's gamma at each length
 WEIGHTS = ("W1", "B1", "W2", "B2", "W3", "B3")
 cloud_inputs = functools.partial(regime.cloud_inputs, irregularity=False)  # [x (F,), gamma (2,), 0, noise]
-
-
 U_COLUMNS = np.r_[0:F - 1, F:F + len(regime.LENGTHS)]  # u's columns in a row of cloud_inputs
 
 
@@ -85,12 +83,6 @@ def load(folder) -> list:
                 np.zeros((hidden, 1)), np.zeros(1), np.zeros(1)]
     module = train_edges.weights_module(pathlib.Path(folder) / "_clean_weights.py")
     return [np.asarray(getattr(module, k), np.float64) for k in WEIGHTS] + [np.array([module.T0])]
-
-
-def scores(points, params) -> np.ndarray:
-    """(N,) the candidate's logits of a cloud (higher is sharper)."""
-    rows = jnp.asarray(cloud_inputs(points))
-    return np.asarray(jax.jit(jax.vmap(logit, in_axes=(None, 0)))([jnp.asarray(a) for a in params], rows))
 
 
 def levels(families, regimes_, n_clouds: int = 360) -> list[str]:
@@ -136,7 +128,7 @@ def main(argv=None):
         regime.print_validation(folders, results, regimes)
     else:
         params = load(args.weights[0])
-        regime.judge(lambda p: scores(p, params), args.out)
+        regime.judge(lambda p: regime.scores(p, params, False, logit), args.out)
     print(f"{time.time() - t0:.0f} s")
 
 

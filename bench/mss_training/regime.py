@@ -136,10 +136,11 @@ def load(folder: pathlib.Path) -> tuple[list, bool | None]:
     return [np.asarray(getattr(module, k), np.float64) for k in WEIGHTS], getattr(module, "IRREGULARITY", True)
 
 
-def scores(points, weights, irregularity: bool = True) -> np.ndarray:
-    """(N,) the candidate's logits of a cloud (higher is sharper)."""
+def scores(points, weights, irregularity: bool = True, logit_fn=logit) -> np.ndarray:
+    """(N,) a candidate's logits of a cloud (higher is sharper): ``logit_fn(weights, row)`` of each row of
+    :func:`cloud_inputs` (default: this round's candidate)."""
     rows = jnp.asarray(cloud_inputs(points, irregularity))
-    return np.asarray(jax.jit(jax.vmap(logit, in_axes=(None, 0)))([jnp.asarray(a) for a in weights], rows))
+    return np.asarray(jax.jit(jax.vmap(logit_fn, in_axes=(None, 0)))([jnp.asarray(a) for a in weights], rows))
 
 
 def cloud_regime(points) -> tuple[float, float]:
