@@ -89,14 +89,19 @@ def _dtype(n: int) -> str:
     return "float32" if n >= _scale_conf()[0] else os.environ.get(DTYPE_ENV, "float32")
 
 
+def _method_params(method: str) -> tuple[str, dict]:
+    """(name, keyword arguments) of a timed method: "lhf:reference" times LHF's non-default variant "reference"."""
+    name, _, variant = method.partition(":")
+    return name, {"variant": variant} if variant else {}
+
+
 def _run_method(method: str, pts, tile=None):
     """``hgjax.resample`` (``tile=None``) or the tiled engine with tiles of edge ``tile``."""
     import jax
 
     import hgjax
 
-    method, _, variant = method.partition(":")  # "lhf:reference" times a non-default variant
-    params = {"variant": variant} if variant else {}
+    method, params = _method_params(method)
     if tile is None:
         return hgjax.resample(pts, 0.2, method=method, key=jax.random.key(0), **params)
     return hgjax.tiles.resample(pts, 0.2, method=method, tile=tile, key=jax.random.key(0), **params)
@@ -106,10 +111,10 @@ def _build(method: str, pts):
     """The host neighbourhood build that ``method`` performs: ``hgjax.neighbourhoods``."""
     import hgjax
 
-    method, _, variant = method.partition(":")
+    method, params = _method_params(method)
     if isinstance(hgjax.METHODS[method], hgjax.Sampler):
         return None  # samplers work on the points directly: no build
-    return hgjax.neighbourhoods(pts, method, **({"variant": variant} if variant else {}))
+    return hgjax.neighbourhoods(pts, method, **params)
 
 
 def worker(kind: str, n: int, repeats: int) -> dict:
@@ -202,8 +207,7 @@ def _kernel_cpu(method: str, q) -> float:
     nb = _build(method, q)
     if nb is None:
         return math.nan
-    name, _, variant = method.partition(":")
-    params = {"variant": variant} if variant else {}
+    name, params = _method_params(method)
     jax.block_until_ready(hgjax.score(nb, name, **params))
     t = time.process_time()
     jax.block_until_ready(hgjax.score(nb, name, **params))
@@ -322,9 +326,8 @@ def real_worker(methods, repeats: int) -> dict:
 
 def real_report(r: dict, repeats: int, command: str) -> list[str]:
     """Markdown of :func:`real_worker`'s result."""
-    med = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r["times"].items()}
-    floor = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r["beside"].items()}
-    search = {m: {c: statistics.median(v) for c, v in t.items()} for m, t in r.get("search", {}).items()}
+    medians = lambda runs: {m: {c: statistics.median(v) for c, v in t.items()} for m, t in runs.items()}
+    med, floor, search = medians(r["times"]), medians(r["beside"]), medians(r.get("search", {}))
     sizes = {name: n for name, _, n in r["clouds"]}
     real = [(name, twin) for name, twin, _ in r["clouds"] if twin is not None]
     lines = [
