@@ -36,9 +36,10 @@ class BatchFailure(Exception):
 
 
 def _expand(paths: list[str]) -> list[str]:
-    """Input files, each once (by its real path), in the order given: each path, the supported
-    files of a directory (sorted), or the matches of a glob pattern the shell left alone (quoted,
-    ``'survey/*.laz'``; sorted, a matched directory standing for its supported files)."""
+    """Input files in the order given: each path, the supported files of a directory (sorted), or the
+    matches of a glob pattern the shell left alone (quoted, ``'survey/*.laz'``; sorted, a matched
+    directory standing for its supported files); each file once, a path, symbolic or hard link
+    reaching a file given before left out (:func:`hgjax.io.file_identity`)."""
     import glob
 
     def supported(directory: str) -> list[str]:
@@ -64,9 +65,11 @@ def _expand(paths: list[str]) -> list[str]:
             files += found
         else:
             raise UsageError(f"cannot read {path}: no such file")
+    from hgjax import io
+
     unique = {}
     for path in files:
-        first = unique.setdefault(os.path.realpath(path), path)
+        first = unique.setdefault(io.file_identity(path), path)
         if first != path:
             print(f"hgjax: {path} is {first} again; it is read once", file=sys.stderr)
     return list(unique.values())

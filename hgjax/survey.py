@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import glob
 import json
 import os
@@ -367,7 +368,7 @@ class SurveyResult:
 
 def _survey_paths(paths) -> list[str]:
     """Files of ``paths`` (files or glob patterns), in the order given, each once: a file reached again (the same
-    path, a symlink to it, another spelling) is left out, by its real path."""
+    path, a symlink or hard link to it, another spelling) is left out (:func:`hgjax.io.file_identity`)."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     found = {}
@@ -377,7 +378,7 @@ def _survey_paths(paths) -> list[str]:
         if not matches:
             raise ValueError(f"paths: the pattern {p!r} matches no file")
         for m in matches:
-            found.setdefault(os.path.realpath(m), m)
+            found.setdefault(io.file_identity(m), m)
     if not found:
         raise ValueError("paths must name at least one file; got none")
     return list(found.values())
@@ -410,6 +411,27 @@ def _temporary(directory: str, name: str) -> str:
     (``.NAME.HOST.PID.HEX.tmp``), so that :func:`hgjax.io.remove_stale_temporaries` removes one a killed run left."""
     host = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())
     return os.path.join(directory, f".{name}.{host}.{os.getpid()}.{secrets.token_hex(6)}.tmp")
+
+
+def _allocate(path: str, nbytes: int) -> None:
+    """Create ``path`` with ``nbytes`` of disk allocated to it, so that a full disk raises :class:`OSError` (ENOSPC)
+    here, not SIGBUS where a memory map of a sparse file is first written."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    try:
+        try:
+            os.posix_fallocate(fd, 0, nbytes)
+            return
+        except AttributeError:  # no posix_fallocate (macOS, Windows): write the zeros
+            pass
+        except OSError as err:
+            if err.errno not in (errno.EINVAL, errno.EOPNOTSUPP):
+                raise OSError(err.errno, f"{err.strerror}: {os.path.dirname(path)} cannot hold the {nbytes} bytes"
+                              " of the survey's float64 coordinates", path) from err
+        block = bytes(1 << 20)
+        for start in range(0, nbytes, len(block)):
+            os.write(fd, block[:nbytes - start])
+    finally:
+        os.close(fd)
 
 
 def _scan(entry: tuple):
@@ -449,7 +471,7 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
 
     Global ids run in file order, then point order within each file, and the kept ids are
     exactly those of :func:`resample` on the concatenated cloud. A file reached twice (the
-    same path, a symlink to it, a glob matching it again) is read once, where it first comes.
+    same path, a symbolic or hard link to it, a glob matching it again) is read once, where it first comes.
     The survey is read lazily:
     the LAS/LAZ headers first (point counts), then one task per file reads its coordinates
     (LAS/LAZ in chunks of :data:`hgjax.io.CHUNK_ROWS` points, through laspy) for its exact bounds and checks
@@ -589,7 +611,8 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
         work = _temporary(out_dir, "hgjax-survey-xyz.f8")
         io.OPEN_TEMPORARIES.add(work)  # the command line removes it when a signal ends the process at once
         try:
-            disk = np.memmap(work, dtype=np.float64, mode="w+", shape=(n, 3))
+            _allocate(work, n * 3 * np.dtype(np.float64).itemsize)
+            disk = np.memmap(work, dtype=np.float64, mode="r+", shape=(n, 3))
             tick = _ticker("copy", dict(enumerate(counts.values()))) if progress else None
             for i, f in enumerate(sources):
                 _stage(disk, f.start, f.path)

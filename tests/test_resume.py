@@ -207,6 +207,23 @@ def test_a_file_reached_twice_is_read_once(capsys, tmp_path, monkeypatch):
         assert sorted(os.listdir(out)) == ["a.ply", survey.MANIFEST]
 
 
+def test_a_file_reached_twice_through_a_hard_link_is_read_once(capsys, tmp_path):
+    src = tmp_path / "src"
+    paths = _inputs(src)
+    (tmp_path / "other").mkdir()
+    link = tmp_path / "other" / "again.ply"
+    os.link(paths[0], link)
+    result = _survey([paths[0], str(link), paths[1]], tmp_path / "out", method="uniform", key=1)
+    assert result.written == [str(tmp_path / "out" / "a.ply"), str(tmp_path / "out" / "b.ply")]
+    manifest = json.loads((tmp_path / "out" / survey.MANIFEST).read_text())
+    assert manifest["n"] == sum(SIZES.values()) and manifest["m"] == round(0.2 * sum(SIZES.values()))
+    for extra in ([], ["--tile", "100"]):  # file by file and a survey
+        out = tmp_path / f"cli{len(extra)}"
+        code, err = _cli(capsys, "resample", paths[0], link, "-o", out, "--method", "uniform", *extra)
+        assert code == 0 and f"{link} is {paths[0]} again; it is read once" in err, err
+        assert sorted(os.listdir(out)) == ["a.ply", survey.MANIFEST]
+
+
 @pytest.mark.parametrize("stop", [KeyboardInterrupt, SystemExit])
 def test_an_interrupted_whole_cloud_survey_leaves_nothing(tmp_path, monkeypatch, stop):
     paths, out = _inputs(tmp_path / "src"), tmp_path / "out"

@@ -99,6 +99,7 @@ __all__ = [
     "check_format",
     "check_writable",
     "chunks",
+    "file_identity",
     "header_count",
     "holds_scores",
     "read_points",
@@ -336,6 +337,34 @@ def chunks(path, *, box: tuple | None = None):
         raise
     except Exception as err:
         raise PointCloudReadError(f"cannot read {path}: {type(err).__name__}: {err}") from err
+
+
+def file_identity(path):
+    """What tells one file from another however it is reached: its (device, inode) pair.
+
+    A path that cannot be stat'ed (missing, unreadable directory) is identified by its real path,
+    so two spellings of one missing file are still one.
+
+    Args:
+      path: a file path.
+
+    Returns:
+      (st_dev, st_ino) of the file ``path`` reaches (symbolic links followed), or its real path.
+
+    Examples:
+      >>> import os, tempfile
+      >>> folder = tempfile.mkdtemp()
+      >>> open(os.path.join(folder, "a.xyz"), "w").close()
+      >>> os.link(os.path.join(folder, "a.xyz"), os.path.join(folder, "b.xyz"))
+      >>> file_identity(os.path.join(folder, "a.xyz")) == file_identity(os.path.join(folder, "b.xyz"))
+      True
+    """
+    path = os.fspath(path)
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return os.path.realpath(path)
+    return st.st_dev, st.st_ino
 
 
 # ----------------------------------------------------------------------------- writing
