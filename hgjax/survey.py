@@ -97,8 +97,8 @@ def read_manifest(path) -> dict:
       (the output's :func:`run_record`, else the manifest's own "run"), ...}], ...}.
 
     Raises:
-      ManifestError: the file is not valid JSON or not the shape of a manifest (named, with how
-        to go on).
+      ManifestError: the file is not valid JSON, is nested too deeply to read, or is not the shape
+        of a manifest (named, with how to go on).
 
     Examples:
       >>> read_manifest("no-such-folder/hgjax-manifest.json")
@@ -113,6 +113,8 @@ def read_manifest(path) -> dict:
             data = json.loads(fh.read().decode("utf-8"))
     except ValueError as err:  # JSONDecodeError and UnicodeDecodeError
         raise ManifestError(f"{path} is not an hgjax manifest: invalid JSON ({err}); {advice}") from None
+    except RecursionError:
+        raise ManifestError(f"{path} is not an hgjax manifest: its JSON is nested too deeply to read; {advice}") from None
     problem = _misshapen(data)
     if problem:
         raise ManifestError(f"{path} is not an hgjax manifest: {problem}; {advice}")
@@ -416,22 +418,22 @@ def _temporary(directory: str, name: str) -> str:
 def _allocate(path: str, nbytes: int) -> None:
     """Create ``path`` with ``nbytes`` of disk allocated to it, so that a full disk raises :class:`OSError` (ENOSPC)
     here, not SIGBUS where a memory map of a sparse file is first written."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-    try:
+    with open(path, "xb") as fh:
         try:
-            os.posix_fallocate(fd, 0, nbytes)
-            return
-        except AttributeError:  # no posix_fallocate (macOS, Windows): write the zeros
-            pass
+            if hasattr(os, "posix_fallocate"):
+                try:
+                    os.posix_fallocate(fh.fileno(), 0, nbytes)
+                    return
+                except OSError as err:
+                    if err.errno not in (errno.EINVAL, errno.EOPNOTSUPP):
+                        raise
+            block = bytes(1 << 20)  # no allocation call here: write the zeros
+            for start in range(0, nbytes, len(block)):
+                fh.write(block[:nbytes - start])
+            fh.flush()
         except OSError as err:
-            if err.errno not in (errno.EINVAL, errno.EOPNOTSUPP):
-                raise OSError(err.errno, f"{err.strerror}: {os.path.dirname(path)} cannot hold the {nbytes} bytes"
-                              " of the survey's float64 coordinates", path) from err
-        block = bytes(1 << 20)
-        for start in range(0, nbytes, len(block)):
-            os.write(fd, block[:nbytes - start])
-    finally:
-        os.close(fd)
+            raise OSError(err.errno, f"{err.strerror}: {os.path.dirname(path)} cannot hold the {nbytes} bytes of"
+                          " the survey's float64 coordinates") from err
 
 
 def _scan(entry: tuple):

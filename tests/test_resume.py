@@ -168,7 +168,8 @@ def test_the_modes_share_one_manifest(capsys, tmp_path):
 
 CORRUPT = {"invalid JSON": "{not json", "an array": "[]", "no outputs": '{"hgjax": "0.1.0"}',
            "an entry without a path": '{"outputs": [{"output": 3}]}',
-           "an entry without a run": '{"outputs": [{"output": "/x.ply"}]}', "not UTF-8": b"\xff\xfe{}"}
+           "an entry without a run": '{"outputs": [{"output": "/x.ply"}]}', "not UTF-8": b"\xff\xfe{}",
+           "nested too deeply": '{"outputs": ' + "[" * 200_000 + "]" * 200_000 + "}"}
 
 
 @pytest.mark.parametrize("case", list(CORRUPT))
