@@ -201,7 +201,8 @@ def write_manifest(path, entries: list, *, run: dict | None = None, **fields) ->
 
     Each entry replaces the one of the same output; the entries of the other outputs already
     recorded are kept (each with its run written out), so runs into one directory share its
-    manifest. A manifest that cannot be read is replaced.
+    manifest. The read, merge and write hold an exclusive lock on the directory, so runs writing
+    into it at the same time each add their outputs. A manifest that cannot be read is replaced.
 
     Args:
       path: the manifest file.
@@ -223,9 +224,33 @@ def write_manifest(path, entries: list, *, run: dict | None = None, **fields) ->
       >>> reusable(read_manifest(os.path.join(folder, MANIFEST)), out, record)[0]
       True
     """
+    path = os.fspath(path)
+    with _locked(os.path.dirname(os.path.abspath(path))):
+        _merge_manifest(path, entries, run, fields)
+
+
+@contextlib.contextmanager
+def _locked(directory: str):
+    """Hold an exclusive lock on ``directory`` (``flock`` on the directory itself, so no file is left
+    behind) while the body runs: the read, merge and write of its manifest by one run at a time. Where
+    the platform has no ``flock`` (Windows) the body runs unlocked."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock
+
+
+def _merge_manifest(path: str, entries: list, run: dict | None, fields: dict) -> None:
+    """:func:`write_manifest`'s read, merge and atomic write, run under the directory's lock."""
     from hgjax import __version__
 
-    path = os.fspath(path)
     try:
         old = read_manifest(path)
     except ManifestError:

@@ -189,6 +189,33 @@ def test_a_corrupt_manifest_is_a_clear_error(capsys, tmp_path, case):
     assert code == 0 and len(survey.read_manifest(manifest)["outputs"]) == 2, err
 
 
+def test_runs_writing_one_manifest_at_the_same_time_each_add_their_outputs(tmp_path, monkeypatch):
+    import threading
+    import time
+
+    reading = survey.read_manifest
+
+    def slow(path):  # widens the window between a run's read of the manifest and its write
+        got = reading(path)
+        time.sleep(0.05)
+        return got
+
+    monkeypatch.setattr(survey, "read_manifest", slow)
+    outputs = [tmp_path / f"run{i}.ply" for i in range(6)]
+    for p in outputs:
+        p.write_bytes(b"")
+    record = survey.run_record([], method="hkc", ratio=0.2)
+    runs = [threading.Thread(target=survey.write_manifest, args=(tmp_path / survey.MANIFEST, [{"output": p, "run": record}]))
+            for p in outputs]
+    for run in runs:
+        run.start()
+    for run in runs:
+        run.join()
+    recorded = reading(tmp_path / survey.MANIFEST)["outputs"]
+    assert sorted(e["output"] for e in recorded) == sorted(str(p) for p in outputs)
+    assert sorted(os.listdir(tmp_path)) == sorted([survey.MANIFEST, *(p.name for p in outputs)])  # no lock file left
+
+
 def test_a_file_reached_twice_is_read_once(capsys, tmp_path, monkeypatch):
     src = tmp_path / "src"
     paths = _inputs(src)
