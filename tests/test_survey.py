@@ -1,5 +1,6 @@
 """resample_files: a survey of LAS/LAZ tiles resampled as one cloud, in process and on a 2-worker LocalCluster."""
 
+import errno
 import json
 import logging
 import os
@@ -428,3 +429,48 @@ def test_copc_chunks_number_points_in_file_order(monkeypatch):
     np.testing.assert_array_equal(np.concatenate([x for _, x in part]), xyz[ids])
     inside = np.flatnonzero(((xyz >= lo) & (xyz <= hi)).all(axis=1))
     assert inside.size and np.isin(inside, ids).all() and ids.size < len(xyz)
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 256 KiB tmpfs (needs root and a mount that works here), unmounted after the test."""
+    if not hasattr(os, "geteuid") or os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    mount = tmp_path / "full"
+    mount.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mount)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    yield mount
+    subprocess.run(["umount", str(mount)], check=True)
+
+
+def _enospc(*args):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("method,tile", [("voxel", TILE), ("fps", None)])
+def test_a_disk_too_small_for_the_coordinates_is_named_and_the_temporary_removed(tmp_path, monkeypatch, method, tile):
+    paths, _ = _survey(tmp_path, n_files=1, n=500)
+    monkeypatch.setattr(os, "posix_fallocate", _enospc)
+    with pytest.raises(OSError, match="No space left") as err:
+        survey.resample_files(paths, tmp_path / "kept", 0.2, method=method, tile=tile)
+    assert err.value.errno == errno.ENOSPC and str(tmp_path / "kept") in str(err.value)
+    assert os.listdir(tmp_path / "kept") == []
+
+
+def test_without_posix_fallocate_the_coordinates_are_written_as_zeros_first(tmp_path, monkeypatch):
+    paths, cloud = _survey(tmp_path, n_files=2, n=1000)
+    monkeypatch.delattr(os, "posix_fallocate", raising=False)
+    survey.resample_files(paths, tmp_path / "kept", 0.2, method="voxel")
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), np.sort(hgjax.resample(cloud, 0.2, method="voxel")))
+    assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
+
+
+def test_cli_survey_on_a_full_disk_exits_1_naming_it(tmp_path, full_disk):
+    path = tmp_path / "cloud.ply"
+    io.write_points(path, np.random.default_rng(0).random((40_000, 3)) * 10)
+    run = subprocess.run([sys.executable, "-m", "hgjax", "resample", str(path), "-o", str(full_disk), "--tile", "5",
+                          "--method", "voxel", "--ratio", "0.1", "--quiet"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 1, run.stderr
+    assert "No space left" in run.stderr and str(full_disk) in run.stderr
+    assert os.listdir(full_disk) == []
