@@ -108,6 +108,14 @@ def test_values_that_do_not_fit_a_las_dimension_are_refused(tmp_path):
         io.write_points(tmp_path / "a.las", pts, attributes={"intensity": np.array([0.5, 1.0, 2.0, 3.0])})
     with pytest.raises(ValueError, match="'return_number' does not fit"):
         io.write_points(tmp_path / "a.las", pts, attributes={"return_number": np.array([1, 2, 3, 16])})
+    with pytest.raises(ValueError, match=r"'gps_time' \(int64\) does not fit LAS dimension 'gps_time' \(float64\)"):
+        io.write_points(tmp_path / "a.las", pts, attributes={"gps_time": np.array([0, 1, 2**53, 2**53 + 1])})
+    with pytest.raises(ValueError, match=r"'gps_time' \(uint64\) does not fit"):
+        io.write_points(tmp_path / "a.las", pts, attributes={"gps_time": np.array([0, 1, 2, 2**64 - 1], np.uint64)})
+    exact = np.array([-2**60, 7, 2**53, 2**62], np.int64)  # integers a float64 holds exactly are written
+    io.write_points(tmp_path / "exact.las", pts, attributes={"gps_time": exact})
+    assert io.read_points(tmp_path / "exact.las").attributes["gps_time"].tolist() == exact.tolist()
+    (tmp_path / "exact.las").unlink()
     _make_las(tmp_path / "in.las", "1.2", 3, [])
     data = io.read_points(tmp_path / "in.las")
     with pytest.raises(ValueError, match="coordinates do not fit"):

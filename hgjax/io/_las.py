@@ -180,7 +180,24 @@ def _las_writer(points, attributes, header, binary: bool, compressed: bool, *, c
         except OverflowError as err:
             raise ValueError(f"attribute {name!r} does not fit LAS dimension {name!r}: {err}") from None
         stored = np.asarray(las[name])
-        if not np.array_equal(stored, value, equal_nan=stored.dtype.kind == value.dtype.kind == "f"):
+        if not _exact(stored, value):
             raise ValueError(f"attribute {name!r} ({value.dtype}) does not fit LAS dimension {name!r}"
                              f" ({stored.dtype}) without loss; convert or rename it")
     return lambda fh: las.write(fh, do_compress=compress)
+
+
+def _exact(stored: np.ndarray, value: np.ndarray) -> bool:
+    """Whether ``stored`` (a LAS dimension as written) holds ``value`` exactly.
+
+    NumPy compares integers with floats as floats, where 2**53 + 1 equals 2**53, so an integer
+    column stored as floats is checked exactly in Python for the values beyond the float's
+    significand (``gps_time`` given as int64, lossy above 2**53)."""
+    if value.dtype.kind in "iu" and stored.dtype.kind == "f":
+        if not np.isfinite(stored).all():
+            return False
+        limit = 2 ** (np.finfo(stored.dtype).nmant + 1)
+        beyond = (value > limit) | (value < -limit)
+        if not np.array_equal(stored[~beyond], value[~beyond]):
+            return False
+        return all(int(s) == int(v) for s, v in zip(stored[beyond].tolist(), value[beyond].tolist()))
+    return np.array_equal(stored, value, equal_nan=stored.dtype.kind == value.dtype.kind == "f")
