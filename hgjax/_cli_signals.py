@@ -5,14 +5,16 @@
 the clean-up of partial files runs to its end, and holds a signal that comes inside an import
 until the import ends. The console script ends the process at once instead
 (:func:`_exit_at_once`, :func:`_exit`): unwinding could free arrays that library threads still
-read. This module imports nothing heavy: :func:`hgjax.cli.main` installs the handlers before JAX
-is imported.
+read. The console script itself is :func:`console`, which handles both signals from its first
+statement, before :mod:`hgjax.cli` is imported. This module imports nothing heavy:
+:func:`hgjax.cli.main` installs the handlers before JAX is imported.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
 
 
@@ -27,17 +29,47 @@ SIGNAL_EXITS = {"SIGINT": (130, "interrupted"), "SIGTERM": (143, "terminated")}
 def _exit_at_once(name: str) -> None:
     """End the process for the signal ``name`` without unwinding: remove the partial files
     (:data:`hgjax.io.OPEN_TEMPORARIES`; before hgjax.io is loaded there are none, and it is never
-    imported here, as the signal may have come in the middle of that import), print one line, exit.
+    imported here, as the signal may have come in the middle of that import), end the worker
+    processes this process started (a local Dask cluster's), print one line, exit; nothing this
+    process's other threads print after that line reaches stderr.
 
     Unwinding would free arrays that library threads (SciPy's k-d tree workers, XLA's) may still
-    read, and would turn a signal inside an import into that import's ImportError."""
+    read, and would turn a signal inside an import into that import's ImportError. A worker process
+    left running, or the thread of a local Dask cluster, would print that its connection closed
+    (``CommClosedError``) after the line."""
     io = sys.modules.get("hgjax.io")
     for temp in list(getattr(io, "OPEN_TEMPORARIES", ())):
         with contextlib.suppress(OSError):
             os.unlink(temp)
+    multiprocessing = sys.modules.get("multiprocessing")  # never imported here, as hgjax.io is not
+    for child in getattr(multiprocessing, "active_children", list)():
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            child.kill()
     code, message = SIGNAL_EXITS[name]
     os.write(2, f"hgjax: {message}\n".encode())
+    with contextlib.suppress(OSError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
     os._exit(code)
+
+
+def _at_once(signum, frame) -> None:
+    """The handler of :func:`console` until :func:`hgjax.cli.main` installs its own."""
+    _exit_at_once(signal.Signals(signum).name)
+
+
+def console() -> None:
+    """The ``hgjax`` console script (and ``python -m hgjax``): :func:`hgjax.cli.main`, with SIGINT
+    and SIGTERM ending the run at once (:func:`_exit_at_once`) from the first statement on, while
+    :mod:`hgjax.cli` and the standard library's modules it needs are imported, so that a signal in
+    the first milliseconds prints the run's one line, never a traceback from an import.
+    :func:`hgjax.cli.main` then installs its own handlers in their place (:func:`_signals`).
+    Signals the parent set to be ignored stay ignored."""
+    for signum, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
+        if signal.getsignal(signum) is default:
+            signal.signal(signum, _at_once)
+    from hgjax.cli import main
+
+    main()
 
 
 @contextlib.contextmanager
@@ -52,7 +84,6 @@ def _signals(received: list, exit_now: bool = False):
     and raised when the block ends (with ``exit_now``, the process still ends at once), so that
     it never becomes the ImportError of an extension module stopped while it initialises, nor is
     swallowed by an optional import that catches ImportError."""
-    import signal
     import threading
 
     holding = []
@@ -82,7 +113,7 @@ def _signals(received: list, exit_now: bool = False):
 
     saved = {}
     for signum, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
-        if signal.getsignal(signum) is default:
+        if signal.getsignal(signum) in (default, _at_once):
             saved[signum] = signal.signal(signum, handler)
     try:
         yield held

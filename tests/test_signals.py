@@ -254,3 +254,56 @@ def test_the_command_line_installs_its_handlers_before_numpy_and_jax():
     code = "import sys, hgjax.cli; print(sorted({'numpy', 'jax', 'jaxlib', 'scipy'} & set(sys.modules)))"
     proc = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+
+
+IMPORT_INTERRUPTED = """
+import builtins, os, signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)
+signal.signal(signal.SIGTERM, signal.SIG_DFL)
+importing, sig = builtins.__import__, getattr(signal, sys.argv[1])
+
+def interrupted(name, *args, **kwargs):
+    if name == "argparse" and name not in sys.modules:  # hgjax.cli's first standard-library import
+        os.kill(os.getpid(), sig)
+        time.sleep(0.5)
+    return importing(name, *args, **kwargs)
+
+builtins.__import__ = interrupted
+sys.argv = ["hgjax", "--help"]
+from hgjax._cli_signals import console
+console()
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_the_console_script_imports_the_command_line_ends_it_cleanly(sig):
+    proc = subprocess.run([sys.executable, "-c", IMPORT_INTERRUPTED, sig.name], capture_output=True, text=True,
+                          timeout=120)
+    code, message = MESSAGES[sig]
+    assert (proc.returncode, proc.stderr, proc.stdout) == (code, message + "\n", ""), proc.stderr
+
+
+NOISY_WORKERS = """
+import multiprocessing, os, threading, time
+from hgjax import _cli_signals
+
+def noisy():
+    for _ in range(300):
+        os.write(2, b"distributed.comm.core.CommClosedError: Stream is closed\\n")
+        time.sleep(0.005)
+
+worker = multiprocessing.get_context("fork").Process(target=noisy)
+worker.start()
+threading.Thread(target=noisy, daemon=True).start()
+time.sleep(0.2)
+_cli_signals._exit_at_once("SIGINT")
+"""
+
+
+def test_nothing_is_printed_after_the_interrupted_line_by_workers_or_threads():
+    """A local Dask cluster's worker processes and its thread in this process print that their
+    connections closed; the signal's line is the last one all the same."""
+    proc = subprocess.run([sys.executable, "-c", NOISY_WORKERS], capture_output=True, text=True, timeout=120)
+    lines = proc.stderr.splitlines()
+    assert proc.returncode == 130 and lines[-1] == "hgjax: interrupted" and "CommClosedError" in proc.stderr, lines[-5:]
+    assert lines.count("hgjax: interrupted") == 1
