@@ -65,7 +65,7 @@ def measure(n: int, method: str, repeats: int) -> dict:
     extra = PARAMS.get(method, {})
     host = hgjax.neighbourhoods(p, method)
     eager = hgjax.neighbourhoods(p, method, search="jax")
-    cells = {k: v for k, v in eager.params if k in ("cell_capacity", "cell_edge", "capacity")}
+    cells = {k: v for k, v in eager.params if k in ("cell_slots", "cell_edge", "capacity")}
     build = jax.jit(lambda x: hgjax.neighbourhoods(x, method, search="jax", **cells))
     traced = build(p)
     same = bool(np.array_equal(np.asarray(traced.idx), host.idx)) and int(traced.overflow) == 0

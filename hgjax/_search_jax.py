@@ -1,21 +1,22 @@
-"""Traced neighbour search: the host builder's neighbour sets, in pure JAX (issue 45, phase 1).
+"""Traced neighbour search: the host builder's neighbour sets, in pure JAX, with no capacity to outgrow.
 
 The host builder (:mod:`hgjax.spatial`) answers every query with SciPy's k-d tree, which JAX
-cannot trace. This module answers the same queries with sorted cells, a static capacity and an
-honest overflow flag, so that a search runs under ``jax.jit``, ``jax.vmap`` (equal-N clouds, or a
-padded batch with a per-cloud ``count``) and inside ``jax.grad`` (the choice of neighbours is
-discrete: no gradient flows through it), on any backend.
+cannot trace. This module answers the same queries with sorted cells read in fixed-size steps,
+so that a search runs under ``jax.jit``, ``jax.vmap`` (equal-N clouds, or a padded batch with a
+per-cloud ``count``) and inside ``jax.grad`` (the choice of neighbours is discrete: no gradient
+flows through it), on any backend, and no cloud, density or motion can truncate it.
 
-Algorithm (jax-md's cell list without its dense grid of the box; pytorch3d's ``ball_query``
-with a capacity):
+Algorithm (jax-md's cell list without its dense grid of the box and without its capacity;
+pytorch3d's ``knn_points`` without its (N, N) work):
 
 1. Cells of a traced edge e: ``floor((p - lo) / e)`` per axis, three int32 coordinates; the
    points are sorted by (z, y, x) cell (lexicographic ``lax.sort`` on the three int32 keys, so
    no 64-bit key and no dense grid: a 2 km x 2 km tile costs what a unit box costs).
 2. Sorted by (z, y, x), the three cells x - 1, x, x + 1 of one (z, y) row are one contiguous
    run. A query's 27 neighbouring cells are 9 runs, located by binary searches on the sorted
-   keys and read, laid end to end, through a STATIC number of slots: ``capacity``, the most
-   points a query's 27-cell block may hold.
+   keys and read, laid end to end, ``slots`` candidates at a time: a ``while_loop`` until the
+   fullest block of the rows is read, each step merged into a running selection. ``slots``
+   sets the speed, never the answer.
 3. Exact host keys (below) for the candidates; the first columns by (key, global id), the point
    itself first. ``lax.top_k`` preselects the columns plus ``PRESELECT_EXTRA`` by a float32 key
    that never decreases where the exact key grows: where those float32 keys differ, top_k's
@@ -23,17 +24,18 @@ with a capacity):
    (key, gid); where a block of rows cannot be certain of the preselection (more ties at the
    cut than the margin: lattices, exact duplicates), one exact multi-key ``lax.sort`` of every
    candidate decides (``lax.cond`` each time). Rows are processed in blocks of ``chunk`` rows
-   (``lax.map``): memory is about chunk x capacity candidates, never (N, N).
-4. Levels: a row whose reach (the k-th distance, or the radius) passes the boundary of its
+   (``lax.map``): memory is about chunk x (columns + slots) candidates, never (N, N).
+4. Passes: a row whose reach (the k-th distance, or the radius) passes the boundary of its
    27-cell block (less a rounding margin) is searched again at a wider edge that covers what
-   it found, with the other such rows (``spill`` at a time, compacted, up to ``LEVELS``
-   searches; one ``while_loop``), so the few rows a sampled edge misses (corners, sparse
-   patches) cost a few extra rows, not a wider edge for every row.
-5. Honest overflow: a query whose block holds more points than the capacity, or whose reach
-   still passes its block after the last level, could be wrong; the result says so
-   (:attr:`Found.overflow`) with the capacity and the edge that would do
-   (:attr:`Found.needed`, :attr:`Found.edge_needed`). :func:`grown` re-runs eagerly until no
-   overflow: a neighbourhood is never silently truncated.
+   it found, with the other such rows (``spill`` at a time, compacted; one ``while_loop``), so
+   the few rows a sampled edge misses (corners, sparse patches) cost a few extra rows, not a
+   wider edge for every row. The edge only grows, so the passes end: at the latest when one
+   block holds the whole cloud.
+5. Honest report: a ball wider than its static columns, or a reach still outside its block
+   after :data:`PASSES` passes, could be wrong; the result says so (:attr:`Found.overflow`)
+   with the columns and the edge that would do (:attr:`Found.columns_needed`,
+   :attr:`Found.edge_needed`). :func:`grown` re-runs eagerly until no overflow; the
+   neighbourhood builders stop a traced program that overflows (:func:`hgjax._traced.guard`).
 
 Same answers as the host, bit for bit, by the exact arithmetic of :mod:`hgjax._exact`:
 
@@ -54,18 +56,17 @@ HKC/HKF's per-point spacing (:func:`hgjax.spatial.local_spacing`) is :func:`loca
 ball is :func:`within` with ``max_count``; GFR's capped radius graph is :func:`knn` with
 ``metric="l2sq"`` and ``radius``.
 
-Speed (2-core CPU, loaded, box surface of 1e5 points, kNN16): 6-8x the cKDTree floor (build and
-query on a Morton-sorted copy) in one process, float32 pairs and x64 alike; the k-d tree stays
-the CPU default. The selection (``top_k`` over ``capacity`` slots) and the binary searches
-dominate; both are the fast path of an accelerator.
+On a CPU the k-d tree stays the default (``bench/results/device_search.md``): the selection
+(``top_k`` over the slots read) and the binary searches dominate, both the fast path of an
+accelerator.
 
 Why not a library: ``jax-md``'s ``partition.cell_list`` allocates a dense grid of the box
 (a 2 km tile at 0.5 m cells is 6e10 cells), answers radius queries only, and breaks ties by
 memory order; ``jaxkd`` (a JAX k-d tree) has no (distance, index) tie order, computes in the
-working dtype (not the host's float64), has no capacity or overflow report and measured 10-25x
-the cKDTree floor here (issue 45). Neither gives the host's neighbour sets.
+working dtype (not the host's float64) and measured 10-25x the cKDTree floor here. Neither gives
+the host's neighbour sets.
 
-Sizes that set shapes are static and recompile: ``k``, ``columns``, ``capacity``, ``chunk``,
+Sizes that set shapes are static and recompile: ``k``, ``columns``, ``slots``, ``chunk``,
 ``dedupe``, ``metric``, ``max_count`` and N. Float parameters (``edge``, ``radius``) and
 ``count`` are traced.
 """
@@ -94,14 +95,15 @@ EDGE_MARGIN = 1.1  # default edge: the largest sampled reach times this
 CHUNK = 256  # rows per block of the search on a CPU
 ACCELERATOR_CHUNK = 8192  # rows per block on a GPU/TPU: fewer, wider steps keep the device busy
 SPILL_FRACTION = 8  # by default up to N / 8 rows at a time are searched again at a wider edge
-LEVELS = 4  # searches of a row at most (the first level and three wider ones)
+SLOTS = 128  # candidates a query reads per step of its block (a speed setting: blocks are read whole)
+PASSES = 64  # later passes at most (each up to ``spill`` rows at a wider edge) before a row is reported uncovered
 METRICS = ("l2", "l2sq", "linf")
+_KEYS = ("hi", "lo", "gid", "cidx")  # a candidate's fields: exact key (hi, lo), tie key, caller index
 
 
 @functools.partial(jax.tree_util.register_dataclass,
-                   data_fields=["idx", "dist", "reach", "needed", "columns_needed", "uncovered", "edge",
-                                "edge_needed"],
-                   meta_fields=["capacity"])
+                   data_fields=["idx", "dist", "reach", "columns_needed", "uncovered", "edge", "edge_needed"],
+                   meta_fields=["slots"])
 @dataclasses.dataclass(frozen=True)
 class Found:
     """The result of a traced search: padded neighbour rows and an honest overflow report.
@@ -118,32 +120,29 @@ class Found:
         ``metric="l2sq"``, Chebyshev for ``"linf"``.
       reach: (N,) per row: the k-th distance (:func:`knn`; inf where fewer than k points
         exist) or the radius used (:func:`within`, shrunk by ``max_count``).
-      needed: int32 scalar, the most points any query's 27-cell block held: the capacity
-        that holds every block.
       columns_needed: int32 scalar, the widest row (:func:`within`; ``k`` or fewer for knn).
       uncovered: bool scalar, True when some row's reach still passed the boundary of its
         27-cell block after the last level (points outside it may belong to the row).
       edge: scalar, the first level's cell edge (the one to pass again).
       edge_needed: scalar, an edge that covers every row seen (inf when some row found
         fewer than k points and its block is not the whole cloud: grow the edge).
-      capacity: the static capacity used (candidate slots per query).
+      slots: the candidates a query read per step (static; any block is read whole).
     """
 
     idx: jax.Array
     dist: jax.Array
     reach: jax.Array
-    needed: jax.Array
     columns_needed: jax.Array
     uncovered: jax.Array
     edge: jax.Array
     edge_needed: jax.Array
-    capacity: int = 0
+    slots: int = 0
 
     @property
     def overflow(self):
-        """bool (scalar, or (B,) under vmap): the result may be wrong (a block over capacity, a
-        row wider than ``idx``, or a reach outside its block); re-run with :func:`grown`."""
-        return (self.needed > self.capacity) | (self.columns_needed > self.idx.shape[-1]) | self.uncovered
+        """bool (scalar, or (B,) under vmap): the result may be wrong (a row wider than ``idx``,
+        or a reach outside its block after the last pass); re-run with :func:`grown`."""
+        return (self.columns_needed > self.idx.shape[-1]) | self.uncovered
 
 
 # ----------------------------------------------------------------------------- distance keys
@@ -317,36 +316,52 @@ def _lower_bound(keys, q):
 _ROWS = tuple(itertools.product((-1, 0, 1), repeat=2))  # (dz, dy) of the 9 runs
 
 
-def _candidates(cloud: _Cloud, qi, capacity: int, metric: str):
-    """The candidates of the queries ``qi`` (B,) (caller indices) and their exact keys.
+def _block(cloud: _Cloud, qi):
+    """Where the queries ``qi`` (B,) (caller indices) read their 27-cell blocks.
 
-    The 9 runs of a query's 27-cell block are read through ``capacity`` compact slots: slot j
-    is the j-th point of the runs laid end to end, so the capacity bounds the block's points,
-    not each run's.
+    Sorted by (z, y, x) cell, a block is 9 runs of the sorted candidates (three cells of one
+    (z, y) row each), located by binary searches.
 
     Returns:
-      dict of (B, C) ``hi``, ``lo`` (None under x64), ``gid`` and ``cidx`` (caller index, -1
-      where no candidate), and (B,) ``slack`` (the distance the block is known to cover),
-      ``complete`` (the block holds every candidate of the cloud) and ``count`` (the
-      block's points: the capacity needed).
+      dict of (B, 9) ``begin`` and ``ends`` (where each run starts among the sorted candidates,
+      and where it ends among the block's slots laid end to end) and (B,) ``slack`` (the
+      distance the block is known to cover), ``complete`` (the block holds every candidate of
+      the cloud) and ``count`` (the block's candidates).
     """
-    n = cloud.coords.shape[0]
-    b = qi.shape[0]
     cell = cloud.qcell[qi]  # (B, 3) x, y, z
     dz = jnp.array([r[0] for r in _ROWS], jnp.int32)
     dy = jnp.array([r[1] for r in _ROWS], jnp.int32)
     z, y = cell[:, 2:3] + dz[None, :], cell[:, 1:2] + dy[None, :]  # (B, 9)
     x = jnp.broadcast_to(cell[:, 0:1], z.shape)
     begin = _lower_bound(cloud.keys, (z, y, x - 1))
-    length = _lower_bound(cloud.keys, (z, y, x + 2)) - begin
-    ends = jnp.cumsum(length, axis=1)  # (B, 9) where each run ends among the slots
-    slot = jnp.arange(capacity, dtype=jnp.int32)
-    run = jnp.sum(slot[None, :, None] >= ends[:, None, :], axis=2)  # (B, C) which run a slot reads
+    ends = jnp.cumsum(_lower_bound(cloud.keys, (z, y, x + 2)) - begin, axis=1)
+    # The block [c - 1, c + 2) per axis, in edges from the query, less the rounding margin.
+    t = (cloud.coords[qi] - cloud.lo[None, :]) / cloud.edge
+    c = cell.astype(t.dtype)
+    room = jnp.min(jnp.minimum(t - (c - 1), (c + 2) - t), axis=1)
+    count = ends[:, -1]
+    return dict(begin=begin, ends=ends, slack=cloud.edge * (room - cloud.delta), complete=count == cloud.n_cand,
+                count=count)
+
+
+def _slots(cloud: _Cloud, qi, block, offset, slots: int, metric: str):
+    """The candidates in slots [offset, offset + slots) of each query's block and their exact keys.
+
+    Slot j is the j-th point of the block's 9 runs laid end to end.
+
+    Returns:
+      dict of (B, slots) ``hi``, ``lo`` (None under x64), ``gid`` and ``cidx`` (caller index,
+      -1 where the slot is past the block's end).
+    """
+    n = cloud.coords.shape[0]
+    begin, ends = block["begin"], block["ends"]
+    slot = offset + jnp.arange(slots, dtype=jnp.int32)
+    run = jnp.sum(slot[None, :, None] >= ends[:, None, :], axis=2)  # (B, S) which run a slot reads
     valid = run < len(_ROWS)
     run = jnp.minimum(run, len(_ROWS) - 1)
-    start = jnp.take_along_axis(ends - length, run, axis=1)
-    pos = jnp.minimum(jnp.take_along_axis(begin, run, axis=1) + slot[None, :] - start, n - 1)
-    cand = cloud.cpoint[pos]  # (B, C, 3)
+    start = jnp.take_along_axis(jnp.concatenate([jnp.zeros_like(ends[:, :1]), ends[:, :-1]], axis=1), run, axis=1)
+    pos = jnp.clip(jnp.take_along_axis(begin, run, axis=1) + slot[None, :] - start, 0, n - 1)
+    cand = cloud.cpoint[pos]  # (B, S, 3)
     q = cloud.coords[qi][:, None, :]
     cidx = cloud.cidx[pos]
     me = cidx == qi[:, None]
@@ -357,13 +372,40 @@ def _candidates(cloud: _Cloud, qi, capacity: int, metric: str):
         lo = jnp.where(valid & ~me, lo, 0)
     hi = jnp.where(valid, jnp.where(me, -1, hi), jnp.inf)
     gid = jnp.where(valid, cloud.gid[cidx], np.iinfo(np.int32).max)
-    # The block [c - 1, c + 2) per axis, in edges from the query, less the rounding margin.
-    t = (cloud.coords[qi] - cloud.lo[None, :]) / cloud.edge
-    c = cell.astype(t.dtype)
-    room = jnp.min(jnp.minimum(t - (c - 1), (c + 2) - t), axis=1)
-    count = ends[:, -1]
-    return dict(hi=hi, lo=lo, gid=gid, cidx=jnp.where(valid, cidx, -1), slack=cloud.edge * (room - cloud.delta),
-                complete=count == cloud.n_cand, count=count)
+    return dict(hi=hi, lo=lo, gid=gid, cidx=jnp.where(valid, cidx, -1))
+
+
+def _scan(cloud: _Cloud, qi, block, width: int, slots: int, metric: str, fold=None, acc=None):
+    """The first ``width`` candidates of each query's whole block by (key, global id), exactly.
+
+    The block is read ``slots`` at a time (a ``while_loop`` until the fullest block of the
+    rows is read) and merged into a running selection, so no block is ever truncated and
+    memory is about B x (width + slots) candidates whatever the density. ``fold(acc, c)``
+    also sees every chunk of candidates (e.g. to count those inside a radius).
+
+    Returns:
+      (best, acc): dict of (B, width) ``hi``, ``lo``, ``gid``, ``cidx`` (inf keys and -1
+      past the block's candidates), and the folded value.
+    """
+    def read(offset, best, acc):
+        c = _slots(cloud, qi, block, offset, slots, metric)
+        if fold is not None:
+            acc = fold(acc, c)
+        if best is not None:
+            c = {name: (None if c[name] is None else jnp.concatenate([best[name], c[name]], axis=1))
+                 for name in _KEYS}
+        return _select(c, width), acc
+
+    best, acc = read(jnp.int32(0), None, acc)
+    total = jnp.max(block["count"])
+
+    def step(state):
+        offset, best, acc = state
+        best, acc = read(offset, best, acc)
+        return offset + slots, best, acc
+
+    _, best, acc = lax.while_loop(lambda s: s[0] < total, step, (jnp.int32(slots), best, acc))
+    return best, acc
 
 
 def _exact_less(a, b):
@@ -523,14 +565,14 @@ def _spill(spill, n: int) -> int:
     return int(spill)
 
 
-def _check(points, k_or_columns: int, capacity: int, chunk: int, metric: str):
+def _check(points, k_or_columns: int, slots: int, chunk: int, metric: str):
     if points.ndim != 2 or points.shape[-1] != 3:
         raise ValueError(f"points must have shape (N, 3); got {points.shape}")
     if not jnp.issubdtype(points.dtype, jnp.floating):
         raise TypeError(f"points must be floating point; got {points.dtype}")
     if points.shape[0] < 1:
         raise ValueError("points must hold at least one point")
-    for name, value in (("k", k_or_columns), ("capacity", capacity), ("chunk", chunk)):
+    for name, value in (("k", k_or_columns), ("slots", slots), ("chunk", chunk)):
         if name == "chunk" and value is None:
             continue
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
@@ -549,7 +591,7 @@ def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int, f
 
     One ``while_loop`` of passes over ``size`` rows each (``lax.map`` over chunks inside), so
     the row kernel is compiled once: the first passes take the rows in cell order at ``edge``;
-    each later pass (a level, up to ``LEVELS`` searches of a row, none when ``spill`` is 0)
+    each later pass (up to :data:`PASSES`, none when ``spill`` is 0)
     takes up to ``size`` rows whose reach passed their block (compacted), at an edge that
     covers the reaches they found (four times the last edge where a row found too few).
 
@@ -560,7 +602,7 @@ def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int, f
     n = cloud.coords.shape[0]
     size = -(-max(1, min(n, spill or n // SPILL_FRACTION)) // chunk) * chunk
     first = -(-n // size)  # passes of the first level
-    last_pass = first + (LEVELS - 1 if spill else 0)
+    last_pass = first + (PASSES if spill else 0)
     order = jnp.concatenate([cloud.qorder, jnp.full(first * size - n, n, jnp.int32)])  # n: no row
     shapes = jax.eval_shape(functools.partial(rows, cloud), jnp.zeros(chunk, jnp.int32))
     out = jax.tree.map(lambda x: jnp.zeros((n,) + x.shape[1:], x.dtype), shapes)
@@ -594,7 +636,7 @@ def _run(points, count, gid, edge, dedupe: bool, rows, chunk: int, spill: int, f
     return out, cloud
 
 
-def _found(cloud: _Cloud, out, capacity: int, columns_needed, empty_reach) -> Found:
+def _found(cloud: _Cloud, out, slots: int, columns_needed, empty_reach) -> Found:
     """The :class:`Found` of per-row outputs: padding rows emptied, the overflow report summed up."""
     n = cloud.coords.shape[0]
     real = cloud.real
@@ -603,13 +645,13 @@ def _found(cloud: _Cloud, out, capacity: int, columns_needed, empty_reach) -> Fo
     return Found(jnp.where(real[:, None], out["idx"], n).astype(jnp.int32),
                  jnp.where(real[:, None], out["dist"], jnp.inf),
                  jnp.where(real, out["reach"], empty_reach),
-                 needed=jnp.max(jnp.where(real, out["needed"], 0)), columns_needed=columns_needed,
-                 uncovered=jnp.any(bad), edge=cloud.edge, edge_needed=edge_needed, capacity=capacity)
+                 columns_needed=columns_needed, uncovered=jnp.any(bad), edge=cloud.edge, edge_needed=edge_needed,
+                 slots=slots)
 
 
 # ----------------------------------------------------------------------------- public queries
 
-def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None, count=None, gid=None,
+def knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, count=None, gid=None,
         radius=None, metric: str = "l2", chunk: int | None = None, spill: int | None = None,
         frame: bool = True) -> Found:
     """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.spatial.knn`, traced.
@@ -622,8 +664,8 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
       k: neighbourhood size counting the point itself (static).
       dedupe: count exact duplicates once, as the host's ``dedupe`` (static): every copy gets
         the row of its location, whose first column is the location's first copy.
-      capacity: candidate slots per query, the most points its 27-cell block may hold
-        (static); too small is reported, never silently truncated.
+      slots: candidates a query reads per step of its block (static; a speed setting only:
+        every block is read whole, however many points it holds).
       edge: the cell edge (traced), or None for a default from the data (the largest k-th
         distance of 64 sampled points, brute force, times 1.1).
       count: int32 scalar, the number of real points (the first ``count`` rows; traced), or
@@ -635,10 +677,10 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
       metric: ``"l2"`` (the host's k-nearest: rank by the rooted distance), ``"l2sq"`` (rank
         by squared distances, as GFR) or ``"linf"`` (Chebyshev) (static).
       chunk: rows per block (static; default :data:`CHUNK` on CPU, :data:`ACCELERATOR_CHUNK` on a
-        GPU/TPU): memory is about chunk x capacity candidates.
+        GPU/TPU): memory is about chunk x (k + slots) candidates.
       spill: rows searched again, at a time, at a wider edge when their reach passes their
         block (static; default N / 8, rounded up to whole chunks; 0: none), for at most
-        ``LEVELS`` searches of a row. The default edge comes from a sample, so the few rows it
+        :data:`PASSES` passes. The default edge comes from a sample, so the few rows it
         misses (corners, sparse patches) are redone here, not by the caller; rows still
         missed are reported (``uncovered``).
       frame: under x64, move the points to the host's local frame first (static); False for
@@ -656,19 +698,19 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
       >>> import numpy as np, jax
       >>> from hgjax import _search_jax
       >>> p = np.random.default_rng(0).random((200, 3)).astype(np.float32)
-      >>> found = jax.jit(lambda p: _search_jax.knn(p, 8, capacity=256))(p)
+      >>> found = jax.jit(lambda p: _search_jax.knn(p, 8))(p)
       >>> found.idx.shape, bool(found.overflow), bool((found.idx[:, 0] == np.arange(200)).all())
       ((200, 8), False, True)
     """
     points = jnp.asarray(points)
-    _check(points, k, capacity, chunk, metric)
+    _check(points, k, slots, chunk, metric)
     n = points.shape[0]
     e = _edge(points, count, edge, dedupe, k, frame)
     bound = None if radius is None else jnp.broadcast_to(jnp.asarray(radius, e.dtype), (n,))
 
     def rows(cloud, qi):
-        c = _candidates(cloud, qi, capacity, metric)
-        s = _select(c, k)
+        block = _block(cloud, qi)
+        s, _ = _scan(cloud, qi, block, k, slots, metric)
         hi, lo = s["hi"], s["lo"]
         found = hi < jnp.inf
         if bound is not None:
@@ -676,16 +718,15 @@ def knn(points, k: int, *, dedupe: bool = False, capacity: int = 128, edge=None,
         value = _in_units(hi, metric)
         reach = jnp.where(found[:, -1], value[:, -1], jnp.inf)
         limit = _as_distance(reach if bound is None else jnp.minimum(reach, bound[cloud.rep[qi]]), metric)
-        # a block over capacity says nothing about coverage (its reach is wrong): reported by ``needed``
-        ok = c["complete"] | (limit < c["slack"]) | (c["count"] > capacity)
+        ok = block["complete"] | (limit < block["slack"])
         return dict(idx=jnp.where(found, s["cidx"], n), dist=jnp.where(found, value, jnp.inf), reach=reach,
-                    limit=limit, ok=ok, needed=c["count"])
+                    limit=limit, ok=ok)
 
     out, cloud = _run(points, count, gid, e, dedupe, rows, _chunk(chunk, n), _spill(spill, n), frame)
-    return _found(cloud, out, capacity, jnp.int32(k), jnp.inf)
+    return _found(cloud, out, slots, jnp.int32(k), jnp.inf)
 
 
-def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int = 128, edge=None, count=None,
+def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = SLOTS, edge=None, count=None,
            gid=None, metric: str = "l2", max_count: int | None = None, chunk: int | None = None,
            spill: int | None = None, radius_lo=None) -> Found:
     """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
@@ -698,7 +739,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
         float dtype (float64 under x64). With ``dedupe`` every copy uses its location's first
         copy's radius (the host queries each location once).
       columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
-      dedupe, capacity, edge, count, gid, chunk, spill: as :func:`knn`. The default edge is the
+      dedupe, slots, edge, count, gid, chunk, spill: as :func:`knn`. The default edge is the
         largest radius times 1.1 (traced).
       metric: ``"l2"``, ``"l2sq"`` (``radius`` is then a squared radius) or ``"linf"`` (static).
       max_count: the host's ``max_count`` (static): a row whose ball holds ``max_count``
@@ -723,7 +764,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
       ([2, 2, 1], False)
     """
     points = jnp.asarray(points)
-    _check(points, columns, capacity, chunk, metric)
+    _check(points, columns, slots, chunk, metric)
     if max_count is not None and (not isinstance(max_count, int) or max_count < 1):
         raise ValueError(f"max_count must be a positive int or None; got {max_count!r}")
     n = points.shape[0]
@@ -734,41 +775,38 @@ def within(points, radius, *, columns: int, dedupe: bool = False, capacity: int 
     if edge is None:
         top = jnp.max(jnp.where(real, bound, 0))
         edge = EDGE_MARGIN * (jnp.sqrt(top) if metric == "l2sq" else top)
+    width = columns if max_count is None else max(columns, max_count)
+
     def rows(cloud, qi):
-        c = _candidates(cloud, qi, capacity, metric)
+        block = _block(cloud, qi)
         h = bound[cloud.rep[qi]]  # with dedupe, every copy asks its location's first copy's query
         h_lo = None if bound_lo is None else bound_lo[cloud.rep[qi]]
-        inside = _below(c["hi"], c["lo"], h, metric, h_lo)  # (B, C) every candidate, exactly
-        used = h
-        cut = None
-        if max_count is not None:  # a full ball shrinks to exclude its max_count-th point
-            full = jnp.sum(inside, axis=1) >= max_count
-            m = max_count - 1
 
-            def kth():
-                s = _sorted_exact(c, max_count)
-                return jnp.maximum(s["hi"][:, m], 0), (jnp.zeros_like(h) if s["lo"] is None else
-                                                       jnp.where(s["hi"][:, m] < 0, 0, s["lo"][:, m]))
+        def inside(acc, c):  # every candidate of the ball, counted exactly
+            return acc + jnp.sum(_below(c["hi"], c["lo"], h, metric, h_lo), axis=1, dtype=jnp.int32)
 
-            cut = lax.cond(jnp.any(full), kth, lambda: (jnp.zeros_like(c["hi"][:, 0]),) * 2)
-            below_cut = _exact.pair_less(c["hi"], jnp.zeros_like(c["hi"]) if c["lo"] is None else c["lo"],
-                                         cut[0][:, None], cut[1][:, None])
-            inside = jnp.where(full[:, None], below_cut, inside)
-            used = jnp.where(full, _in_units(cut[0], metric), h)
-        s = _select(c, columns)
+        s, held = _scan(cloud, qi, block, width, slots, metric, inside, jnp.zeros(qi.shape, jnp.int32))
         take = _below(s["hi"], s["lo"], h, metric, h_lo)
-        if cut is not None:
+        used = h
+        if max_count is not None:  # a full ball shrinks to exclude its max_count-th point
+            full = held >= max_count
+            m = max_count - 1
+            cut_hi = jnp.maximum(s["hi"][:, m], 0)
+            cut_lo = jnp.zeros_like(h) if s["lo"] is None else jnp.where(s["hi"][:, m] < 0, 0, s["lo"][:, m])
             below_cut = _exact.pair_less(s["hi"], jnp.zeros_like(s["hi"]) if s["lo"] is None else s["lo"],
-                                         cut[0][:, None], cut[1][:, None])
+                                         cut_hi[:, None], cut_lo[:, None])
             take = jnp.where(full[:, None], below_cut, take)
-        ok = c["complete"] | (_as_distance(used, metric) < c["slack"]) | (c["count"] > capacity)
-        return dict(idx=jnp.where(take, s["cidx"], n), dist=jnp.where(take, _in_units(s["hi"], metric), jnp.inf),
-                    reach=used, limit=_as_distance(used, metric), ok=ok, needed=c["count"],
-                    width=jnp.sum(inside, axis=1))
+            held = jnp.where(full, jnp.sum(below_cut, axis=1, dtype=jnp.int32), held)
+            used = jnp.where(full, _in_units(cut_hi, metric), h)
+        take = take[:, :columns]
+        ok = block["complete"] | (_as_distance(used, metric) < block["slack"])
+        return dict(idx=jnp.where(take, s["cidx"][:, :columns], n),
+                    dist=jnp.where(take, _in_units(s["hi"][:, :columns], metric), jnp.inf),
+                    reach=used, limit=_as_distance(used, metric), ok=ok, width=held)
 
     out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, _chunk(chunk, n), _spill(spill, n))
     columns_needed = jnp.max(jnp.where(cloud.real, out["width"], 0)).astype(jnp.int32)
-    return _found(cloud, out, capacity, columns_needed, 0)
+    return _found(cloud, out, slots, columns_needed, 0)
 
 
 # ----------------------------------------------------------------------------- HKC/HKF's spacing
@@ -795,7 +833,7 @@ def local_spacing(found: Found):
       >>> import numpy as np
       >>> from hgjax import _search_jax
       >>> p = np.c_[np.mgrid[0:8, 0:8].reshape(2, -1).T, np.zeros(64)].astype(np.float32)
-      >>> s, _ = _search_jax.local_spacing(_search_jax.knn(p, 17, dedupe=True, capacity=64))
+      >>> s, _ = _search_jax.local_spacing(_search_jax.knn(p, 17, dedupe=True))
       >>> round(float(s[27]), 3)  # inside an 8 x 8 grid of spacing 1
       0.991
     """
@@ -818,20 +856,18 @@ def bucket(width: int) -> int:
     return max(8, 1 << max(0, int(width) - 1).bit_length())
 
 
-def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int = 12, **kwargs) -> Found:
+def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Found:
     """Run ``query`` (:func:`knn` or :func:`within`) eagerly until it does not overflow (host loop, not jittable).
 
-    Each round is one jitted call; a round that overflows is run again with the capacity
-    (and, for :func:`within`, the columns) that it reports needed, rounded up to a power of
-    two, or, when the capacity sufficed, with the edge it reports needed (four times the edge
-    where a row found too few points). Nothing is ever truncated: the result is the traced
-    query's exact answer.
+    Each round is one jitted call; a round that overflows is run again with the columns (of
+    :func:`within`) that it reports needed, rounded up to a power of two, or with the edge it
+    reports needed (four times the edge where a row found too few points). Nothing is ever
+    truncated: the result is the traced query's exact answer.
 
     Args:
       query: :func:`knn` or :func:`within`.
       points, *args, **kwargs: the query's arguments (``k`` of :func:`knn` and ``radius`` of
         :func:`within` may be positional).
-      capacity: the first round's capacity.
       edge: the first round's edge (default: the query's own default).
       max_rounds: rounds before giving up.
 
@@ -845,34 +881,31 @@ def grown(query, points, *args, capacity: int = 128, edge=None, max_rounds: int 
       >>> import numpy as np
       >>> from hgjax import _search_jax
       >>> p = np.random.default_rng(0).random((300, 3))
-      >>> found = _search_jax.grown(_search_jax.knn, p, 16, capacity=8)
-      >>> bool(found.overflow), found.capacity >= 8
+      >>> found = _search_jax.grown(_search_jax.within, p, 0.2, columns=8)
+      >>> bool(found.overflow), found.idx.shape[1] >= int(found.columns_needed)
       (False, True)
     """
     first = "k" if query is knn else "radius"
     if args:
         kwargs[first] = args[0]
     static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk", "spill",
-                                                  "frame")
+                                                  "frame", "slots")
               if name in kwargs}
     found = None
     for _ in range(max_rounds):
-        found = _jitted(query, tuple(sorted(static.items())), capacity)(points, edge=edge, **kwargs)
+        found = _jitted(query, tuple(sorted(static.items())))(points, edge=edge, **kwargs)
         if not bool(found.overflow):
             return found
         if "columns" in static and int(found.columns_needed) > static["columns"]:
             static["columns"] = bucket(int(found.columns_needed))
         edge = found.edge
-        if int(found.needed) > capacity:  # first the capacity: an overflowing block's reach means nothing
-            capacity = bucket(int(found.needed))
-        elif bool(found.uncovered):
+        if bool(found.uncovered):
             need = float(found.edge_needed)
             edge = need if math.isfinite(need) else 4 * float(found.edge)
-    raise RuntimeError(f"the traced search still overflows after {max_rounds} rounds (capacity {capacity}, "
-                       f"edge {float(found.edge)!r})")
+    raise RuntimeError(f"the traced search still overflows after {max_rounds} rounds (edge {float(found.edge)!r})")
 
 
 @functools.lru_cache(maxsize=None)
-def _jitted(query, static: tuple, capacity: int):
-    """``query`` jitted with its static arguments bound: one compiled program per (static, capacity, shape)."""
-    return jax.jit(functools.partial(query, capacity=capacity, **dict(static)))
+def _jitted(query, static: tuple):
+    """``query`` jitted with its static arguments bound: one compiled program per (static, shape)."""
+    return jax.jit(functools.partial(query, **dict(static)))

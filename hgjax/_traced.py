@@ -1,12 +1,13 @@
 """Neighbourhoods from the traced search (``search="jax"``): :mod:`hgjax._search_jax` made into a :class:`hgjax.Neighbourhoods`.
 
 The same pytree as the host builders (:func:`hgjax.spatial.knn`), built in pure JAX: under
-``jax.jit`` (static N, k and capacities), ``jax.vmap`` and inside ``jax.grad`` (the choice of
+``jax.jit`` (static N, k and columns), ``jax.vmap`` and inside ``jax.grad`` (the choice of
 neighbours is discrete, so no gradient flows through it; the points returned are a smooth
-function of the input). Called eagerly, a search that overflows its cell capacity or edge is
-run again with what it reports needed (:func:`hgjax._search_jax.grown`); under ``jit`` the
-overflow is recorded on the result (:attr:`hgjax.Neighbourhoods.overflow`) and
-:func:`hgjax.score` refuses it eagerly.
+function of the input). The k-nearest search has no capacity: it reads every candidate a
+query's cells hold, so nothing is ever truncated and nothing needs sizing. What can still
+overflow (a ball or a graph row wider than its static columns) stops the program:
+:func:`guard` raises eagerly, and under ``jit`` the compiled program raises when it runs,
+naming the ``capacity`` needed, instead of returning a truncated result.
 
 The points are moved to the host's local frame (the bounding-box centre subtracted) with
 the centre carried exactly (TwoSum), so the float32 coordinates equal the host's float64
@@ -22,28 +23,29 @@ import numpy as np
 
 from hgjax import _exact, _search_jax, _stream, _validate, spatial
 
-__all__ = ["CELL_CAPACITY", "SEARCHES", "build_knn", "check", "default_search", "index_knn", "knn", "local_frame"]
+__all__ = ["CELL_SLOTS", "SEARCHES", "build_knn", "check", "default_search", "guard", "index_knn", "knn",
+           "local_frame"]
 
-CELL_CAPACITY = 128
-"""Candidate slots per query of the traced search (points its 27-cell block may hold; static)."""
+CELL_SLOTS = _search_jax.SLOTS
+"""Candidates a query of the traced search reads per step (static; a speed setting, never a limit)."""
 SEARCHES = ("host", "jax")
 """The neighbour searches: SciPy's k-d tree on the host, or the traced search."""
 
 
 def build_knn(points, k: int, *, dedupe: bool, capacity: int | None, search: str = "host",
-              cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+              cell_slots: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
     """The k-nearest neighbourhoods of the k-nearest methods (EA, PCA-AC, LHF, MSS) by either search.
 
     Args:
       points: (N, 3) float32 or float64; may be a tracer with ``search="jax"``.
       k, dedupe, capacity: as :func:`hgjax.spatial.knn`.
       search: ``"host"`` (:func:`hgjax.spatial.knn`, SciPy; not jittable) or ``"jax"``
-        (:func:`knn`: jit, vmap, grad; the same neighbour sets).
-      cell_capacity: the traced search's candidate slots per query (static; default
-        :data:`CELL_CAPACITY`; eagerly it grows until nothing overflows).
-      cell_edge: the traced search's cell edge (traced), or None for one from the data.
-        An eager build records the capacity and edge it ended with (``nb.params``), to pass
-        to the same search inside ``jit`` (jax-md's allocate, then update).
+        (:func:`knn`: jit, vmap, grad; the same neighbourhoods, exact for any cloud with no
+        sizes passed).
+      cell_slots: candidates the traced search reads per step (static; default
+        :data:`CELL_SLOTS`): a speed setting, never a limit.
+      cell_edge: the traced search's first cell edge (traced), or None for one from the data;
+        rows it misses are searched again at a wider edge, so it too sets only the speed.
 
     Raises:
       TypeError, ValueError: invalid arguments.
@@ -57,8 +59,8 @@ def build_knn(points, k: int, *, dedupe: bool, capacity: int | None, search: str
     _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
     dedupe = _validate.check_bool(dedupe, "dedupe")
-    cells = CELL_CAPACITY if cell_capacity is None else _validate.check_int(cell_capacity, "cell_capacity", minimum=1)
-    return knn(pts, k, dedupe=dedupe, capacity=cap, cell_capacity=cells, cell_edge=cell_edge,
+    slots = CELL_SLOTS if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
+    return knn(pts, k, dedupe=dedupe, capacity=cap, cell_slots=slots, cell_edge=cell_edge,
                params={"k": k, "dedupe": dedupe})
 
 
@@ -79,7 +81,7 @@ def local_frame(points) -> jax.Array:
     return a + (err - e / 2)
 
 
-def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_capacity: int = CELL_CAPACITY, cell_edge=None,
+def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int = CELL_SLOTS, cell_edge=None,
         params: dict) -> spatial.Neighbourhoods:
     """k-nearest neighbourhoods as :func:`hgjax.spatial.knn` builds them, by the traced search.
 
@@ -88,29 +90,27 @@ def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_capacity: in
       k: neighbourhood size, counting the point itself (static).
       dedupe: count exact duplicates once (static).
       capacity: columns of ``idx`` (static, >= k), default k.
-      cell_capacity: the traced search's candidate slots per query (static); eagerly, only
-        the first round's: it grows until nothing overflows.
-      cell_edge: the cell edge (traced), or None for one from the data.
-      params: the build parameters recorded on the result (``search`` added; eagerly also the
-        ``cell_capacity`` and ``cell_edge`` the search ended with).
+      cell_slots: candidates read per step (static).
+      cell_edge: the first cell edge (traced), or None for one from the data.
+      params: the build parameters recorded on the result (``search`` added).
 
     Returns:
-      :class:`hgjax.Neighbourhoods` with the host's ``idx`` (N, K) int32, padded with N;
-      ``overflow`` 0 unless a traced call overflowed (then the capacity it needs, or -1).
+      :class:`hgjax.Neighbourhoods` with the host's ``idx`` (N, K) int32, padded with N.
+
+    Raises:
+      ValueError: eagerly, or when the compiled program runs, a search that could not cover
+        some row (:func:`guard`).
     """
     p = jnp.asarray(points)
     n = p.shape[0]
     if _stream.is_traced(p):
         local = local_frame(p)
-        found = _search_jax.knn(p, k, dedupe=dedupe, capacity=cell_capacity, edge=cell_edge)
-        needed = jnp.maximum(found.needed, cell_capacity)
-        overflow = jnp.where(found.overflow, jnp.where(found.uncovered, -1, needed), 0).astype(jnp.int32)
+        found = _search_jax.knn(p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
     else:  # concrete: the host's own local frame (float64 input keeps its bits until the cast)
         host = np.asarray(points)
         local = jnp.asarray(spatial.local_frame(host)[0].astype(spatial.working_dtype(host.dtype)))
-        found = _search_jax.grown(_search_jax.knn, p, k, dedupe=dedupe, capacity=cell_capacity, edge=cell_edge)
-        overflow = jnp.zeros((), jnp.int32)
-        params = {**params, "cell_capacity": found.capacity, "cell_edge": float(found.edge)}
+        found = _search_jax.grown(_search_jax.knn, p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
+    overflow = guard(jnp.where(found.overflow, -1, 0).astype(jnp.int32))
     idx = found.idx.astype(jnp.int32)
     cap = k if capacity is None else capacity
     if cap > k:
@@ -119,19 +119,42 @@ def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_capacity: in
     return spatial.Neighbourhoods(local, idx, params=record, overflow=overflow)
 
 
+def _overflow_message(worst: np.ndarray) -> str | None:
+    """What an overflow report (0, the columns needed, or -1 for a row its cells never covered) asks for."""
+    if not (worst != 0).any():
+        return None
+    needed = int(worst.max())
+    how = (f"capacity={needed} (or capacity=None outside jit, which sizes it)" if needed > 0 else
+           "points whose coordinates are finite (a row's neighbours were not found within the search's passes)")
+    return f"the traced neighbour search overflowed: some neighbourhoods would be truncated; rebuild them with {how}"
+
+
+def _raise_overflow(overflow) -> None:
+    message = _overflow_message(np.asarray(overflow))
+    if message is not None:
+        raise ValueError(message)
+
+
+def guard(overflow):
+    """``overflow`` (an int32 report: 0, the columns needed, or -1), checked: a non-zero report raises.
+
+    Eagerly it raises ValueError at once. Traced (under ``jit``, ``vmap``, ``grad``) a host
+    callback raises the same ValueError when the compiled program runs, so the caller's call
+    fails (as a ``jax.errors.JaxRuntimeError`` carrying the message) instead of returning a
+    truncated neighbourhood.
+    """
+    if _stream.is_traced(overflow):
+        jax.debug.callback(_raise_overflow, overflow)
+    else:
+        _raise_overflow(overflow)
+    return overflow
+
+
 def check(nb: spatial.Neighbourhoods) -> None:
-    """Raise ValueError when concrete neighbourhoods of the traced search overflowed (never run on a truncated one)."""
+    """Raise ValueError when neighbourhoods of the traced search overflowed (never score a truncated one)."""
     overflow = getattr(nb, "overflow", None)  # anything but Neighbourhoods is refused by the caller's checks
-    if overflow is None or _stream.is_traced(overflow):
-        return
-    worst = np.asarray(overflow)
-    if (worst != 0).any():
-        needed = int(worst.max())
-        how = (f"cell_capacity={needed}" if needed > 0 else "a wider cell edge or more columns (capacity) (build"
-               " it outside jit: an eager hgjax.neighbourhoods(..., search='jax') grows them and records them in"
-               " nb.params)")
-        raise ValueError(f"nb overflowed the traced search's capacity: some neighbourhoods may be truncated; rebuild"
-                         f" them with {how}")
+    if overflow is not None:
+        guard(overflow)
 
 
 def default_search() -> str:
@@ -166,7 +189,7 @@ def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np
     with jax.enable_x64(True):
         found = _search_jax.grown(_search_jax.knn, np.pad(index.points, ((0, rows_in - n), (0, 0))), k_eff,
                                   gid=np.pad(index.gid[:n], (0, rows_in - n)).astype(np.int32), count=n,
-                                  capacity=CELL_CAPACITY, frame=False)
+                                  frame=False)
         idx, reach = np.asarray(found.idx)[rows], np.asarray(found.reach, np.float64)[rows]
     idx = np.pad(np.minimum(idx, n), ((0, 0), (0, k - k_eff)), constant_values=n)
     return idx, (reach if k_eff == k else np.full(reach.shape, np.inf))

@@ -30,9 +30,12 @@ pairs' precision or float64's rounding makes them equal (a 1200-point cloud roun
 grid: 5 rows of long balls listed two tied points in the other order; the same sets).
 
 Search settings: every search of one build (the spacing's k-nearest, the sample's nearest, the
-cube) runs with one ``cell_capacity`` and ``cell_edge``. Eagerly each grows from its own
-default (a ball's: 1.1 x the 90th percentile of the radii; the rows it misses are searched
-again at a wider edge) and the build settles on a pair that serves all, recorded on the result.
+cube) reads its cells ``cell_slots`` candidates at a time and starts from ``cell_edge`` or its
+own default (a ball's: 1.1 x the 90th percentile of the radii; the rows it misses are searched
+again at a wider edge): both set the speed only. What can overflow is a ball wider than its
+static columns (``capacity``): eagerly the columns are the host's (the fullest row rounded up),
+recorded on the result; under ``jit`` a wider ball stops the program, naming the columns it needs
+(:func:`hgjax._traced.guard`).
 
 Degenerate clouds: fewer than ``local_k + 1`` locations lower the spacing's k to the number
 of other locations, as the host does (under ``jit`` the count is traced, and a ``lax.switch``
@@ -61,7 +64,7 @@ EDGE_QUANTILE = 90  # percent: a ball's default cell edge covers this share of t
 
 
 def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp, spacing, local_k: int,
-         max_count: int | None, dedupe: bool, capacity: int | None, cell_capacity: int | None, cell_edge,
+         max_count: int | None, dedupe: bool, capacity: int | None, cell_slots: int | None, cell_edge,
          params: dict) -> spatial.Neighbourhoods:
     """Cube (``metric="linf"``) or ball (``"l2"``) neighbourhoods and their voxel spacing, traced.
 
@@ -79,24 +82,24 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
       dedupe: count exact duplicates once (static).
       capacity: columns K of ``idx`` (static) or None: eagerly the host's (the fullest row
         rounded up to a power of two, at least 8), under ``jit`` ``max_count`` or :data:`COLUMNS`.
-      cell_capacity: the traced searches' candidate slots per query (static; default
-        :data:`hgjax._traced.CELL_CAPACITY`); eagerly only the first round's.
-      cell_edge: their cell edge (traced), or None for one from the data.
+      cell_slots: candidates the traced searches read per step (static; default
+        :data:`hgjax._traced.CELL_SLOTS`): speed only.
+      cell_edge: their first cell edge (traced), or None for one from the data: speed only.
       params: build parameters recorded on the result (``search`` added; eagerly also the
-        ``capacity``, ``cell_capacity`` and ``cell_edge`` it ended with, to pass inside ``jit``).
+        ``capacity`` it ended with, to pass inside ``jit`` for a batch of one shape).
 
     Returns:
       :class:`hgjax.Neighbourhoods` with the host's ``idx`` (N, K) int32 padded with N,
-      ``scale`` (N,) the voxel spacing d_i, ``overflow`` 0 unless a traced build overflowed
-      (the cell capacity it needs, or -1 for a cell edge or columns too small).
+      ``scale`` (N,) the voxel spacing d_i, ``overflow`` 0.
 
     Raises:
-      ValueError: eagerly, a fixed ``capacity`` smaller than the fullest row (as the host).
+      ValueError: a fixed ``capacity`` smaller than the fullest row (as the host); under
+        ``jit`` when the compiled program runs (:func:`hgjax._traced.guard`).
     """
     p = jnp.asarray(points)
     n = p.shape[0]
     traced = _stream.is_traced(p)
-    cells = _traced.CELL_CAPACITY if cell_capacity is None else cell_capacity
+    cells = _traced.CELL_SLOTS if cell_slots is None else cell_slots
     x64 = bool(jax.config.jax_enable_x64)
     searches = _Searches(p, traced, cells, cell_edge)
     # the spacing and the d factor
@@ -127,10 +130,9 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     found = searches.within(radius, radius_lo, columns, metric, dedupe, max_count)
     if traced:
         idx = found.idx
-        overflow = searches.overflow
+        overflow = _traced.guard(searches.overflow)
         record = {**params, "search": "jax"}
     else:
-        searches.settle()
         width = int(found.columns_needed)
         _validate.check_capacity(capacity, width, "cube")
         cols = spatial.bucket(width) if capacity is None else capacity
@@ -138,8 +140,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
         if idx.shape[1] < cols:
             idx = jnp.concatenate([idx, jnp.full((n, cols - idx.shape[1]), n, idx.dtype)], axis=1)
         overflow = jnp.zeros((), jnp.int32)
-        record = {**params, "search": "jax", "capacity": cols, "cell_capacity": searches.capacity,
-                  "cell_edge": float(searches.edge)}
+        record = {**params, "search": "jax", "capacity": cols}
     # scale d = (2 / k) x the radius used / widen, as the host
     used = found.reach
     if x64:
@@ -164,41 +165,23 @@ def _local(points, p, traced: bool):
 
 
 class _Searches:
-    """The build's traced searches with one (cell capacity, cell edge): under ``jit`` as given, with
-    their overflow summed up; eagerly grown until none overflows, then settled on one pair that
-    serves every search (recorded, for the same build inside ``jit``)."""
+    """The build's traced searches, with one ``slots`` and (where given) one first cell edge: under
+    ``jit`` their overflow summed up (the columns a ball needs, or -1); eagerly each grown until it
+    does not overflow."""
 
-    def __init__(self, p, traced: bool, capacity: int, edge):
-        self.p, self.traced, self.capacity, self.edge, self.given = p, traced, capacity, edge, edge
+    def __init__(self, p, traced: bool, slots: int, edge):
+        self.p, self.traced, self.slots, self.edge = p, traced, slots, edge
         self.overflow = jnp.zeros((), jnp.int32)
-        self.done = []  # eagerly: [query, args, kwargs, the (capacity, edge) it ran without overflow]
 
     def _run(self, query, *args, default_edge=None, **kwargs):
-        if self.traced:
-            edge = default_edge if self.edge is None else self.edge
-            found = query(self.p, *args, capacity=self.capacity, edge=edge, **kwargs)
-            needed = jnp.where(found.needed > self.capacity, found.needed, 0)
-            bad = found.uncovered | (found.columns_needed > found.idx.shape[-1])
-            this = jnp.where(bad, -1, needed).astype(jnp.int32)
-            self.overflow = jnp.where((self.overflow < 0) | (this < 0), -1, jnp.maximum(self.overflow, this))
-            return found
-        return self._grown([query, args, kwargs, None], default_edge)
-
-    def _grown(self, search, default_edge=None):
-        query, args, kwargs, settled = search
-        # a first run starts from the given edge, else its own default
-        edge = (default_edge if self.given is None else self.given) if settled is None else self.edge
-        found = _search_jax.grown(query, self.p, *args, capacity=self.capacity, edge=edge, **kwargs)
-        self.capacity, self.edge = found.capacity, found.edge
-        if "columns" in kwargs:  # the columns it grew to, for a later run
-            kwargs["columns"] = found.idx.shape[-1]
-        search[3] = self._settings()
-        if not any(s is search for s in self.done):
-            self.done.append(search)
+        edge = default_edge if self.edge is None else self.edge
+        if not self.traced:
+            return _search_jax.grown(query, self.p, *args, slots=self.slots, edge=edge, **kwargs)
+        found = query(self.p, *args, slots=self.slots, edge=edge, **kwargs)
+        wide = jnp.where(found.columns_needed > found.idx.shape[-1], found.columns_needed, 0)
+        this = jnp.where(found.uncovered, -1, wide).astype(jnp.int32)
+        self.overflow = jnp.where((self.overflow < 0) | (this < 0), -1, jnp.maximum(self.overflow, this))
         return found
-
-    def _settings(self):
-        return self.capacity, float(self.edge)
 
     def knn(self, k: int, dedupe: bool):
         return self._run(_search_jax.knn, k, dedupe=dedupe)
@@ -210,16 +193,6 @@ class _Searches:
         typical = jnp.sort(lax.stop_gradient(radius))[(n - 1) * EDGE_QUANTILE // 100]
         return self._run(_search_jax.within, radius, columns=columns, metric=metric, dedupe=dedupe,
                          max_count=max_count, radius_lo=radius_lo, default_edge=_search_jax.EDGE_MARGIN * typical)
-
-    def settle(self, rounds: int = 4) -> None:
-        """Grow the last (capacity, edge) until every search of the build runs with it without overflow."""
-        for _ in range(rounds):
-            stale = [search for search in self.done if search[3] != self._settings()]
-            if not stale:
-                return
-            for search in stale:
-                self._grown(search)
-        raise RuntimeError(f"the traced searches found no common cell capacity and edge in {rounds} rounds")
 
 
 # ----------------------------------------------------------------------------- the host's statistics

@@ -2,7 +2,7 @@
 
 The same :class:`hgjax.Neighbourhoods` as :func:`hgjax.scores.gfr.neighbourhoods` builds on the
 host (``idx``, ``first``, ``points``), built on :mod:`hgjax._search_jax`: under ``jax.jit``
-(static N, ``max_nn``, columns and cell capacity), ``jax.vmap`` and inside ``jax.grad`` (the
+(static N, ``max_nn`` and columns), ``jax.vmap`` and inside ``jax.grad`` (the
 graph is discrete: no gradient flows through its choice). Both graphs of
 :mod:`hgjax.scores.gfr`:
 
@@ -30,13 +30,12 @@ clouds, nor on the GPU at 2e4 points): use x64 for the host's bits on lattices. 
 without x64 is searched in float32 (JAX casts it on entry), so its graph may differ from the
 host's float64 one.
 
-Widths: the kept lists are (N, max_nn + 1), the reference balls (N, cell capacity) (a ball
-lies inside its 27-cell block), the output (N, columns): memory is bounded by these, never
-(N, N); the searches run in blocks of rows (:mod:`hgjax._search_jax`). Eagerly (:func:`build`
-on concrete points) the cell capacity and the edges grow until nothing overflows and the
-columns are the host's (the fullest row rounded up to a power of two); under ``jit`` an
-overflow is recorded on ``overflow``: the cell capacity needed, or -1 (a cell edge too small,
-or a row wider than the static columns: an eager build grows both).
+Widths: the kept lists are (N, max_nn + 1), the reference balls (N, columns), the output (N,
+columns): memory is bounded by these, never (N, N); the searches read their cells in fixed-size
+steps, so no cell holds too many points. Eagerly (:func:`build` on concrete points) the columns
+are the host's (the fullest row rounded up to a power of two); under ``jit`` a row (or a
+reference ball) wider than the static columns stops the program, naming the ``capacity`` it
+needs (:func:`hgjax._traced.guard`), never a truncated graph.
 """
 
 from __future__ import annotations
@@ -61,7 +60,7 @@ SKIP_SQ = np.float32(_graph.SKIP_SQ_DIST)  # the host compares float32 q with it
 _sx = _search_jax  # the search, and its pair keys: the graph's keys are the search's own
 
 
-def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | None, cell_capacity: int | None,
+def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | None, cell_slots: int | None,
           cell_edge) -> spatial.Neighbourhoods:
     """GFR's neighbourhoods (:func:`hgjax.scores.gfr.neighbourhoods`) by the traced search.
 
@@ -70,21 +69,22 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
       variant, radius_factor, max_nn: as :func:`hgjax._graph.graph` (validated here).
       capacity: columns of ``idx`` (static). Eagerly as the host: None sizes them to the
         fullest row (rounded up to a power of two), a fixed one too small raises. Under
-        ``jit`` default ``bucket(max_nn)``; a wider row sets ``overflow`` to -1.
-      cell_capacity: the search's candidate slots per query (static; default
-        :data:`hgjax._traced.CELL_CAPACITY`); eagerly it grows until nothing overflows.
-      cell_edge: the edge of the graph's search (traced), or None for one from the data.
+        ``jit`` default ``bucket(max_nn)``; a wider row raises, naming the capacity it needs.
+      cell_slots: candidates the searches read per step (static; default
+        :data:`hgjax._traced.CELL_SLOTS`): speed only.
+      cell_edge: the first edge of the graph's search (traced), or None for one from the data:
+        speed only.
 
     Returns:
       :class:`hgjax.Neighbourhoods` with the host's ``idx`` and ``first`` (eagerly: None
       where no two points coincide, as the host; under ``jit`` an (N,) array for the
       invariant graph, the identity without duplicates, which scores alike) and ``params``
-      recording ``search="jax"``, ``cell_capacity``, ``cell_edge`` and ``capacity`` (eagerly:
-      what the build ended with, to pass back inside ``jit``; under ``jit`` a traced
-      ``cell_edge`` is recorded as None).
+      recording ``search="jax"`` and ``capacity`` (eagerly the columns the build ended with,
+      to pass back inside ``jit`` for one shape across clouds).
 
     Raises:
-      TypeError, ValueError: invalid arguments; a fixed capacity too small (eagerly).
+      TypeError, ValueError: invalid arguments; a fixed capacity too small (eagerly, or under
+        ``jit`` when the compiled program runs).
 
     Examples:
       >>> import numpy as np, hgjax
@@ -96,29 +96,27 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     variant, factor, max_nn = _graph.graph_params(variant, radius_factor, max_nn)
     traced = _stream.is_traced(points)
     pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
-    cells = _traced.CELL_CAPACITY if cell_capacity is None else _validate.check_int(cell_capacity, "cell_capacity",
-                                                                                    minimum=1)
+    slots = _traced.CELL_SLOTS if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     params = {"variant": variant, "radius_factor": radius_factor, "max_nn": max_nn, "search": "jax"}
     n = pts.shape[0]
-    statics = dict(variant=variant, factor=factor, max_nn=max_nn)
+    statics = dict(variant=variant, factor=factor, max_nn=max_nn, slots=slots)
+    ball = spatial.bucket(max_nn) if cap is None else cap  # the reference's ball columns
     if traced:
-        columns = spatial.bucket(max_nn) if cap is None else cap
-        lists, report = _search(jnp.asarray(pts), None, cell_edge, cells=cells, **statics)
+        columns = ball
+        lists, report = _search(jnp.asarray(pts), None, cell_edge, ball=ball, **statics)
         idx, first, width = _assemble(lists, variant=variant, columns=columns)
-        over = report["needed"] > cells
-        worse = report["uncovered"] | (width > columns)
-        overflow = jnp.where(over, report["needed"], jnp.where(worse, -1, 0)).astype(jnp.int32)
+        wide = jnp.maximum(jnp.where(report["ball"] > ball, report["ball"], 0), jnp.where(width > columns, width, 0))
+        overflow = _traced.guard(jnp.where(report["uncovered"], -1, wide).astype(jnp.int32))
         local = _traced.local_frame(pts)
-        edge = None if cell_edge is None or isinstance(cell_edge, jax.Array) else float(cell_edge)  # static: no tracer
-        record = {**params, "cell_capacity": cells, "cell_edge": edge, "capacity": columns}
+        record = {**params, "capacity": columns}
         return spatial.Neighbourhoods(local, idx, first=first, params=spatial.record(record), overflow=overflow)
     p = jnp.asarray(pts)
-    edges = [None, None if cell_edge is None else float(cell_edge)]
+    edges = [None, cell_edge]
     for _ in range(MAX_ROUNDS):
-        lists, report = _jitted_search(cells, **statics)(p, *edges)
-        if int(report["needed"]) > cells:  # first the capacity: an overflowing block's reach means nothing
-            cells = spatial.bucket(int(report["needed"]))
+        lists, report = _jitted_search(ball=ball, **statics)(p, *edges)
+        if int(report["ball"]) > ball:  # a reference ball wider than its columns: as many columns as it holds
+            ball = spatial.bucket(int(report["ball"]))
             continue
         if not bool(report["uncovered"]):
             break
@@ -127,8 +125,7 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
                 need = float(report[f"edge_needed_{name}"])
                 edges[s] = need if np.isfinite(need) else 4 * float(report[f"edge_{name}"])
     else:
-        raise RuntimeError(f"the traced graph search still overflows after {MAX_ROUNDS} rounds (cell_capacity"
-                           f" {cells})")
+        raise RuntimeError(f"the traced graph search still overflows after {MAX_ROUNDS} rounds")
     columns = spatial.bucket(max_nn) if cap is None else cap
     idx, first, width = _jitted_assemble(variant, columns)(lists)
     width = int(width)
@@ -145,15 +142,15 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     local = spatial.local_frame(host)[0]
     dtype = spatial.working_dtype(host.dtype, extent=spatial.frame_extent(local),
                                   spacing=lambda: spatial.pair_spacing(local, idx, first))
-    record = {**params, "cell_capacity": cells, "cell_edge": float(report["edge_main"]), "capacity": columns}
+    record = {**params, "capacity": columns}
     return spatial.Neighbourhoods(jnp.asarray(local.astype(dtype)), jnp.asarray(idx),
                                   first=None if first is None else jnp.asarray(first, jnp.int32),
                                   params=spatial.record(record), overflow=jnp.zeros((), jnp.int32))
 
 
 @functools.lru_cache(maxsize=None)
-def _jitted_search(cells: int, **statics):
-    return jax.jit(functools.partial(_search, cells=cells, **statics))
+def _jitted_search(**statics):
+    return jax.jit(functools.partial(_search, **statics))
 
 
 @functools.lru_cache(maxsize=None)
@@ -164,21 +161,20 @@ def _jitted_assemble(variant: str, columns: int):
 # ----------------------------------------------------------------------------- the searches
 
 
-def _search(points, edge_near, edge_main, *, cells: int, variant: str, factor, max_nn: int):
-    """(lists, report): each row's partners before the symmetrisation, and the searches' overflow report.
+def _search(points, edge_near, edge_main, *, slots: int, ball: int, variant: str, factor, max_nn: int):
+    """(lists, report): each row's partners before the symmetrisation, and the searches' report.
 
-    ``edge_near`` is the edge of the nearest-point search that sets the radius, ``edge_main``
-    the graph search's (None: from the data).
+    ``edge_near`` is the first edge of the nearest-point search that sets the radius,
+    ``edge_main`` the graph search's (None: from the data); ``ball`` the reference's ball
+    columns (the report's ``ball`` the widest ball: more overflows).
     """
     if variant == "reference":
-        lists, near, main = _reference_lists(points, edge_near, edge_main, cells, max_nn)
-        # a ball wider than its columns (a given edge smaller than the radius) needs that many slots
-        needed = jnp.maximum(main.needed, jnp.where(main.columns_needed > cells, main.columns_needed, 0))
+        lists, near, main = _reference_lists(points, edge_near, edge_main, slots, ball, max_nn)
+        widest = main.columns_needed
     else:
-        lists, near, main = _invariant_lists(points, edge_near, edge_main, cells, factor, max_nn)
-        needed = main.needed
-    needed = jnp.maximum(needed, near.needed)
-    report = {"needed": needed, "uncovered": near.uncovered | main.uncovered,
+        lists, near, main = _invariant_lists(points, edge_near, edge_main, slots, factor, max_nn)
+        widest = jnp.int32(0)
+    report = {"ball": widest, "uncovered": near.uncovered | main.uncovered,
               "uncovered_near": near.uncovered, "uncovered_main": main.uncovered,
               "edge_needed_near": near.edge_needed, "edge_needed_main": main.edge_needed,
               "edge_near": near.edge, "edge_main": main.edge}
@@ -212,13 +208,13 @@ def _gathered_pair_keys(points, rows, cols):
     return _sx._pair_keys(q, c, "l2sq")
 
 
-def _invariant_lists(points, edge_near, edge_main, cells: int, factor: float, max_nn: int):
+def _invariant_lists(points, edge_near, edge_main, slots: int, factor: float, max_nn: int):
     """((kept (N, K), first (N,)), near, main): what each location keeps (the row of its first copy:
     itself first, then its kept locations) and each point's ``first`` (its location's first copy),
     and the two searches' :class:`Found`."""
     n = points.shape[0]
     x64 = _sx._x64()
-    near = _sx.knn(points, min(2, n), dedupe=True, capacity=cells, edge=edge_near)
+    near = _sx.knn(points, min(2, n), dedupe=True, slots=slots, edge=edge_near)
     ids = spatial.sample_ids(n)  # static: N is
     if n >= 2:
         j = near.idx[ids, 1]
@@ -238,7 +234,7 @@ def _invariant_lists(points, edge_near, edge_main, cells: int, factor: float, ma
         rh, rl = _exact.pair_square(th, tl)
         radius = rh * (1 + RADIUS_MARGIN)  # a superset; the exact pair test below
     k = min(max_nn + 1, n)
-    main = _sx.knn(points, k, dedupe=True, capacity=cells, edge=edge_main, radius=radius, metric="l2sq")
+    main = _sx.knn(points, k, dedupe=True, slots=slots, edge=edge_main, radius=radius, metric="l2sq")
     kept = main.idx
     if not x64:
         rows = jnp.arange(n, dtype=jnp.int32)
@@ -271,7 +267,7 @@ def _q32(a, b):
     return (sq[..., 0] + sq[..., 1]) + sq[..., 2]
 
 
-def _reference_lists(points, edge_near, edge_main, cells: int, max_nn: int):
+def _reference_lists(points, edge_near, edge_main, slots: int, ball_columns: int, max_nn: int):
     """(rows (N, W), near, main): each row's partners j > i of its stored pairs, ascending, padded with N."""
     n = points.shape[0]
     x64 = _sx._x64()
@@ -282,7 +278,7 @@ def _reference_lists(points, edge_near, edge_main, cells: int, max_nn: int):
     else:
         p32 = _traced.local_frame(points).astype(jnp.float32)
     k = min(3, n)
-    near = _sx.knn(p32, k, capacity=cells, edge=edge_near)
+    near = _sx.knn(p32, k, slots=slots, edge=edge_near)
     if k > 1:
         rows = jnp.arange(n, dtype=jnp.int32)
         js = near.idx[:, 1:]
@@ -313,8 +309,8 @@ def _reference_lists(points, edge_near, edge_main, cells: int, max_nn: int):
     if edge_main is None:  # within's own default, 1.1 sqrt(ball), unless the ball is empty (r = 0: no pair)
         extent = jnp.max(p32.max(axis=0) - p32.min(axis=0)).astype(ball.dtype)
         edge_main = jnp.where(ball > 0, _sx.EDGE_MARGIN * jnp.sqrt(ball), jnp.maximum(extent, 1) * 2.0 ** -16)
-    main = _sx.within(p32, ball, columns=cells, capacity=cells, edge=edge_main, metric="l2sq")
-    width = min(max_nn, cells)
+    main = _sx.within(p32, ball, columns=ball_columns, slots=slots, edge=edge_main, metric="l2sq")
+    width = min(max_nn, ball_columns)
 
     def rank(rows, js):
         q = _q32(p32[rows][:, None, :], p32[jnp.minimum(js, n - 1)])

@@ -28,10 +28,11 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
 
     With ``search="jax"`` (the methods whose build parameters list ``search``: the k-nearest
     ones, HKC/HKF's cubes and GFR's graph) the build is pure JAX: it runs under ``jax.jit`` and
-    ``jax.vmap`` and inside ``jax.grad``, with the host's neighbour sets; eagerly it grows its static
-    ``cell_capacity`` until nothing overflows and records the capacity and ``cell_edge`` it
-    ended with in ``nb.params``, to pass back inside ``jit``, where an overflow is recorded
-    on ``nb.overflow`` instead (:func:`score` refuses it eagerly).
+    ``jax.vmap`` and inside ``jax.grad``, with the host's neighbour sets and no sizes to pass: the
+    k-nearest search reads every candidate its cells hold. Only a ball's or a graph row's
+    static columns (``capacity``) can be outgrown; eagerly they are sized and recorded in
+    ``nb.params``; under ``jit`` a row wider than them stops the program with an error naming
+    the ``capacity`` needed, never a truncated result.
 
     Build once per cloud, then call :func:`score` or :func:`soft_score` as often as needed,
     inside your own ``jit``, ``vmap`` or ``grad``. Parameters another stage takes (e.g.

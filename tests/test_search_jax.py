@@ -18,7 +18,7 @@ from fixtures import box_surface, degenerate_clouds, lattice_shell, sphere, unif
 
 ROWS = 1024  # every test cloud is padded to this many rows
 K = 16
-CAPACITY = 1024  # candidate slots: every block of every test cloud fits (checked: overflow is False)
+SLOTS = 16  # candidates read per step: small, so most blocks are read in several steps
 
 
 def clouds():
@@ -58,7 +58,7 @@ def cut(idx, n):
 @functools.lru_cache(maxsize=None)
 def traced_knn(k, dedupe, x64, metric="l2"):
     """One jitted search per case (``radius`` inf: no bound; one program with and without)."""
-    fn = jax.jit(lambda p, count, radius: search.knn(p, k, dedupe=dedupe, capacity=CAPACITY, count=count,
+    fn = jax.jit(lambda p, count, radius: search.knn(p, k, dedupe=dedupe, slots=SLOTS, count=count,
                                                      radius=radius, metric=metric))
     return lambda p, count, radius=np.inf: fn(p, count, radius)
 
@@ -66,7 +66,7 @@ def traced_knn(k, dedupe, x64, metric="l2"):
 @functools.lru_cache(maxsize=None)
 def traced_within(columns, metric, dedupe, max_count, x64):
     return jax.jit(lambda p, h, count: search.within(p, h, columns=columns, metric=metric, dedupe=dedupe,
-                                                     max_count=max_count, capacity=CAPACITY, count=count))
+                                                     max_count=max_count, slots=SLOTS, count=count))
 
 
 # float64 under x64 (the host's arithmetic, bit for bit) and float32 without x64 (exact pairs);
@@ -173,7 +173,7 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
     float64), the ball of sqrt(3) k / 2 f times it, shrunk below 256 points; the same bits."""
     factor = np.sqrt(3.0) * 3 / 2 * 1.6
     with x64_mode(True):
-        spacing = jax.jit(lambda p, c: search.local_spacing(search.knn(p, 17, dedupe=True, capacity=CAPACITY,
+        spacing = jax.jit(lambda p, c: search.local_spacing(search.knn(p, 17, dedupe=True, slots=SLOTS,
                                                                        count=c)))
         ball = traced_within(256, "l2", True, 256, True)  # a sparse point's ball holds up to 255
         for name in ("quantised_1mm", "duplicated", "mixed_density", "georeferenced"):
@@ -195,8 +195,8 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
 # ----------------------------------------------------------------------------- jit, vmap, grad
 def test_jit_equals_eager():
     p = CLOUDS["quantised_1mm"][:64].astype(np.float32)
-    eager = search.knn(p, 8, dedupe=True, capacity=64)
-    jitted = jax.jit(lambda p: search.knn(p, 8, dedupe=True, capacity=64))(p)
+    eager = search.knn(p, 8, dedupe=True, slots=8)
+    jitted = jax.jit(lambda p: search.knn(p, 8, dedupe=True, slots=8))(p)
     np.testing.assert_array_equal(eager.idx, jitted.idx)
     np.testing.assert_array_equal(eager.dist, jitted.dist)
     assert not bool(eager.overflow)
@@ -209,7 +209,7 @@ def test_vmap_over_a_padded_batch_equals_the_loop():
     with x64_mode(True):
         batch = [padded(CLOUDS[name], np.float32) for name in names]
         points, counts = np.stack([b[0] for b in batch]), np.array([b[1] for b in batch])
-        found = jax.jit(jax.vmap(lambda p, c: search.knn(p, K, dedupe=True, capacity=CAPACITY, count=c)))(
+        found = jax.jit(jax.vmap(lambda p, c: search.knn(p, K, dedupe=True, slots=SLOTS, count=c)))(
             points, counts)
         assert found.idx.shape == (3, ROWS, K) and not np.asarray(found.overflow).any()
         for i, name in enumerate(names):
@@ -217,7 +217,7 @@ def test_vmap_over_a_padded_batch_equals_the_loop():
             np.testing.assert_array_equal(cut(found.idx[i], len(CLOUDS[name])),
                                           spatial.knn(CLOUDS[name].astype(np.float32), K, dedupe=True).idx)
         same = np.stack([uniform_cloud(300, seed=s) for s in (7, 8)])
-        stacked = jax.jit(jax.vmap(lambda p: search.knn(p, 8, capacity=512)))(same)
+        stacked = jax.jit(jax.vmap(lambda p: search.knn(p, 8)))(same)
         assert not np.asarray(stacked.overflow).any()
         for i in range(2):
             np.testing.assert_array_equal(stacked.idx[i], spatial.knn(same[i], 8).idx)
@@ -227,7 +227,7 @@ def test_gradients_flow_through_the_points_not_the_choice():
     p = jnp.asarray(CLOUDS["random"][:300])
 
     def spread(p):
-        found = search.knn(p, 8, capacity=256)
+        found = search.knn(p, 8)
         nbr = p[found.idx]  # (N, 8, 3); every row is full here
         return jnp.sum((nbr - p[:, None, :]) ** 2), found.idx
 
@@ -239,21 +239,19 @@ def test_gradients_flow_through_the_points_not_the_choice():
 
 
 # ----------------------------------------------------------------------------- overflow, never truncation
-def test_small_capacity_and_small_edge_are_flagged_and_grown():
+def test_blocks_are_read_whole_however_few_slots_and_a_small_edge_is_flagged_and_grown():
     p = CLOUDS["random"][:300]
     want = spatial.knn(p, 8).idx
     with x64_mode(True):
-        fn = jax.jit(lambda p, e: search.knn(p, 8, capacity=16, edge=e, spill=0))
-        small = fn(p, 0.4)
-        assert bool(small.overflow) and int(small.needed) > 16
+        fn = jax.jit(lambda p, e: search.knn(p, 8, slots=2, edge=e, spill=0))
+        dense = fn(p, 0.4)  # blocks of about 200 points, read two at a time
+        assert not bool(dense.overflow)
+        np.testing.assert_array_equal(dense.idx, want)
         tiny = fn(p, 1e-3)
         assert bool(tiny.overflow) and bool(tiny.uncovered) and float(tiny.edge_needed) > 1e-3
-        grown = search.grown(search.knn, p, 8, capacity=16, edge=0.4, spill=0)  # the capacity grows
-        assert not bool(grown.overflow) and grown.capacity > 16 and float(grown.edge) == 0.4
-        wider = search.grown(search.knn, p, 8, capacity=grown.capacity, edge=1e-3, spill=0)  # the edge grows
+        wider = search.grown(search.knn, p, 8, slots=2, edge=1e-3, spill=0)  # the edge grows
         assert not bool(wider.overflow) and float(wider.edge) > 1e-3
-        for found in (grown, wider):
-            np.testing.assert_array_equal(found.idx, want)
+        np.testing.assert_array_equal(wider.idx, want)
 
 
 def test_rows_missed_by_the_edge_are_searched_again_under_jit():
@@ -262,11 +260,11 @@ def test_rows_missed_by_the_edge_are_searched_again_under_jit():
     p = CLOUDS["mixed_density"]
     want = spatial.knn(p, K).idx
     with x64_mode(True):
-        fn = jax.jit(lambda p, e: search.knn(p, K, capacity=CAPACITY, edge=e, spill=400))
+        fn = jax.jit(lambda p, e: search.knn(p, K, slots=SLOTS, edge=e, spill=400))
         found = fn(p, 0.3)  # right for the dense sphere, too small for the sparse points around it
         assert not bool(found.overflow) and float(found.edge) == 0.3
         np.testing.assert_array_equal(found.idx, want)
-        none = jax.jit(lambda p, e: search.knn(p, K, capacity=CAPACITY, edge=e, spill=0))(p, 0.3)
+        none = jax.jit(lambda p, e: search.knn(p, K, slots=SLOTS, edge=e, spill=0))(p, 0.3)
         assert bool(none.overflow) and bool(none.uncovered) and float(none.edge_needed) > 0.3
 
 
@@ -275,7 +273,7 @@ def test_within_reports_the_columns_needed_and_grows_them():
     h = np.full(len(p), 2.5)
     want, _ = host_within(p, h, np.inf, False, None)
     with x64_mode(True):
-        narrow = jax.jit(lambda p, h: search.within(p, h, columns=8, metric="linf", capacity=CAPACITY))(p, h)
+        narrow = jax.jit(lambda p, h: search.within(p, h, columns=8, metric="linf", slots=SLOTS))(p, h)
         assert bool(narrow.overflow) and int(narrow.columns_needed) == want.shape[1]
         found = search.grown(search.within, p, h, columns=8, metric="linf")
     assert not bool(found.overflow) and found.idx.shape[1] >= want.shape[1]
@@ -302,5 +300,5 @@ def test_invalid_arguments_raise():
         search.knn(np.zeros((10, 2)), 4)
     with pytest.raises(ValueError, match="unknown metric"):
         search.knn(p, 4, metric="l1")
-    with pytest.raises(ValueError, match="capacity"):
-        jax.jit(lambda p: search.knn(p, 4, capacity=0))(p)
+    with pytest.raises(ValueError, match="slots"):
+        jax.jit(lambda p: search.knn(p, 4, slots=0))(p)

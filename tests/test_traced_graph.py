@@ -11,7 +11,7 @@ import hgjax
 from fixtures import degenerate_clouds, smooth_and_rounded
 
 VARIANTS = ["invariant", "reference"]
-SEARCHED = ("capacity", "cell_capacity", "cell_edge")
+SEARCHED = ("capacity",)
 
 
 @pytest.fixture(scope="module")
@@ -27,20 +27,19 @@ def built(clouds):
         for variant in VARIANTS:
             # the first build starts wide enough for the graph's blocks: fewer rounds of growth to compile
             out[which, variant] = (hgjax.neighbourhoods(p, "gfr", variant=variant),
-                                   hgjax.neighbourhoods(p, "gfr", variant=variant, search="jax", cell_capacity=512))
+                                   hgjax.neighbourhoods(p, "gfr", variant=variant, search="jax", cell_slots=512))
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("variant", "capacity", "cell_capacity"))
-def _jitted(points, cell_edge, *, variant, capacity, cell_capacity):
+@functools.partial(jax.jit, static_argnames=("variant", "capacity", "cell_slots"))
+def _jitted(points, cell_edge, *, variant, capacity, cell_slots):
     """The traced build inside jit, one program per static setting (shared by clouds of one N)."""
     return hgjax.neighbourhoods(points, "gfr", variant=variant, search="jax", capacity=capacity,
-                                cell_capacity=cell_capacity, cell_edge=cell_edge)
+                                cell_slots=cell_slots, cell_edge=cell_edge)
 
 
-def _jit_build(points, variant, settings):
-    return _jitted(points, settings["cell_edge"], variant=variant, capacity=settings["capacity"],
-                   cell_capacity=settings["cell_capacity"])
+def _jit_build(points, variant, settings, cell_slots=8):
+    return _jitted(points, None, variant=variant, capacity=settings["capacity"], cell_slots=cell_slots)
 
 
 def _searched(nb) -> dict:
@@ -126,7 +125,7 @@ def test_traced_graph_equals_the_host_in_float64(clouds):
     with jax.enable_x64(True):
         p = clouds["rounded"].astype(np.float64)
         host = hgjax.neighbourhoods(p, "gfr")
-        eager = hgjax.neighbourhoods(p, "gfr", search="jax", cell_capacity=512)
+        eager = hgjax.neighbourhoods(p, "gfr", search="jax", cell_slots=512)
         _assert_same_graph(eager, host)
         assert eager.points.dtype == jnp.float64
 
@@ -137,7 +136,7 @@ def test_jitted_top_resample_equals_the_host(clouds, built):
     host = hgjax.resample(p, 0.2, method="gfr", mode="top")
     got = jax.jit(lambda q: hgjax.resample(q, 0.2, method="gfr", mode="top", search="jax", **settings))(p)
     np.testing.assert_array_equal(np.asarray(got), host)
-    eager = hgjax.resample(p, 0.2, method="gfr", mode="top", search="jax", cell_capacity=512)
+    eager = hgjax.resample(p, 0.2, method="gfr", mode="top", search="jax", cell_slots=512)
     np.testing.assert_array_equal(np.asarray(eager), host)
 
 
@@ -146,27 +145,21 @@ def test_the_random_selection_is_refused_by_the_traced_resample(clouds):
         hgjax.resample(clouds["smooth"], 0.2, method="gfr", search="jax", key=jax.random.key(0))
 
 
-def test_an_overflow_under_jit_is_flagged_and_refused_eagerly(clouds, built):
+def test_a_row_wider_than_its_columns_under_jit_stops_the_program(clouds, built):
     p = clouds["smooth"]
-    settings = _searched(built["smooth", "reference"][1])
-    nb = _jit_build(p, "reference", {**settings, "cell_capacity": 8})  # blocks over the cell capacity
-    assert int(nb.overflow) > 8
-    with pytest.raises(ValueError, match="overflowed the traced search's capacity"):
-        hgjax.score(nb, "gfr", variant="reference")
-    settings = {**_searched(built["smooth", "invariant"][1]), "capacity": 8}
-    nb = _jit_build(p, "invariant", settings)  # rows wider than the static columns
-    assert int(nb.overflow) == -1
-    with pytest.raises(ValueError, match="overflowed"):
-        hgjax.score(nb, "gfr")
+    for variant in VARIANTS:
+        settings = {**_searched(built["smooth", variant][1]), "capacity": 8}
+        with pytest.raises(jax.errors.JaxRuntimeError, match=r"capacity=\d+"):
+            _jit_build(p, variant, settings).idx.block_until_ready()
     with pytest.raises(ValueError, match="capacity=8 is too small"):  # eagerly, as the host
         hgjax.neighbourhoods(p, "gfr", search="jax", **settings)
 
 
-def test_an_eager_build_grows_its_cell_capacity(clouds, built):
+def test_few_slots_read_every_candidate(clouds, built):
     p = clouds["rounded"]
-    grown = hgjax.neighbourhoods(p, "gfr", variant="reference", search="jax", cell_capacity=8)
-    assert int(grown.overflow) == 0 and dict(grown.params)["cell_capacity"] > 8
-    _assert_same_graph(grown, built["rounded", "reference"][0])
+    few = hgjax.neighbourhoods(p, "gfr", variant="reference", search="jax", cell_slots=8)
+    assert int(few.overflow) == 0
+    _assert_same_graph(few, built["rounded", "reference"][0])
 
 
 @pytest.mark.parametrize("name", ["all_equal", "duplicates", "collinear"])

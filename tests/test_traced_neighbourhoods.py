@@ -20,9 +20,8 @@ def clouds():
 
 
 def _searched(nb) -> dict:
-    """The traced search's settings an eager build ended with, to pass back inside jit."""
-    params = dict(nb.params)
-    return {"cell_capacity": params["cell_capacity"], "cell_edge": params["cell_edge"]}
+    """The sizes an eager build recorded to pass back inside jit (none for the k-nearest kinds)."""
+    return {name: value for name, value in nb.params if name == "capacity"}
 
 
 @pytest.mark.parametrize("method", KNN)
@@ -51,15 +50,11 @@ def test_traced_neighbourhoods_equal_the_host_in_float64(clouds):
         np.testing.assert_array_equal(np.asarray(jitted.points), host.points)
 
 
-def test_an_overflow_under_jit_is_flagged_and_refused_eagerly(clouds):
+def test_few_slots_under_jit_still_read_every_candidate(clouds):
     p = clouds["smooth"]
-    nb = jax.jit(lambda q: hgjax.neighbourhoods(q, "ea", search="jax", cell_capacity=4))(p)
-    assert int(nb.overflow) != 0
-    with pytest.raises(ValueError, match="overflowed the traced search's capacity"):
-        hgjax.score(nb, "ea")
-    grown = hgjax.neighbourhoods(p, "ea", search="jax", cell_capacity=4)  # eagerly it grows
-    assert int(grown.overflow) == 0 and dict(grown.params)["cell_capacity"] > 4
-    np.testing.assert_array_equal(np.asarray(grown.idx), hgjax.neighbourhoods(p, "ea").idx)
+    nb = jax.jit(lambda q: hgjax.neighbourhoods(q, "ea", search="jax", cell_slots=4))(p)
+    assert int(nb.overflow) == 0
+    np.testing.assert_array_equal(np.asarray(nb.idx), hgjax.neighbourhoods(p, "ea").idx)
 
 
 @pytest.mark.parametrize("method", KNN)
@@ -84,12 +79,10 @@ def test_vmap_over_a_batch_equals_a_loop(clouds):
 def test_a_jitted_training_step_rebuilds_neighbourhoods_and_compiles_once(clouds):
     """Points that move every step: the neighbourhoods are rebuilt inside the jitted step."""
     p0 = jnp.asarray(clouds["smooth"])
-    settings = _searched(hgjax.neighbourhoods(p0, "ea", search="jax"))
-    settings["cell_capacity"] *= 2  # room for the deformation
 
     def loss(scale):
         pts = p0 * (1 + scale * jnp.array([[0.1, 0.0, 0.0]]))
-        nb = hgjax.neighbourhoods(pts, "ea", search="jax", **settings)
+        nb = hgjax.neighbourhoods(pts, "ea", search="jax")
         return jnp.sum(hgjax.soft_weights(nb, 0.2, method="ea") * pts[:, 0])
 
     step = jax.jit(jax.value_and_grad(loss))
@@ -117,15 +110,14 @@ def _cube_settings(nb) -> dict:
 
 
 @functools.lru_cache(maxsize=None)
-def _jitted_cubes(variant: str, cell_capacity: int, capacity: int):
+def _jitted_cubes(variant: str, cell_slots: int, capacity: int):
     """One jitted HKC build per static setting (the edge traced), shared by the clouds that need it."""
     return jax.jit(lambda q, edge: hgjax.neighbourhoods(q, "hkc", variant=variant, search="jax", cell_edge=edge,
-                                                        cell_capacity=cell_capacity, capacity=capacity))
+                                                        cell_slots=cell_slots, capacity=capacity))
 
 
 def _jitted_like(nb, p, variant="invariant"):
-    settings = _cube_settings(nb)
-    return _jitted_cubes(variant, settings["cell_capacity"], settings["capacity"])(p, settings["cell_edge"])
+    return _jitted_cubes(variant, 8, _cube_settings(nb)["capacity"])(p, None)
 
 
 @pytest.fixture(scope="module")
@@ -230,12 +222,13 @@ def test_cube_resample_equals_the_host(clouds, cube_builds):
                                   hgjax.resample(p, 0.2, method="hkf"))
 
 
-def test_a_cube_overflow_under_jit_is_flagged_and_refused_eagerly(clouds):
+def test_a_cube_wider_than_its_columns_under_jit_stops_the_program(clouds):
     p = clouds["smooth"]
-    nb = _jitted_cubes("reference", 4, 4)(p, None)  # too few cells and too few columns
-    assert int(nb.overflow) != 0
-    with pytest.raises(ValueError, match="overflowed the traced search's capacity"):
-        hgjax.score(nb, "hkc", variant="reference")
+    needed = hgjax.neighbourhoods(p, "hkc", variant="reference", search="jax").idx.shape[1]
+    with pytest.raises(jax.errors.JaxRuntimeError, match=r"capacity=\d+"):
+        _jitted_cubes("reference", 4, 4)(p, None).idx.block_until_ready()
+    nb = _jitted_cubes("reference", 4, needed)(p, None)
+    assert int(nb.overflow) == 0
     with pytest.raises(ValueError, match="capacity=4 is too small"):  # eagerly, as the host
         hgjax.neighbourhoods(p, "hkc", variant="reference", search="jax", capacity=4)
 

@@ -49,7 +49,7 @@ def variation(offsets, valid):
 
 
 def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True, capacity: int | None = None,
-                   search: str = "host", cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+                   search: str = "host", cell_slots: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
     """k-nearest neighbourhoods of EA and PCA-AC (host; jittable with ``search="jax"``).
 
     Args:
@@ -60,8 +60,8 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True, capacity:
       capacity: columns of ``idx`` (>= k); default k.
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
         jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
-      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
-        edge (traced); an eager build records those it ended with in ``params``.
+      cell_slots, cell_edge: the traced search's candidates read per step (static) and first
+        cell edge (traced, or None from the data): speed settings, never limits.
 
     Returns:
       :class:`hgjax.Neighbourhoods` (no scale).
@@ -76,7 +76,7 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True, capacity:
       (100, 16)
     """
     k = _validate.check_int(k, "k", minimum=2)
-    return _traced.build_knn(points, k, dedupe=dedupe, capacity=capacity, search=search, cell_capacity=cell_capacity,
+    return _traced.build_knn(points, k, dedupe=dedupe, capacity=capacity, search=search, cell_slots=cell_slots,
                              cell_edge=cell_edge)
 
 
@@ -177,7 +177,7 @@ def tile_kernel(params: dict):
     return variation, False
 
 
-KNN_PARAMS = _method.stages(build=("capacity", "cell_capacity", "cell_edge", "dedupe", "k", "search"),
+KNN_PARAMS = _method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "k", "search"),
                             score=("chunk_size", "progress"))
 
 METHOD = _method.Method(

@@ -238,7 +238,7 @@ def _weights_dtype(variant: str):
 
 def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float | None = None,
                    max_nn: int = _graph.MAX_NN, capacity: int | None = None, search: str = "host",
-                   cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+                   cell_slots: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
     """The GFR graph as :class:`hgjax.Neighbourhoods`, :func:`hgjax._graph.graph` (host; jittable: ``search="jax"``).
 
     Args:
@@ -249,9 +249,8 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
         there ``bucket(max_nn)``; a wider row is recorded on ``overflow``).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
         jit, vmap, grad; the same graph, :mod:`hgjax._traced_graph`).
-      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and
-        cell edge (traced, or None from the data); an eager build grows both and records
-        them (with ``capacity``) in ``nb.params``, to pass back inside ``jit``.
+      cell_slots, cell_edge: the traced search's candidates read per step (static) and first
+        cell edge (traced, or None from the data): speed settings, never limits.
 
     Returns:
       Neighbourhoods whose row i lists the partners j > i of its stored pairs, padded with N,
@@ -269,7 +268,7 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
     """
     if _validate.check_choice(search, "search", _traced.SEARCHES) == "jax":
         return _traced_graph.build(points, variant=variant, radius_factor=radius_factor, max_nn=max_nn,
-                                   capacity=capacity, cell_capacity=cell_capacity, cell_edge=cell_edge)
+                                   capacity=capacity, cell_slots=cell_slots, cell_edge=cell_edge)
     pts = _validate.check_points(points)
     local = spatial.local_frame(pts)[0]
     if capacity is not None:
@@ -873,7 +872,7 @@ METHOD = _method.Method(
     summary='graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
     citation="Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "cell_capacity", "cell_edge", "max_nn", "radius_factor", "search",
+    params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "max_nn", "radius_factor", "search",
                                  "variant"),
                             score=("chunk_size", "progress", "variant"), soft_score=("variant",), select=("mode",)),
     select=_select, check_key=check_key, keeps_top=_keeps_top, bytes_per_sample=4096,

@@ -193,7 +193,7 @@ def _tile_kernel(params: dict):
     return _kernel(params["kernel_size"], params["variant"]), True
 
 
-CUBE_PARAMS = _method.stages(build=("capacity", "cell_capacity", "cell_edge", "d_factor", "dedupe", "kernel_size",
+CUBE_PARAMS = _method.stages(build=("capacity", "cell_slots", "cell_edge", "d_factor", "dedupe", "kernel_size",
                                     "resolution", "search", "variant"),
                                score=("chunk_size", "kernel_size", "progress", "variant"),
                                soft_score=("kernel_size", "tau", "variant"))

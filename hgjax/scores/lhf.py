@@ -329,7 +329,7 @@ def mix(gamma_a, gamma_b, big_a, big_b):
 
 def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None,
                    capacity: int | None = None, search: str = "host",
-                   cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+                   cell_slots: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
     """k-nearest neighbourhoods of LHF, k = max(lengths) (host; jittable with ``search="jax"``).
 
     Args:
@@ -341,8 +341,8 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
       capacity: columns of ``idx`` (>= max(lengths)); default max(lengths).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
         jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
-      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
-        edge (traced); an eager build records those it ended with in ``params``.
+      cell_slots, cell_edge: the traced search's candidates read per step (static) and first
+        cell edge (traced, or None from the data): speed settings, never limits.
 
     Returns:
       :class:`hgjax.Neighbourhoods` (no scale).
@@ -362,8 +362,8 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
     pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
     _validate.check_min_points(pts.shape[0], max(lengths), f"LHF lengths={lengths}")
     nb = _traced.build_knn(pts, max(lengths), dedupe=params["dedupe"], capacity=capacity, search=search,
-                           cell_capacity=cell_capacity, cell_edge=cell_edge)
-    searched = {k: v for k, v in nb.params if k in ("search", "cell_capacity", "cell_edge")}
+                           cell_slots=cell_slots, cell_edge=cell_edge)
+    searched = {k: v for k, v in nb.params if k in ("search", "cell_slots", "cell_edge")}
     return dataclasses.replace(nb, params=spatial.record({**params, **searched}))
 
 
@@ -520,7 +520,7 @@ METHOD = _method.Method(
     summary="local hypergraph filtering: keep the largest two-length sharpness gamma",
     citation=f"{_method.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "cell_capacity", "cell_edge", "dedupe", "lengths", "search", "variant"),
+    params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "lengths", "search", "variant"),
                             score=("chunk_size", "lengths", "progress", "solver", "variant"),
                             soft_score=("lengths", "tau")),
     columns=2, combine=combine,

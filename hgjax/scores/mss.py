@@ -343,7 +343,7 @@ def sharpness(offsets, valid, noise):
 
 
 def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, search: str = "host",
-                   cell_capacity: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
+                   cell_slots: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
     """The max(SCALES) nearest points of every point (host; jittable with ``search="jax"``).
 
     Args:
@@ -352,8 +352,8 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, 
       capacity: columns of ``idx`` (>= max(SCALES)); default max(SCALES).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
         jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
-      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
-        edge (traced); an eager build records those it ended with in ``params``.
+      cell_slots, cell_edge: the traced search's candidates read per step (static) and first
+        cell edge (traced, or None from the data): speed settings, never limits.
 
     Returns:
       :class:`hgjax.Neighbourhoods` (no scale), the point itself first.
@@ -368,7 +368,7 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, 
       (100, 32)
     """
     return _traced.build_knn(points, max(SCALES), dedupe=dedupe, capacity=capacity, search=search,
-                             cell_capacity=cell_capacity, cell_edge=cell_edge)
+                             cell_slots=cell_slots, cell_edge=cell_edge)
 
 
 def _noise(nb, noise):
@@ -456,7 +456,7 @@ METHOD = _method.Method(
     summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 6 to 32 neighbours and the cloud's noise level, trained on synthetic shapes",
     citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "cell_capacity", "cell_edge", "dedupe", "search"),
+    params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "search"),
                           score=("chunk_size", "noise", "progress"), soft_score=("noise",)),
     bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, resolve=resolve, rows=tile_rows,

@@ -403,6 +403,8 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
             # ball (a prefix of each row; rows whose ball is longer are queried again).
             nearest = index.nearest(rows[part], min(max(start, LOCAL_K + 2), index.n))
             res, reach = spatial.local_spacing(index, rows[part], LOCAL_K, query=nearest, rk=rk)
+            if index.n <= LOCAL_K:
+                reach = np.full(reach.shape, np.inf)
         else:
             nearest, res, reach = None, params["resolution"], 0.0
         half = np.broadcast_to(factor * res, rows[part].shape)
@@ -417,7 +419,7 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
 
 def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                    resolution: float | None = None, dedupe: bool | None = None,
-                   capacity: int | None = None, search: str = "host", cell_capacity: int | None = None,
+                   capacity: int | None = None, search: str = "host", cell_slots: int | None = None,
                    cell_edge=None) -> spatial.Neighbourhoods:
     """Cube neighbourhoods of HKC/HKF and the voxel spacing d of each point (host; jittable with ``search="jax"``).
 
@@ -453,9 +455,8 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search,
         :func:`hgjax._traced_cube.cube`: jit, vmap; the host's neighbour sets and ``scale``,
         every whole-cloud decision (d factor, resolution) traced too).
-      cell_capacity, cell_edge: the traced search's candidate slots per query (static) and cell
-        edge (traced); an eager build grows them until nothing overflows and records those it
-        ended with, and its columns (``capacity``), in ``params``, to pass inside ``jit``.
+      cell_slots, cell_edge: the traced search's candidates read per step (static) and first
+        cell edge (traced, or None from the data): speed settings, never limits.
 
     Returns:
       :class:`hgjax.Neighbourhoods` with ``scale`` = (N,) voxel spacing d_i.
@@ -474,7 +475,7 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     if search == "jax":
         return _traced_neighbourhoods(points, build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size,
                                                            resolution=resolution, dedupe=dedupe),
-                                      capacity, cell_capacity, cell_edge)
+                                      capacity, cell_slots, cell_edge)
     pts = _validate.check_points(points)
     params = build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size, resolution=resolution,
                           dedupe=dedupe)
@@ -493,13 +494,13 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
     return spatial.assemble(pts, index, idx, np.concatenate(scales), params=params)
 
 
-def _traced_neighbourhoods(points, params: dict, capacity, cell_capacity, cell_edge) -> spatial.Neighbourhoods:
+def _traced_neighbourhoods(points, params: dict, capacity, cell_slots, cell_edge) -> spatial.Neighbourhoods:
     """:func:`neighbourhoods` by the traced search: the cube (or ball) with every decision of :func:`resolve` traced."""
     traced = _stream.is_traced(points)
     pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
-    cells = None if cell_capacity is None else _validate.check_int(cell_capacity, "cell_capacity", minimum=1)
+    cells = None if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
     invariant = params["variant"] == "invariant"
     if params["resolution"] is not None:
         spacing = params["resolution"]
@@ -512,5 +513,5 @@ def _traced_neighbourhoods(points, params: dict, capacity, cell_capacity, cell_e
         pts, metric="l2" if invariant else "linf", widen=np.sqrt(3.0) if invariant else 1.0,
         kernel_size=params["kernel_size"], d_factor=d_factor,
         ramp=(IRREGULARITY_RANGE, (REGULAR_D_FACTOR, IRREGULAR_D_FACTOR)), spacing=spacing, local_k=LOCAL_K,
-        max_count=MAX_COUNT if invariant else None, dedupe=params["dedupe"], capacity=cap, cell_capacity=cells,
+        max_count=MAX_COUNT if invariant else None, dedupe=params["dedupe"], capacity=cap, cell_slots=cells,
         cell_edge=cell_edge, params=params)
