@@ -63,14 +63,9 @@ EPILOG = """\
 examples:
   hgjax demo                                       all methods on a built-in box-union cloud
   hgjax resample scan.ply -o kept.ply --method hkc --ratio 0.2
-  hgjax resample scan.laz -o kept.laz --count 100000 --method lhf
-  hgjax resample scans/ -o kept/ --format pcd      every point file of scans/, one output each
-  hgjax resample part.stl -o kept.npy --samples 50000 --method lhf
-  hgjax resample tiles/ -o kept/ --format laz --keep-going --skip-existing   resume a batch
-  hgjax resample survey/*.laz -o kept/ --tile 500 --workers 2   one survey in tiles, on 2 Dask workers
-  hgjax resample scan.ply -o grid.ply --method voxel --voxel-size 0.05
   hgjax score scan.pcd -o scored.ply --method lhf -p lengths=10,30
   hgjax compare bunny.ply -o out/ --methods hkc,hkf,lhf,fps
+  hgjax COMMAND --help                             each command's options and examples
 
 Inputs: PLY, PCD, LAS/LAZ, XYZ/TXT, NPY point clouds, and meshes (OBJ, STL, OFF, GLB/GLTF,
 PLY with faces) sampled to --samples points; a directory stands for its point and mesh
@@ -96,6 +91,47 @@ exit codes:
   2    invalid arguments or input (found before computing where possible)
   130  interrupted (Ctrl-C); 143 terminated (SIGTERM); no partial file is left
 """
+
+MORE = "\nFormats, the compilation cache and exit codes: hgjax --help."
+EXAMPLES = {
+    "resample": """\
+examples:
+  hgjax resample scan.ply -o kept.ply --method hkc --ratio 0.2
+  hgjax resample scan.laz -o kept.laz --count 100000 --method lhf
+  hgjax resample scans/ -o kept/ --format pcd      every point file of scans/, one output each
+  hgjax resample part.stl -o kept.npy --samples 50000 --method lhf
+  hgjax resample tiles/ -o kept/ --format laz --keep-going --skip-existing   resume a batch
+  hgjax resample survey/*.laz -o kept/ --tile 500 --workers 2   one survey in tiles, on 2 Dask workers
+  hgjax resample scan.ply -o grid.ply --method voxel --voxel-size 0.05
+""" + MORE,
+    "score": """\
+examples:
+  hgjax score scan.pcd -o scored.ply --method lhf -p lengths=10,30
+  hgjax score scans/ -o scored/ --format laz --method hkc      one scored file per input
+  hgjax score part.stl -o scored.ply --samples 50000 --method ea
+""" + MORE,
+    "compare": """\
+examples:
+  hgjax compare bunny.ply -o out/ --methods hkc,hkf,lhf,fps
+  hgjax compare part.stl --samples 20000 --ratio 0.1     the table only, on 20000 surface samples
+""" + MORE,
+    "demo": """\
+examples:
+  hgjax demo
+  hgjax demo --n-points 50000 --ratio 0.1 -o demo.png --view 30,-45
+""" + MORE,
+}
+"""Each command's ``--help`` examples."""
+
+METHOD_NAMES = ("ea", "fps", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac", "uniform", "voxel")
+"""The names of :data:`hgjax.METHODS`, sorted, spelled here so that building the parser (and so
+``--help``) imports neither NumPy nor JAX; a test keeps them equal to the registry's."""
+SCORING_NAMES = ("ea", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac")
+"""The scoring methods of :data:`METHOD_NAMES` (those that are a :class:`hgjax.Method`)."""
+DEFAULT_METHOD = "hkc"
+"""The registry's default method (``hgjax._registry.DEFAULT``)."""
+OUTPUT_FORMATS = ("ply", "xyz", "txt", "npy", "pcd", "las", "laz")
+"""The formats :func:`hgjax.io.write_points` writes (:data:`hgjax.io.WRITE_EXTENSIONS` without the dots)."""
 
 DEMO_PICTURE = "hgjax-demo.png"
 SEED_LIMIT = 2**32
@@ -159,18 +195,37 @@ def _param(text: str) -> tuple[str, object]:
         return name, value
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the ``hgjax`` command (exposed for documentation tools)."""
-    from hgjax import METHODS, Method, __version__, io
-    from hgjax._registry import DEFAULT
+class _Formatter(argparse.HelpFormatter):
+    """Help text as written where it has line breaks (the examples), wrapped to the terminal otherwise."""
 
-    methods = sorted(METHODS)
-    scoring = [m for m in methods if isinstance(METHODS[m], Method)]
-    formats = [ext[1:] for ext in io.WRITE_EXTENSIONS]
+    def _fill_text(self, text, width, indent):
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+class _Version(argparse.Action):
+    """``--version``: the installed version, looked up only when asked for (importlib.metadata is slow to import)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from hgjax import __version__
+
+        print(f"hgjax {__version__}")
+        parser.exit()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``hgjax`` command (exposed for documentation tools).
+
+    It imports neither NumPy nor JAX, so ``--help`` answers at once."""
+    methods, scoring = list(METHOD_NAMES), list(SCORING_NAMES)
     parser = argparse.ArgumentParser(prog="hgjax", description="Point-cloud resampling with hypergraph signal"
                                      " processing (HKC, HKF, LHF) and baselines, in JAX.",
-                                     epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"hgjax {__version__}")
+                                     epilog=EPILOG, formatter_class=_Formatter)
+    parser.add_argument("--version", action=_Version, help="show the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     common = argparse.ArgumentParser(add_help=False)
@@ -192,7 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("inputs", nargs="+", metavar="IN", help="point cloud or mesh files, or directories")
             p.add_argument("-o", "--output", required=True, metavar="OUT",
                            help="output file (one input) or directory (created when missing)")
-            p.add_argument("--format", choices=formats, default=None,
+            p.add_argument("--format", choices=OUTPUT_FORMATS, default=None,
                            help="output format in a directory (default ply)")
             p.add_argument("--keep-going", action="store_true",
                            help="write every input that can be processed, list the others, exit 1 (default:"
@@ -216,8 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
                        " cloud's centre (default 1: the whole cloud)")
 
     def with_method(p, names):
-        p.add_argument("--method", choices=names, default=DEFAULT,
-                       help=f"one of {', '.join(names)} (default {DEFAULT})")
+        p.add_argument("--method", choices=names, default=DEFAULT_METHOD,
+                       help=f"one of {', '.join(names)} (default {DEFAULT_METHOD})")
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                        help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")
@@ -226,7 +281,7 @@ def build_parser() -> argparse.ArgumentParser:
                        " the GPU/TPU default; same neighbours)")
 
     p = sub.add_parser("resample", parents=[common], help="keep a fraction of the points",
-                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=EXAMPLES["resample"], formatter_class=_Formatter,
                        description="Keep ceil(ratio N) points, or exactly --count, in input order (--order)."
                        " The output keeps the input's attributes plus the method's `score`.")
     with_inputs(p, several=True)
@@ -255,7 +310,7 @@ def build_parser() -> argparse.ArgumentParser:
                         " the inputs and -o)")
 
     p = sub.add_parser("score", parents=[common], help="write per-point scores",
-                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=EXAMPLES["score"], formatter_class=_Formatter,
                        description="Write every point with the method's per-point `score` attribute.")
     with_inputs(p, several=True)
     with_method(p, scoring)
@@ -263,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
                    " written are (LHF: its two lengths combined at the kept count, Eqs. (15)-(16))")
 
     p = sub.add_parser("compare", parents=[common], help="run several methods and tabulate them",
+                       epilog=EXAMPLES["compare"], formatter_class=_Formatter,
                        description="Run several methods on one input; print a markdown table (coverage"
                        " gaps and the share of sharp features kept) and, with -o DIR, write compare.md,"
                        " compare.csv and compare.png (kept points in red over the grey cloud; needs"
@@ -274,6 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     with_picture(p)
 
     p = sub.add_parser("demo", parents=[common], help="all methods on a built-in edge-labelled cloud",
+                       epilog=EXAMPLES["demo"], formatter_class=_Formatter,
                        description="Sample a union of boxes with known sharp edges, run every method,"
                        " print the point counts, the time and the precision of kept edge points, and"
                        " draw the kept points.")
@@ -346,14 +403,17 @@ def _import_engine() -> None:
     from hgjax import METHODS, io  # noqa: F401
 
 
-def _run(argv, received: list) -> int:
-    """Parse ``argv`` and run the command; the exit code of its outcome. A failure after a
-    signal was received is re-raised: the signal, not the failure it caused (a LAZ writer
-    stopped midway), decides the exit code."""
+def _run(argv, received: list, held) -> int:
+    """Parse ``argv`` (nothing heavy imported: ``--help`` answers at once), import the engine
+    inside ``held`` (a signal during the import waits for it) and run the command; the exit code
+    of its outcome. A failure after a signal was received is re-raised: the signal, not the
+    failure it caused (a LAZ writer stopped midway), decides the exit code."""
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # argparse exits 2 on bad arguments, 0 after --help/--version
         return int(exc.code or 0)
+    with held():
+        _import_engine()
     try:
         with _session(args.dtype):
             COMMANDS[args.command](args)
@@ -404,9 +464,7 @@ def main(argv=None) -> int:
                 # semaphores of a process that ended at once, with a warning not meant for the user:
                 # its command line takes this process's -W options.
                 sys.warnoptions.append("ignore::UserWarning:multiprocessing.resource_tracker")
-            with held():
-                _import_engine()
-            code = _run(argv, received)
+            code = _run(argv, received, held)
             if argv is None and not received:
                 _exit(code)  # the handlers still in place: a signal up to the end is reported as one
     except BaseException as err:

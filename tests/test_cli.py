@@ -269,6 +269,32 @@ def test_version_and_help(capsys):
     assert "exit codes:" in out and "130  interrupted" in out and "HGJAX_CACHE_DIR" in out
 
 
+HELP_MODULES = """
+import sys
+from hgjax.cli import main
+code = main(sys.argv[1:])
+print(code, sorted({"numpy", "jax", "jaxlib", "scipy"} & set(sys.modules)), file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize("command", ["", "resample", "score", "compare", "demo"])
+def test_help_imports_neither_numpy_nor_jax_and_shows_its_own_examples(command):
+    proc = subprocess.run([sys.executable, "-c", HELP_MODULES, *command.split(), "--help"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.stderr.splitlines()[-1] == "0 []", proc.stderr
+    examples = proc.stdout.split("examples:\n")[1]
+    lines = [line.split()[:2] for line in examples.splitlines() if line.startswith("  hgjax ")]
+    assert lines and (not command or all(line == ["hgjax", command] for line in lines)), examples
+    assert ("130  interrupted" in proc.stdout) == (not command)  # the global notes once, in hgjax --help
+
+
+def test_the_parsers_names_are_the_registrys():
+    assert list(cli.METHOD_NAMES) == sorted(hgjax.METHODS)
+    assert list(cli.SCORING_NAMES) == [m for m in sorted(hgjax.METHODS) if isinstance(hgjax.METHODS[m], hgjax.Method)]
+    assert cli.DEFAULT_METHOD == hgjax._registry.DEFAULT
+    assert cli.OUTPUT_FORMATS == tuple(ext[1:] for ext in io.WRITE_EXTENSIONS)
+
+
 @pytest.mark.parametrize("args, message", [
     (["resample", "missing.ply", "-o", "x.ply"], "cannot read missing.ply: no such file"),
     (["resample", MESH, "-o", "x.ply", "--ratio", "1.5"], "ratio must be in (0, 1]"),
