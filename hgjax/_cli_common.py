@@ -81,7 +81,8 @@ def _refuse_stdout(output: str) -> None:
 
 
 def _targets(inputs: list[str], output: str, fmt: str | None) -> list[str]:
-    """The output path of each input, checked writable (directories are created)."""
+    """The output path of each input, checked writable (the directory of -o FILE, or -o DIR, is created
+    when missing)."""
     from hgjax import io
 
     _refuse_stdout(output)
@@ -90,6 +91,11 @@ def _targets(inputs: list[str], output: str, fmt: str | None) -> list[str]:
     if is_file:
         if fmt is not None and f".{fmt}" != ext:
             raise UsageError(f"--format {fmt} disagrees with the extension of -o {output}")
+        if ext in io.WRITE_EXTENSIONS:  # else check_writable names the extension, and nothing is created
+            try:
+                os.makedirs(os.path.dirname(output) or os.curdir, exist_ok=True)
+            except OSError as err:
+                raise UsageError(f"cannot create the directory of -o {output}: {err.strerror}") from None
         targets = [output]
     else:
         try:

@@ -4,7 +4,8 @@ The inputs are one survey resampled in tiles by :func:`hgjax.survey.resample_fil
 a Dask cluster: a local one of ``--workers`` single-threaded processes, closed at the end of the
 run with time for its workers to stop (:func:`_dask_client`), or an existing one at
 ``--scheduler``. Options that a survey cannot honour (``--count``, ``--format``, ``--samples``,
-``--voxel-size``, ``--order priority``) are refused before anything is read.
+``--voxel-size``, ``--order priority``), and a method that needs the whole cloud at once, are refused
+before anything is read.
 """
 
 from __future__ import annotations
@@ -80,6 +81,14 @@ def _resample_survey(args, params: dict) -> None:
     if given:
         raise UsageError(f"{', '.join(given)} cannot be used with --tile/--workers/--scheduler (a survey keeps"
                          " --ratio of all its points, in each input's format and order)")
+    from hgjax import METHODS
+
+    refused = METHODS[args.method].refused(params)
+    if refused is not None:
+        options = [name for name, value in (("--tile", args.tile), ("--workers", args.workers),
+                                            ("--scheduler", args.scheduler)) if value is not None]
+        raise UsageError(f"--method {args.method}{refused[0]} cannot run in tiles: {refused[1]}; leave out"
+                         f" {' and '.join(options)} to run it on the whole cloud at once")
     _refuse_stdout(args.output)
     if os.path.splitext(args.output)[1] and not os.path.isdir(args.output):
         raise UsageError(f"-o {args.output}: with --tile/--workers/--scheduler, -o is a directory")

@@ -300,7 +300,8 @@ def test_the_parsers_names_are_the_registrys():
     (["resample", MESH, "-o", "x.ply", "--ratio", "1.5"], "ratio must be in (0, 1]"),
     (["resample", MESH, "-o", "x.ply", "--ratio", "abc"], "not a number: 'abc'"),
     (["resample", MESH, "-o", "x.ply", "--method", "nope"], "invalid choice: 'nope'"),
-    (["resample", MESH, "-o", "x.obj"], "unsupported extension '.obj'"),
+    (["resample", MESH, "-o", "x.obj"], "hgjax does not write .obj files"),
+    (["resample", MESH, "-o", "new/x.foo"], "cannot write new/x.foo: hgjax does not write .foo files"),
     (["resample", MESH, "-o", "x.ply", "--samples", "500", "--variant", "nope"], "unknown variant 'nope'"),
     (["resample", MESH, "-o", "x.ply", "--samples", "0"], "must be >= 1"),
     (["resample", MESH, "-o", "x.ply", "--seed", "-1"], "argument --seed: must be in [0, 2**32); got -1"),
@@ -311,6 +312,9 @@ def test_the_parsers_names_are_the_registrys():
     (["score", DATA / "README.md", "-o", "x.ply"], "README.md"),
     (["score", MESH, "-o", "x.npy", "--method", "fps"], "invalid choice: 'fps'"),
     (["frobnicate"], "invalid choice"),
+    (["resample", MESH, "-o", "out", "--method", "pca_ac", "--tile", "0.5"],
+     "--method pca_ac cannot run in tiles: PCA-AC clusters the scores of the whole cloud at once (Ward), so its"
+     " selection cannot be cut into tiles; leave out --tile to run it on the whole cloud at once"),
 ])
 def test_usage_errors_exit_2(capsys, monkeypatch, tmp_path, args, message):
     monkeypatch.chdir(tmp_path)
@@ -323,9 +327,15 @@ def test_usage_errors_exit_2(capsys, monkeypatch, tmp_path, args, message):
 def test_errors_in_a_subprocess_exit_2_without_traceback(tmp_path):
     for args in (["resample", "missing.ply", "-o", tmp_path / "x.ply"],
                  ["resample", LAMPPOST, "-o", tmp_path / "x.ply", "--seed", "4294967296"],
-                 ["resample", LAMPPOST, "-o", tmp_path / "no" / "x.ply"]):
+                 ["resample", LAMPPOST, "-o", tmp_path / "x.ply", "--method", "pca_ac", "--tile", "1"]):
         proc = run(*args)
-        assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+        assert proc.returncode == 2 and proc.stdout == "" and "tile=None" not in proc.stderr, proc.stderr
+
+
+def test_a_missing_directory_of_the_output_file_is_created(capsys, tmp_path):
+    target = tmp_path / "single" / "deeper" / "x.ply"
+    code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", target, "--method", "uniform", "--samples", "500")
+    assert code == 0 and len(io.read_points(target)) == 100, err
 
 
 def test_unwritable_output_is_refused_before_computing(capsys, tmp_path, monkeypatch):

@@ -312,7 +312,7 @@ def test_write_points_validates_and_does_not_modify(tmp_path):
     before = pts.copy()
     with pytest.raises(ValueError, match="attribute 'label' must have shape"):
         io.write_points(tmp_path / "a.ply", pts, attributes={"label": np.zeros(3)})
-    with pytest.raises(ValueError, match="unsupported extension '.obj' in argument path; expected one of .ply,"
+    with pytest.raises(ValueError, match="hgjax does not write .obj files; give one of .ply,"
                                          " .xyz, .txt, .npy, .pcd, .las, .laz"):
         io.write_points(tmp_path / "a.obj", pts)
     with pytest.raises(ValueError, match=r"attributes\['colors'\] must have shape"):
@@ -386,15 +386,17 @@ def test_failed_write_leaves_the_target_untouched(tmp_path, monkeypatch):
 
 def test_check_writable(tmp_path):
     assert io.check_writable(tmp_path / "a.LAZ") == str((tmp_path / "a.LAZ").resolve())
-    with pytest.raises(io.PointCloudWriteError, match=f"cannot write {tmp_path / 'a.obj'}: unsupported extension"):
+    with pytest.raises(io.PointCloudWriteError, match=f"cannot write {tmp_path / 'a.obj'}: hgjax does not write .obj files"):
         io.check_writable(tmp_path / "a.obj")
     with pytest.raises(ValueError, match=f"{tmp_path / 'missing' / 'a.ply'}: directory .*missing does not exist"):
         io.check_writable(tmp_path / "missing" / "a.ply")
     (tmp_path / "d.ply").mkdir()
     with pytest.raises(io.PointCloudWriteError, match="d.ply: it is a directory"):
         io.check_writable(tmp_path / "d.ply")
-    with pytest.raises(io.PointCloudWriteError, match="unsupported extension"):
+    with pytest.raises(io.PointCloudWriteError, match="does not write .obj files"):
         io.write_points(tmp_path / "missing" / "a.obj", np.eye(3))  # checked before anything else
+    with pytest.raises(io.PointCloudWriteError, match="it has no extension to choose the format by; give one of"):
+        io.check_writable(tmp_path / "a")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.ply"]
 
 

@@ -396,14 +396,14 @@ def check_writable(path) -> str:
       >>> check_writable(os.path.join(folder, "out.obj"))
       Traceback (most recent call last):
       ...
-      hgjax.io.PointCloudWriteError: cannot write .../out.obj: unsupported extension '.obj' in argument path; expected one of .ply, .xyz, .txt, .npy, .pcd, .las, .laz
+      hgjax.io.PointCloudWriteError: cannot write .../out.obj: hgjax does not write .obj files; give one of .ply, .xyz, .txt, .npy, .pcd, .las, .laz
     """
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower()
     fmt = _format(path)
     if fmt.write is None:
-        raise PointCloudWriteError(f"cannot write {path}: unsupported extension {ext!r} in argument path;"
-                                   f" expected one of {', '.join(WRITE_EXTENSIONS)}")
+        what = f"hgjax does not write {ext} files" if ext else "it has no extension to choose the format by"
+        raise PointCloudWriteError(f"cannot write {path}: {what}; give one of {', '.join(WRITE_EXTENSIONS)}")
     if fmt.extra is not None:
         _require(fmt.extra, f"writing {path}")
     target = os.path.realpath(path)
