@@ -37,8 +37,9 @@ if TYPE_CHECKING:
     import numpy as np
 
 
-def _prepare(args) -> list[tuple[str, str, dict | None]]:
-    """(input, output, run record or None) triples, outputs checked, before anything is read or computed.
+def _prepare(args) -> tuple[list[tuple[str, str, dict | None]], int]:
+    """(input, output, run record or None) triples, outputs checked, before anything is read or computed,
+    and the number of inputs (those whose outputs are kept included).
 
     The outputs of ``-o DIR``, and every output with ``--skip-existing``, are recorded in the
     manifest of their directory (:data:`hgjax.survey.MANIFEST`) as each is written, with their
@@ -55,7 +56,7 @@ def _prepare(args) -> list[tuple[str, str, dict | None]]:
     _check_samples(args.samples, inputs, [args.method])
     targets = _targets(inputs, args.output, args.format)
     if not (args.skip_existing or os.path.isdir(args.output)):
-        return [(path, target, None) for path, target in zip(inputs, targets)]
+        return [(path, target, None) for path, target in zip(inputs, targets)], len(inputs)
     params, key, manifests, jobs = _method_params(args, METHODS[args.method]), _key(args), {}, []
     for path, target in zip(inputs, targets):
         record = _record(args, path, params, key)
@@ -68,7 +69,7 @@ def _prepare(args) -> list[tuple[str, str, dict | None]]:
             if reuse:
                 continue
         jobs.append((path, target, record))
-    return jobs
+    return jobs, len(inputs)
 
 
 def _manifest_of(target: str) -> str:
@@ -95,9 +96,9 @@ def _record(args, path: str, params: dict, key) -> dict:
     return survey.run_record([path], method=args.method, ratio=ratio, key=key, params=params, **options)
 
 
-def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str, dict | None]], dict[str, str], object]:
-    """Read every input of ``jobs`` (:func:`_prepare`) and run ``check(path, target, data)`` on it before any
-    computation.
+def _check_inputs(args, jobs, total: int, check) -> tuple[list[tuple[str, str, dict | None]], dict[str, str], object]:
+    """Read every input of ``jobs`` (:func:`_prepare`; ``total`` inputs in all) and run ``check(path, target,
+    data)`` on it before any computation.
 
     Returns:
       The jobs that passed, the message of each input that failed, and the data of the
@@ -116,14 +117,14 @@ def _check_inputs(args, jobs, check) -> tuple[list[tuple[str, str, dict | None]]
         else:
             good.append((path, target, record))
     if failed and not args.keep_going:
-        raise UsageError(f"{len(failed)} of {len(jobs)} inputs cannot be processed, nothing was written"
+        raise UsageError(f"{len(failed)} of {total} inputs cannot be processed, nothing was written"
                          " (--keep-going writes the others):\n  " + "\n  ".join(failed.values()))
     for message in failed.values():
-        print(f"hgjax {args.command}: skipped: {message}", file=sys.stderr)
+        print(f"hgjax {args.command}: failed: {message}", file=sys.stderr)
     return good, failed, data if len(jobs) == 1 and good else None
 
 
-def _run_batch(args, jobs, check, process) -> None:
+def _run_batch(args, jobs, total: int, check, process) -> None:
     """Check every input, then ``process(path, target, data)`` each good one, and record its output in its
     manifest (where :func:`_prepare` gave it a run record) as soon as it is written.
 
@@ -131,7 +132,7 @@ def _run_batch(args, jobs, check, process) -> None:
     skipped, the others are written, and the run ends with exit code 1."""
     from hgjax import survey
 
-    good, failed, data = _check_inputs(args, jobs, check)
+    good, failed, data = _check_inputs(args, jobs, total, check)
     for path, target, record in good:
         try:
             process(path, target, data if data is not None else _load(path, args))
@@ -144,7 +145,9 @@ def _run_batch(args, jobs, check, process) -> None:
             failed[path] = f"{path}: {type(err).__name__}: {err}"
             print(f"hgjax {args.command}: failed: {failed[path]}", file=sys.stderr)
     if failed:
-        raise BatchFailure(f"{len(failed)} of {len(jobs)} inputs failed: {', '.join(failed)}")
+        kept = total - len(jobs)
+        raise BatchFailure(f"{len(failed)} of {total} inputs failed{f' ({kept} up to date, kept)' if kept else ''}:"
+                           f" {', '.join(failed)}")
 
 
 def _ratio_of(args, path: str, n: int) -> float | None:
@@ -178,7 +181,7 @@ def cmd_resample(args) -> None:
     if (args.tile, args.workers, args.scheduler) != (None, None, None):
         _resample_survey(args, params)
         return
-    jobs = _prepare(args)
+    jobs, total = _prepare(args)
     key, progress = _key(args), _progress(args)
 
     def check(path, target, data):
@@ -200,7 +203,7 @@ def cmd_resample(args) -> None:
         print(f"{args.method}: kept {idx.size} of {n} points of {path} in {seconds:.2f} s -> {target}",
               file=sys.stderr)
 
-    _run_batch(args, jobs, check, process)
+    _run_batch(args, jobs, total, check, process)
 
 
 def _finite_scores(scores: np.ndarray) -> np.ndarray:
@@ -222,7 +225,7 @@ def cmd_score(args) -> None:
 
     entry = METHODS[args.method]
     params = _method_params(args, entry)
-    jobs = _prepare(args)
+    jobs, total = _prepare(args)
     key, progress = _key(args), _progress(args)
 
     def check(path, target, data):
@@ -241,4 +244,4 @@ def cmd_score(args) -> None:
         print(f"{args.method}: scored {len(data)} points of {path} in {seconds:.2f} s -> {target}",
               file=sys.stderr)
 
-    _run_batch(args, jobs, check, process)
+    _run_batch(args, jobs, total, check, process)

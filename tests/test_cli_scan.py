@@ -250,7 +250,11 @@ def test_a_bad_file_in_a_batch(tmp_path, scan):
     assert os.listdir(tmp_path / "out") == []
     proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps", "--keep-going")
     assert proc.returncode == 1 and "1 of 4 inputs failed" in proc.stderr and "b.npy" in proc.stderr
+    assert f"hgjax resample: failed: cannot read {src / 'b.npy'}" in proc.stderr and "skipped:" not in proc.stderr
     assert sorted(os.listdir(tmp_path / "out")) == ["a.ply", "c.ply", "d.ply", "hgjax-manifest.json"]
+    proc = hgjax_cli(tmp_path, "resample", src, "-o", tmp_path / "out", "--method", "fps", "--keep-going",
+                     "--skip-existing")  # the three written are up to date: still one of the four inputs failed
+    assert proc.returncode == 1 and "1 of 4 inputs failed (3 up to date, kept)" in proc.stderr, proc.stderr
     os.remove(tmp_path / "out" / "c.ply")
     before = {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
     os.remove(src / "b.npy")
