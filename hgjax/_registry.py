@@ -32,6 +32,30 @@ def scoring(method: str) -> Method:
     return found
 
 
+def defaults(found: Method | Sampler) -> dict:
+    """{parameter: default} of the build, score and select stages of ``found``, as the signatures of its
+    stage functions declare them; a parameter whose stages disagree is left out, and so is ``search``,
+    whose default is the backend's (:func:`hgjax.engine.searched`), not the signature's. {} for a sampler.
+
+    Examples:
+      >>> defaults(METHODS["hkc"])["kernel_size"], "search" in defaults(METHODS["hkc"])
+      (3, False)
+    """
+    import inspect
+
+    if not isinstance(found, Method):
+        return {}
+    seen: dict = {}
+    for stage, fn in (("build", found.build), ("score", found.score), ("select", found.select)):
+        if fn is None:
+            continue
+        for name, parameter in inspect.signature(fn).parameters.items():
+            if name in found.params[stage] and parameter.default is not inspect.Parameter.empty:
+                seen.setdefault(name, []).append(parameter.default)
+    return {name: values[0] for name, values in seen.items()
+            if name != "search" and all(v == values[0] for v in values)}
+
+
 def check_known(found: Method | Sampler, params: dict) -> None:
     """Raise TypeError naming the parameters of ``params`` that no stage of ``found`` takes."""
     unknown = set(params) - found.accepted

@@ -61,7 +61,8 @@ def run_record(inputs, *, method: str, ratio, key=None, params=None, **options) 
         (its registry entry's ``needs_key``); None otherwise, so another key keeps the outputs of a
         deterministic method.
       params: the method's parameters (the kernel stream's ``chunk_size`` and ``progress`` left out:
-        they never change a result).
+        they never change a result; so is a parameter given its default value
+        (:func:`hgjax._registry.defaults`), so ``k=16`` records the run of the default ``k``).
       **options: anything else that changes the output (a survey's ``tile`` and working
         ``dtype``; the command line's command, count, voxel size, order, samples and seed).
 
@@ -78,12 +79,18 @@ def run_record(inputs, *, method: str, ratio, key=None, params=None, **options) 
 
     inputs = [os.fspath(p) for p in inputs]
     stats = [os.stat(p) if os.path.exists(p) else None for p in inputs]
-    params = {k: v for k, v in (params or {}).items() if k not in _STREAM}
+    given = {k: v for k, v in (params or {}).items() if k not in _STREAM}
+    defaults = _registry.defaults(_registry.entry(method))
+    params = {k: v for k, v in given.items() if k not in defaults or _json(v) != _json(defaults[k])}
     record = {"hgjax": __version__, "method": method, "ratio": ratio,
               "key": key if _registry.entry(method).needs_key else None, "params": params, **options,
               "inputs": [{"path": os.path.abspath(p), "bytes": None if st is None else st.st_size,
                           "mtime_ns": None if st is None else st.st_mtime_ns} for p, st in zip(inputs, stats)]}
     return json.loads(json.dumps(record, default=_tiling.jsonable))
+
+
+def _json(value) -> str:
+    return json.dumps(value, default=_tiling.jsonable, sort_keys=True)
 
 
 def read_manifest(path) -> dict:

@@ -61,6 +61,7 @@ PER_FILE = {
     "ratio": ([], ["--ratio", "0.3"], None, {s: "the ratio changed (0.2 -> 0.3)" for s in SIZES}),
     "count": ([], ["--count", "100"], None, {s: "the count changed (null -> 100)" for s in SIZES}),
     "params": ([], ["-p", "k=12"], None, {s: 'the parameters changed ({} -> {"k": 12})' for s in SIZES}),
+    "a parameter at its default": ([], ["-p", "k=16"], None, {"a": None, "b": None}),
     "key": (["--method", "uniform", "--key", "1"], ["--method", "uniform", "--key", "2"], None,
             {s: "the key changed" for s in SIZES}),
     "version": ([], [], "version", {s: "the hgjax version changed" for s in SIZES}),
