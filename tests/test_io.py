@@ -536,3 +536,11 @@ def test_quoted_globs_are_expanded_and_each_file_read_once(capsys, tmp_path):
     assert "link.xyz is" in err and "read once" in err
     code, err = _cli(capsys, "resample", tmp_path / "survey" / "*.laz", "-o", tmp_path / "none")
     assert code == 2 and "matches no point cloud" in err, err
+
+
+@pytest.mark.parametrize("text, line", [("x y z\n1 2 abc\n3 4 5\n", 2), ("1 2 3\n1 2 abc\n", 2),
+                                        ("# scan\nx y z\n1 2 3\n// note\n\n4 5 6  # inline\n1 2 abc\n", 7)])
+def test_a_text_files_bad_value_is_reported_on_its_line(tmp_path, text, line):
+    (tmp_path / "a.xyz").write_text(text)
+    with pytest.raises(io.PointCloudReadError, match=f"a.xyz: line {line}, column 3: 'abc' is not a number$"):
+        io.read_points(tmp_path / "a.xyz")

@@ -9,6 +9,7 @@ from typing import BinaryIO, Callable
 import numpy as np
 
 from hgjax.io._columns import _flat_columns, _named_columns, _savetxt
+from hgjax.io._errors import PointCloudReadError
 
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
 
@@ -62,11 +63,38 @@ def _integer_columns(path: str, table: np.ndarray, columns: list[int], skip: int
     return found
 
 
+_NOT_A_NUMBER = re.compile(r"could not convert string (?P<token>.*) to \w+ at row (?P<row>\d+), column (?P<column>\d+)")
+
+
+def _on_its_line(err: ValueError, path: str, skip: int) -> Exception:
+    """NumPy's "at row R" (R counting data rows from 0, after ``skip`` lines, comments and blank lines
+    left out) said as the file's line, counted from 1 as an editor counts: a PointCloudReadError; other
+    errors as they are."""
+    found = _NOT_A_NUMBER.search(str(err))
+    if found is None:
+        return err
+    row, line = int(found["row"]), skip
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        for _ in range(skip):
+            fh.readline()
+        for text in fh:
+            line += 1
+            if _INLINE_COMMENT.split(text, maxsplit=1)[0].strip():
+                if row == 0:
+                    break
+                row -= 1
+    return PointCloudReadError(f"cannot read {path}: line {line}, column {found['column']}: {found['token']} is"
+                               " not a number")
+
+
 def _read_text(path: str, samples: int = 0, seed: int = 0) -> tuple[dict[str, np.ndarray], None, bool]:
     names, skip, delimiter, row = _text_layout(path)
     with open(path, encoding="utf-8-sig", errors="replace") as fh, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # np.loadtxt warns on files without data rows
-        table = np.loadtxt(fh, comments=("#", "//"), delimiter=delimiter, ndmin=2, skiprows=skip)
+        try:
+            table = np.loadtxt(fh, comments=("#", "//"), delimiter=delimiter, ndmin=2, skiprows=skip)
+        except ValueError as err:
+            raise _on_its_line(err, path, skip) from None
     columns = _named_columns(table, names, path)
     written_as_integers = [j for j, name in enumerate(columns) if name.lower() not in ("x", "y", "z")
                            and j < len(row) and re.fullmatch(r"[+-]?\d+", row[j])]
