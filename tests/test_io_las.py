@@ -97,6 +97,8 @@ def test_attributes_added_to_a_las_subset_become_extra_dimensions(tmp_path):
                     header=data.header)
     back = io.read_points(tmp_path / "out.laz")
     np.testing.assert_array_equal(back.attributes["score"], score)
+    described = {d.name: d.description for d in back.header.point_format.extra_dimensions}
+    assert described["score"] == "hgjax resampling score"
     np.testing.assert_array_equal(back.attributes["gps_time"], data.attributes["gps_time"])
     np.testing.assert_array_equal(back.points, data.points)
     assert back.header.point_format.id == 3 and str(back.header.version) == "1.2"

@@ -132,6 +132,10 @@ def _las_scale(span: float) -> float:
     return float(f"1e{max(exponent, math.ceil(math.log10(span / (2**31 - 1))))}")
 
 
+_DESCRIPTIONS = {"score": "hgjax resampling score"}
+"""The description of an extra dimension hgjax adds (LAS allows 32 characters), read by PDAL and CloudCompare."""
+
+
 def _las_writer(points, attributes, header, binary: bool, compressed: bool, *, compress: bool
                 ) -> Callable[[BinaryIO], None]:
     laspy, _ = _require("las", "writing LAS/LAZ")
@@ -167,7 +171,8 @@ def _las_writer(points, attributes, header, binary: bool, compressed: bool, *, c
         else:
             flat += [(f"{name}_{i}", value[:, i]) for i in range(value.shape[1])]
     _check_unique([name for name, _ in flat])
-    header.add_extra_dims([laspy.ExtraBytesParams(name, value.dtype) for name, value in flat if name not in dims])
+    header.add_extra_dims([laspy.ExtraBytesParams(name, value.dtype, description=_DESCRIPTIONS.get(name, ""))
+                           for name, value in flat if name not in dims])
     las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(points.shape[0], header=header))
     try:
         las.x, las.y, las.z = points.T
