@@ -12,7 +12,7 @@ import pytest
 import hgjax
 from fixtures import backend_compiles, box_union, grid
 from hgjax import _stream, _tiling, select, spatial, tiles
-from hgjax.scores import gfr
+from hgjax.scores import gfr, voxel
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
 VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
@@ -269,6 +269,32 @@ def test_tiles_smaller_than_the_spacing_equal_one_process(method, params):
     p = hgjax.eval.box_union_cloud(seed=5, n_points=200).points
     np.testing.assert_array_equal(tiles.resample(p, 0.2, method=method, tile=0.05, **params),
                                   hgjax.resample(p, 0.2, method=method, **params))
+
+
+@pytest.fixture(scope="module")
+def sparse_cube():
+    """100 random points in the unit cube: a spacing of about 0.27, so tiles of 0.005 hold one point or none."""
+    return np.random.default_rng(5).random((100, 3))
+
+
+@pytest.mark.parametrize("tile", [0.005, 0.02, 0.1, 1.0])
+@pytest.mark.parametrize("method", ["hkc", "hkf"])
+def test_cube_tiles_of_any_size_give_the_one_process_indices_and_scores(sparse_cube, method, tile):
+    want_idx, want_scores = hgjax.resample(sparse_cube, 0.2, method=method, return_scores=True)
+    idx, scores = tiles.resample(sparse_cube, 0.2, method=method, tile=tile, return_scores=True)
+    np.testing.assert_array_equal(idx, want_idx)
+    assert np.asarray(scores).tobytes() == np.asarray(want_scores).tobytes()
+
+
+@pytest.mark.parametrize("n", [2, 10, voxel.LOCAL_K, voxel.LOCAL_K + 1, 40])
+def test_cube_reach_is_unbounded_where_the_index_holds_too_few_locations_for_the_spacing(n):
+    """A tile's spacing estimate reads LOCAL_K neighbours; with fewer locations in its index it read fewer
+    than the whole cloud would, so no halo short of the whole cloud holds what it needs."""
+    index = spatial.SpatialIndex(np.random.default_rng(n).random((n, 3)), dedupe=True)
+    build = voxel.resolve(voxel.build_params(d_factor=1.6), None)
+    reach = np.concatenate([r for _, _, _, r in voxel.row_batches(index, np.arange(n), build)])
+    assert reach.shape == (n,)
+    assert np.isinf(reach).all() if n <= voxel.LOCAL_K else np.isfinite(reach).all()
 
 
 @pytest.mark.parametrize("method", ["ea", "lhf"])
