@@ -383,7 +383,8 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
       sorted-frame indices by increasing distance (Chebyshev for "reference", Euclidean for
       "invariant"), padded with n, W the batch's fullest row; scale (r,) float64 voxel
       spacing d; reach (r,) the distance per axis within which every point the row used
-      lies (cube or ball, and spacing estimate).
+      lies (cube or ball, and spacing estimate), inf where ``index`` holds LOCAL_K locations
+      or fewer (no radius short of the whole cloud holds the estimate's neighbours).
     """
     rows = np.asarray(rows, dtype=np.int64)
     k = params["kernel_size"]
@@ -403,7 +404,7 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
             # ball (a prefix of each row; rows whose ball is longer are queried again).
             nearest = index.nearest(rows[part], min(max(start, LOCAL_K + 2), index.n))
             res, reach = spatial.local_spacing(index, rows[part], LOCAL_K, query=nearest, rk=rk)
-            if index.n <= LOCAL_K:
+            if index.n <= LOCAL_K:  # the estimate read fewer neighbours than the whole cloud may hold
                 reach = np.full(reach.shape, np.inf)
         else:
             nearest, res, reach = None, params["resolution"], 0.0
