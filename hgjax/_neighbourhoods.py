@@ -22,7 +22,7 @@ from hgjax import _validate
 __all__ = ["Neighbourhoods", "record", "stack_neighbourhoods"]
 
 
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first", "count", "overflow"],
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["points", "idx", "scale", "first", "count", "overflow", "points_lo"],
                    meta_fields=["method", "params"])
 @dataclasses.dataclass(frozen=True)
 class Neighbourhoods:
@@ -53,10 +53,15 @@ class Neighbourhoods:
         HKC's ``d_factor`` left None so that clouds built alike stack into one batch), as
         sorted ``(name, value)`` pairs (static): :func:`hgjax.score` refuses a method or a
         parameter that disagrees with them.
-      overflow: int32 scalar from the traced search (``search="jax"``): 0, or the cell
-        capacity a search that overflowed needs (-1 where its cell edge was too small), so
-        that a result built under ``jit`` is never silently truncated (:func:`hgjax.score`
-        refuses it eagerly); None from the host search (it never overflows).
+      overflow: int32 scalar from the traced search (``search="jax"``): 0 (a traced build
+        that overflows raises instead: :func:`hgjax.neighbourhoods`), or None from the host
+        search.
+      points_lo: (N, 3) what ``points`` round off where the local frame is finer than their
+        dtype (float64 coordinates run in float32), or None (nothing rounded off). The
+        kernels read each offset as (p_j - p_i) + (lo_j - lo_i): to the working precision
+        wherever the frame's origin lies, and the same bits as a tile of the same points. It
+        follows no change of ``points`` (``dataclasses.replace(nb, points=...)`` keeps it:
+        pass ``points_lo=None`` with points of another cloud).
 
     Examples:
       >>> import numpy as np, hgjax
@@ -73,6 +78,7 @@ class Neighbourhoods:
     method: str | None = None
     params: tuple = ()
     overflow: np.ndarray | None = None
+    points_lo: np.ndarray | None = None
 
     @property
     def mask(self):
@@ -136,10 +142,14 @@ def stack_neighbourhoods(nbs) -> Neighbourhoods:
     n_max = max(c.points.shape[0] for c in clouds)
     k_max = max(c.idx.shape[1] for c in clouds)
     with_first = any(c.first is not None for c in clouds)
-    points, idx, scale, first = [], [], [], []
+    with_lo = any(c.points_lo is not None for c in clouds)
+    points, idx, scale, first, lo = [], [], [], [], []
     for c in clouds:
         n, pad = c.points.shape[0], n_max - c.points.shape[0]
         points.append(np.concatenate([c.points, np.repeat(c.points[:1], pad, axis=0)]))
+        if with_lo:
+            own_lo = np.zeros_like(c.points) if c.points_lo is None else c.points_lo
+            lo.append(np.concatenate([own_lo, np.repeat(own_lo[:1], pad, axis=0)]))
         rows = np.where(c.idx < n, c.idx, n_max)
         idx.append(np.pad(rows, ((0, pad), (0, k_max - rows.shape[1])), constant_values=n_max))
         if c.scale is not None:
@@ -150,7 +160,7 @@ def stack_neighbourhoods(nbs) -> Neighbourhoods:
     return Neighbourhoods(np.stack(points), np.stack(idx).astype(np.int32), np.stack(scale) if scale else None,
                           np.stack(first) if with_first else None,
                           np.array([c.points.shape[0] for c in clouds], dtype=np.int32),
-                          method=clouds[0].method, params=clouds[0].params)
+                          method=clouds[0].method, params=clouds[0].params, points_lo=np.stack(lo) if with_lo else None)
 
 
 def _real_rows(nb: Neighbourhoods) -> Neighbourhoods:
@@ -159,7 +169,7 @@ def _real_rows(nb: Neighbourhoods) -> Neighbourhoods:
     cut = lambda x: None if x is None else np.asarray(x)[:n]  # noqa: E731
     idx = cut(nb.idx)
     return dataclasses.replace(nb, points=cut(nb.points), idx=np.where(idx < n, idx, n), scale=cut(nb.scale),
-                               first=cut(nb.first), count=None)
+                               first=cut(nb.first), count=None, points_lo=cut(nb.points_lo))
 
 
 def record(params: dict) -> tuple:

@@ -23,7 +23,7 @@ import numpy as np
 from hgjax import _validate
 
 __all__ = ["PRECISION_SHARE", "PrecisionWarning", "axis_bounds", "finest_spacing", "float32_rounding", "frame_extent",
-           "frame_origin", "local_frame", "working_dtype"]
+           "frame_origin", "local_frame", "split_frame", "working_dtype"]
 
 
 PRECISION_SHARE = 2.0 ** -10  # float32's rounding may reach this share of the finest spacing before a warning
@@ -138,6 +138,16 @@ def local_frame(points) -> tuple[np.ndarray, np.ndarray]:
     lo, hi = axis_bounds(p)
     origin = frame_origin(lo, hi, _computed_in(getattr(points, "dtype", np.float64)))
     return p - origin, origin
+
+
+def split_frame(local: np.ndarray, dtype) -> tuple[np.ndarray, np.ndarray | None]:
+    """(hi, lo): coordinates ``local`` (N, 3) as ``dtype`` values hi and what they round off,
+    lo = local - hi in ``dtype`` (None when ``local`` already is ``dtype``)."""
+    local = np.asarray(local)
+    hi = local.astype(dtype)
+    if np.dtype(dtype) == local.dtype:
+        return hi, None
+    return hi, (local - hi.astype(local.dtype)).astype(dtype)
 
 
 def _computed_in(dtype) -> np.dtype:

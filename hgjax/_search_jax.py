@@ -387,24 +387,22 @@ def _scan(cloud: _Cloud, qi, block, width: int, slots: int, metric: str, fold=No
       (best, acc): dict of (B, width) ``hi``, ``lo``, ``gid``, ``cidx`` (inf keys and -1
       past the block's candidates), and the folded value.
     """
-    def read(offset, best, acc):
-        c = _slots(cloud, qi, block, offset, slots, metric)
-        if fold is not None:
-            acc = fold(acc, c)
-        if best is not None:
-            c = {name: (None if c[name] is None else jnp.concatenate([best[name], c[name]], axis=1))
-                 for name in _KEYS}
-        return _select(c, width), acc
-
-    best, acc = read(jnp.int32(0), None, acc)
+    b = qi.shape[0]
+    x64 = _x64()
+    dtype = jnp.float64 if x64 else jnp.float32
+    best = dict(hi=jnp.full((b, width), jnp.inf, dtype), lo=None if x64 else jnp.zeros((b, width), dtype),
+                gid=jnp.full((b, width), np.iinfo(np.int32).max, jnp.int32), cidx=jnp.full((b, width), -1, jnp.int32))
     total = jnp.max(block["count"])
 
     def step(state):
         offset, best, acc = state
-        best, acc = read(offset, best, acc)
-        return offset + slots, best, acc
+        c = _slots(cloud, qi, block, offset, slots, metric)
+        if fold is not None:
+            acc = fold(acc, c)
+        both = {name: (None if c[name] is None else jnp.concatenate([best[name], c[name]], axis=1)) for name in _KEYS}
+        return offset + slots, _select(both, width), acc
 
-    _, best, acc = lax.while_loop(lambda s: s[0] < total, step, (jnp.int32(slots), best, acc))
+    _, best, acc = lax.while_loop(lambda s: s[0] < total, step, (jnp.int32(0), best, acc))
     return best, acc
 
 

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate
+from hgjax import _precision, _validate
 
 BLOCK = 1024  # rows per vmapped block
 ACCELERATOR_BLOCK = 16384  # rows per vmapped block of a traced map on a GPU/TPU: fewer sequential steps
@@ -83,7 +83,7 @@ def _blocks(fn: Callable, offsets, valid, row_args, args, block: int = BLOCK):
     return jax.tree.map(lambda x: x.reshape((c,) + x.shape[2:]), out)
 
 
-def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
+def pure_map(fn: Callable, points, idx, *, lo=None, row_args=(), args=()):
     """``fn`` on every row of (points (N, 3), idx (N, K)) as one pure JAX program (jit, vmap, grad).
 
     The rows are padded to a multiple of the block (:data:`BLOCK` rows on CPU,
@@ -96,6 +96,7 @@ def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
       fn, row_args, args: as :func:`map_neighbourhoods`; ``row_args`` are (N, ...) arrays.
       points: (N, 3) coordinates.
       idx: (N, K) neighbour rows, padded with N.
+      lo: (N, 3) what ``points`` round off (:attr:`hgjax.Neighbourhoods.points_lo`), or None.
 
     Returns:
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
@@ -107,7 +108,9 @@ def pure_map(fn: Callable, points, idx, *, row_args=(), args=()):
     pad = -n % block
     padded = lambda x: jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode="edge")  # noqa: E731
     hi = jnp.concatenate([points, jnp.zeros((1, 3), points.dtype)])  # row N: the sentinel's
-    out = _gathered(fn, hi, None, n, padded(jnp.arange(n, dtype=idx.dtype)), padded(idx),
+    if lo is not None:
+        lo = jnp.concatenate([jnp.asarray(lo, points.dtype), jnp.zeros((1, 3), points.dtype)])
+    out = _gathered(fn, hi, lo, n, padded(jnp.arange(n, dtype=idx.dtype)), padded(idx),
                     tuple(padded(jnp.asarray(a)) for a in row_args), args, block)
     return jax.tree.map(lambda x: x[:n], out)
 
@@ -139,12 +142,13 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
     Returns:
       ``fn``'s outputs stacked over the rows (a pytree of (N, ...) JAX arrays).
     """
-    points, idx = nb.points, nb.idx
-    if is_traced(points, idx, row_args, args):
-        return pure_map(fn, points, idx, row_args=row_args, args=args)
+    points, idx, lo = nb.points, nb.idx, nb.points_lo
+    if is_traced(points, idx, lo, row_args, args):
+        return pure_map(fn, points, idx, lo=lo, row_args=row_args, args=args)
     points = np.asarray(points)
+    ext = device_points(points, points.dtype, None if lo is None else np.asarray(lo))
     out = map_rows(fn, points, np.arange(points.shape[0]), np.asarray(idx), row_args=row_args, args=args,
-                   dtype=points.dtype, chunk_size=chunk_size, progress=progress, narrow=narrow)
+                   dtype=points.dtype, ext=ext, chunk_size=chunk_size, progress=progress, narrow=narrow)
     return jax.tree.map(jax.device_put, out)
 
 
@@ -175,25 +179,28 @@ def map_rows(fn: Callable, points: np.ndarray, own: np.ndarray, idx: np.ndarray,
     return stream.collect()
 
 
-def device_points(points: np.ndarray, dtype) -> tuple:
+def device_points(points: np.ndarray, dtype, lo: np.ndarray | None = None) -> tuple:
     """(hi, lo or None, n): the n points (n, 3) on the device once, for every chunk of a :class:`Stream`.
 
     hi holds the points as ``dtype`` values and, for float64 points run in float32, lo the
-    remainders points - hi; a chunk's offsets (C, K, 3) are then gathered on the device as
+    remainders points - hi (:func:`hgjax.spatial.split_frame`; or ``lo`` as given, the
+    points then being hi); a chunk's offsets (C, K, 3) are then gathered on the device as
     (hi_j - hi_i) + (lo_j - lo_i): each neighbourhood's offsets to the precision of
     ``dtype`` whatever the frame's origin, with the same bits in every tile that holds the
     neighbourhood. Both are padded to :func:`point_rows` rows, so a new cloud size compiles
     only when it crosses a power of four above 65,536 points.
     """
     n, dtype = points.shape[0], np.dtype(dtype)
+    if lo is None:
+        points, lo = _precision.split_frame(points, dtype)
     size = point_rows(n)
     hi = np.zeros((size, 3), dtype)
     hi[:n] = points
-    lo = None
-    if points.dtype != dtype:
-        lo = np.zeros((size, 3), dtype)
-        lo[:n] = points - hi[:n].astype(points.dtype)
-    return jax.device_put(hi), None if lo is None else jax.device_put(lo), jax.device_put(np.int32(n))
+    pad = None
+    if lo is not None:
+        pad = np.zeros((size, 3), dtype)
+        pad[:n] = lo
+    return jax.device_put(hi), None if pad is None else jax.device_put(pad), jax.device_put(np.int32(n))
 
 
 class Stream:

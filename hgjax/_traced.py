@@ -23,8 +23,8 @@ import numpy as np
 
 from hgjax import _exact, _search_jax, _stream, _validate, spatial
 
-__all__ = ["CELL_SLOTS", "SEARCHES", "build_knn", "check", "default_search", "guard", "index_knn", "knn",
-           "local_frame"]
+__all__ = ["CELL_SLOTS", "SEARCHES", "build_knn", "check", "default_search", "guard", "host_frame", "index_knn",
+           "knn", "local_frame"]
 
 CELL_SLOTS = _search_jax.SLOTS
 """Candidates a query of the traced search reads per step (static; a speed setting, never a limit)."""
@@ -64,21 +64,31 @@ def build_knn(points, k: int, *, dedupe: bool, capacity: int | None, search: str
                params={"k": k, "dedupe": dedupe})
 
 
-def local_frame(points) -> jax.Array:
-    """(N, 3) ``points`` minus the centre of their bounding box, in the working dtype, traced.
+def local_frame(points) -> tuple[jax.Array, jax.Array | None]:
+    """(hi, lo): (N, 3) ``points`` minus the centre of their bounding box, traced, as the host's
+    :func:`hgjax.spatial.split_frame` of its float64 local frame.
 
-    float64 under x64 (as :func:`hgjax.spatial.local_frame`); in float32, the centre
-    (lo + hi) / 2 is carried as an exact pair (s + e) / 2 and subtracted in two steps.
+    float64 under x64: the frame itself, lo None. In float32, the centre (lo + hi) / 2 is
+    carried as an exact pair (s + e) / 2 and subtracted in two steps; hi is the frame rounded
+    once and lo what it rounds off (:attr:`hgjax.Neighbourhoods.points_lo`).
     """
     p = jnp.asarray(points)
     if p.dtype == jnp.float64:
         lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
-        return p - (lo + hi) / 2
+        return p - (lo + hi) / 2, None
     p = p.astype(jnp.float32)
     lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
     s, e = _exact.two_sum(lo, hi)  # lo + hi == s + e exactly
     a, err = _exact.two_sum(p, -s / 2)  # p - s / 2 == a + err exactly
-    return a + (err - e / 2)
+    return _exact.fast_two_sum(a, err - e / 2)
+
+
+def host_frame(points) -> tuple[jax.Array, jax.Array | None]:
+    """(hi, lo) of concrete ``points``: the host's local frame (:func:`hgjax.spatial.local_frame`) split
+    in its working dtype (:func:`hgjax.spatial.split_frame`; float64 input keeps its bits until then)."""
+    host = np.asarray(points)
+    hi, lo = spatial.split_frame(spatial.local_frame(host)[0], spatial.working_dtype(host.dtype))
+    return jnp.asarray(hi), None if lo is None else jnp.asarray(lo)
 
 
 def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int = CELL_SLOTS, cell_edge=None,
@@ -104,11 +114,10 @@ def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int =
     p = jnp.asarray(points)
     n = p.shape[0]
     if _stream.is_traced(p):
-        local = local_frame(p)
+        local, lo = local_frame(p)
         found = _search_jax.knn(p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
-    else:  # concrete: the host's own local frame (float64 input keeps its bits until the cast)
-        host = np.asarray(points)
-        local = jnp.asarray(spatial.local_frame(host)[0].astype(spatial.working_dtype(host.dtype)))
+    else:
+        local, lo = host_frame(points)
         found = _search_jax.grown(_search_jax.knn, p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
     overflow = guard(jnp.where(found.overflow, -1, 0).astype(jnp.int32))
     idx = found.idx.astype(jnp.int32)
@@ -116,7 +125,7 @@ def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int =
     if cap > k:
         idx = jnp.concatenate([idx, jnp.full((n, cap - k), n, jnp.int32)], axis=1)
     record = spatial.record({**params, "search": "jax"})
-    return spatial.Neighbourhoods(local, idx, params=record, overflow=overflow)
+    return spatial.Neighbourhoods(local, idx, params=record, overflow=overflow, points_lo=lo)
 
 
 def _overflow_message(worst: np.ndarray) -> str | None:

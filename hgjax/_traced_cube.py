@@ -150,18 +150,10 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
         h = (jnp.where(shrunk, used, radius), jnp.where(shrunk, 0, 0 if radius_lo is None else radius_lo))
         scaled = _exact.pair_mul(*_exact.pair_const(2 / kernel_size), *h)
         scale = _p_round(_exact.pair_div(*scaled, *_exact.pair_const(widen)))
-    local = _local(points, p, traced)
+    local, lo = _traced.local_frame(p) if traced else _traced.host_frame(points)
     scale = lax.stop_gradient(scale).astype(local.dtype)
     return spatial.Neighbourhoods(local, idx.astype(jnp.int32), scale, params=spatial.record(record),
-                                  overflow=overflow)
-
-
-def _local(points, p, traced: bool):
-    """The points in the host's local frame and working dtype (as :func:`hgjax._traced.knn`)."""
-    if traced:
-        return _traced.local_frame(p)
-    host = np.asarray(points)
-    return jnp.asarray(spatial.local_frame(host)[0].astype(spatial.working_dtype(host.dtype)))
+                                  overflow=overflow, points_lo=lo)
 
 
 class _Searches:

@@ -47,6 +47,7 @@ from hgjax._precision import (  # noqa: F401  (re-exported: the callers' spatial
     frame_extent,
     frame_origin,
     local_frame,
+    split_frame,
     working_dtype,
 )
 
@@ -58,6 +59,7 @@ __all__ = [
     "intrinsic_resolution",
     "knn",
     "local_frame",
+    "split_frame",
     "spatial_order",
     "stack_neighbourhoods",
     "working_dtype",
@@ -497,9 +499,9 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx: np.ndarray, scale_sor
     """
     local = local_frame(points)[0]
     dtype = working_dtype(points.dtype, extent=frame_extent(local), spacing=lambda: index_spacing(index))
-    local = local.astype(dtype)
+    hi, lo = split_frame(local, dtype)
     scale = None if scale_sorted is None else index.to_caller(np.asarray(scale_sorted)).astype(dtype)
-    return Neighbourhoods(local, idx, scale, params=record(params or {}))
+    return Neighbourhoods(hi, idx, scale, params=record(params or {}), points_lo=lo)
 
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:

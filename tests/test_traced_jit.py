@@ -104,3 +104,17 @@ def test_a_ball_wider_than_its_columns_names_the_capacity_it_needs():
         variant="reference").sum()))
     with pytest.raises(jax.errors.JaxRuntimeError, match=r"capacity=\d+"):
         grad(p).block_until_ready()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("method", KNN + ["hkc", "hkf", "gfr"])
+def test_resample_its_pieces_and_the_jitted_traced_resample_return_one_array(method, dtype):
+    extra = {"mode": "top"} if method == "gfr" else {}
+    with jax.enable_x64(dtype == np.float64):
+        p = box_union(2500, seed=6).astype(dtype)
+        host = np.asarray(hgjax.resample(p, 0.2, method=method, **extra))
+        pieces = hgjax.keep(np.asarray(hgjax.score(hgjax.neighbourhoods(p, method), method)), 0.2, method=method,
+                            **extra)
+        np.testing.assert_array_equal(np.asarray(pieces), host)
+        jitted = jax.jit(lambda q: hgjax.resample(q, 0.2, method=method, search="jax", **extra))(p)
+        np.testing.assert_array_equal(np.asarray(jitted), host)

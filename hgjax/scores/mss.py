@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _stream, _traced, _validate, spatial
+from hgjax import _exact, _method, _stream, _traced, _validate, spatial
 from hgjax.scores import _common, _mss_weights, ea
 from hgjax.scores.eigen import jacobi
 
@@ -212,7 +212,7 @@ def noise_of(offsets, valid, *, real=None):
 _noise_of = jax.jit(noise_of)  # eager callers (noise_level, resolve) run one program, not one per operation
 
 
-def noise_level(points, idx, *, count=None):
+def noise_level(points, idx, *, count=None, lo=None):
     """The cloud's noise level (:func:`noise_of`) over the seeded sample of :func:`hgjax.spatial.sample_ids`.
 
     The value the tiled path resolves once per cloud from :class:`hgjax.spatial.SampleStats`
@@ -224,6 +224,9 @@ def noise_level(points, idx, *, count=None):
         padded with N; K >= ``NOISE_K``.
       count: the number of real rows of a padded cloud (:attr:`hgjax.Neighbourhoods.count`,
         traced), or None for all N.
+      lo: what ``points`` round off (:attr:`hgjax.Neighbourhoods.points_lo`), or None. The
+        offsets are then those of points + lo, as the tiles' sample measures them: in float64
+        on the host, as exact float32 sums when traced.
 
     Returns:
       Scalar >= 0 in the dtype of ``points``.
@@ -246,11 +249,21 @@ def noise_level(points, idx, *, count=None):
                          f"noise= given; got {n} rows")
     rows = spatial.sample_ids(n)
     # Gathered on the host when concrete: the compiled program's shapes depend on the sample, not on N.
-    xp = jnp if _stream.is_traced(points, idx, count) else np
+    traced = _stream.is_traced(points, idx, count, lo)
+    xp = jnp if traced else np
     points, idx = xp.asarray(points), xp.asarray(idx)
     near = idx[rows, :NOISE_K]
     valid = near < n
-    offsets = xp.concatenate([points, xp.zeros((1, 3), points.dtype)])[near] - points[rows, None, :]
+    padded = lambda x: xp.concatenate([x, xp.zeros((1, 3), x.dtype)])  # noqa: E731  (row N: the sentinel's)
+    if lo is None:
+        offsets = padded(points)[near] - points[rows, None, :]
+    elif traced:
+        lo = jnp.asarray(lo, points.dtype)
+        s, e = _exact.two_sum(padded(points)[near], -points[rows, None, :])
+        offsets = s + (e + (padded(lo)[near] - lo[rows, None, :]))
+    else:
+        exact = points.astype(np.float64) + np.asarray(lo, np.float64)
+        offsets = padded(exact)[near] - exact[rows, None, :]
     return _noise_of(xp.where(valid[..., None], offsets, 0), valid, real=None if count is None else rows < count)
 
 
@@ -371,8 +384,14 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, 
                              cell_slots=cell_slots, cell_edge=cell_edge)
 
 
-def _noise(nb, noise):
-    return noise_level(nb.points, nb.idx, count=nb.count) if noise is None else jnp.asarray(noise, nb.points.dtype)
+def _noise_rows(nb, noise) -> tuple:
+    """The noise level (given, or :func:`noise_level` of ``nb``) once per row: the row arguments the tiles pass,
+    so that one process and the tiles run the same kernel."""
+    level = noise_level(nb.points, nb.idx, count=nb.count, lo=nb.points_lo) if noise is None else noise
+    rows = nb.points.shape[-2]
+    if _stream.is_traced(level, nb.points):
+        return (jnp.full((rows,), level, nb.points.dtype),)
+    return (np.full(rows, level, nb.points.dtype),)
 
 
 def score(nb, *, noise=None, chunk_size: int | None = None, progress: bool = False):
@@ -394,7 +413,7 @@ def score(nb, *, noise=None, chunk_size: int | None = None, progress: bool = Fal
       >>> bool(s[cloud.edge_mask].mean() > 2 * s[~cloud.edge_mask].mean())
       True
     """
-    return _stream.map_neighbourhoods(sharpness, nb, args=(_noise(nb, noise),), chunk_size=chunk_size,
+    return _stream.map_neighbourhoods(sharpness, nb, row_args=_noise_rows(nb, noise), chunk_size=chunk_size,
                                       progress=progress)
 
 
@@ -415,7 +434,7 @@ def soft_score(nb, *, noise=None):
       >>> hgjax.scores.mss.soft_score(nb).shape
       (100,)
     """
-    return _stream.map_neighbourhoods(sharpness, nb, args=(_noise(nb, noise),))
+    return _stream.map_neighbourhoods(sharpness, nb, row_args=_noise_rows(nb, noise))
 
 
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:
