@@ -462,7 +462,8 @@ def test_without_posix_fallocate_the_coordinates_are_written_as_zeros_first(tmp_
     paths, cloud = _survey(tmp_path, n_files=2, n=1000)
     monkeypatch.delattr(os, "posix_fallocate", raising=False)
     survey.resample_files(paths, tmp_path / "kept", 0.2, method="voxel")
-    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"), np.sort(hgjax.resample(cloud, 0.2, method="voxel")))
+    np.testing.assert_array_equal(_kept_ids(paths, tmp_path / "kept"),
+                                  np.sort(hgjax.resample(cloud, 0.2, method="voxel")))
     assert not [f for f in os.listdir(tmp_path / "kept") if f.startswith(".")]
 
 
@@ -470,7 +471,8 @@ def test_cli_survey_on_a_full_disk_exits_1_naming_it(tmp_path, full_disk):
     path = tmp_path / "cloud.ply"
     io.write_points(path, np.random.default_rng(0).random((40_000, 3)) * 10)
     run = subprocess.run([sys.executable, "-m", "hgjax", "resample", str(path), "-o", str(full_disk), "--tile", "5",
-                          "--method", "voxel", "--ratio", "0.1", "--quiet"], capture_output=True, text=True, timeout=300)
+                          "--method", "voxel", "--ratio", "0.1", "--quiet"],
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 1, run.stderr
     assert "No space left" in run.stderr and str(full_disk) in run.stderr
     assert os.listdir(full_disk) == []
