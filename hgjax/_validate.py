@@ -2,11 +2,14 @@
 
 All checks raise ``TypeError`` for a wrong dtype and ``ValueError`` for a wrong shape or
 value, and always name the argument and quote what was found. They run on the host, before
-anything is traced, so they fire the same way whether or not the caller jits around them.
+anything is traced, so they fire the same way whether or not the caller jits around them; the
+value of a traced ratio, unknown until the program runs, is checked there
+(:func:`check_traced_ratio`).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Iterable
 
@@ -114,8 +117,12 @@ def check_ratio(ratio: Any, name: str = "ratio") -> float:
     """Return ``ratio`` as a float after checking 0 < ratio <= 1.
 
     A float32 (or float16) scalar is read as the shortest decimal that it rounds to, the
-    ratio the caller wrote: ``np.float32(0.2)`` is 0.2, not 0.20000000298.
+    ratio the caller wrote: ``np.float32(0.2)`` is 0.2, not 0.20000000298. Where the ratio may
+    be traced, :func:`check_traced_ratio` checks it.
     """
+    if isinstance(ratio, jax.core.Tracer):
+        raise TypeError(f"{name} must be concrete here: it sets the number of points kept, a shape (static under"
+                        " jit); got a tracer")
     if isinstance(ratio, (bool, np.bool_)) or not isinstance(ratio, (int, float, np.integer, np.floating)):
         raise TypeError(f"{name} must be a number in (0, 1]; got {type(ratio).__name__}")
     if isinstance(ratio, np.floating) and np.finfo(ratio.dtype).bits < 64:
@@ -286,12 +293,39 @@ def check_traced_positive(value: Any, name: str):
 
 
 def check_traced_ratio(ratio: Any, name: str = "ratio"):
-    """``ratio`` checked by :func:`check_ratio` when concrete; a tracer passes unchanged."""
+    """``ratio`` checked by :func:`check_ratio`: now when concrete, where the program runs when traced.
+
+    A tracer's shape and dtype are checked now; its value where the program runs (jit, vmap,
+    grad): a value out of (0, 1] calls back to the host (:func:`jax.debug.callback`), which
+    stops the program with the :func:`check_ratio` message (raised as a
+    :class:`jax.errors.JaxRuntimeError` by the call or where its result is first read)
+    instead of giving a result. A value in range makes no callback; the program still carries
+    the callback's effect, a fixed cost per call (none per point).
+
+    Raises:
+      TypeError: not a number (a tracer of bool or non-numeric dtype).
+      ValueError: a concrete value out of (0, 1], or a tracer that is not a scalar.
+    """
     if is_concrete(ratio):
         if hasattr(ratio, "shape") and getattr(ratio, "shape", None) == ():
             ratio = ratio.item() if not isinstance(ratio, np.floating) else ratio
         return check_ratio(ratio, name)
+    if ratio.dtype == bool or not jnp.issubdtype(ratio.dtype, jnp.number):
+        raise TypeError(f"{name} must be a number in (0, 1]; got a tracer of dtype {ratio.dtype}")
+    if ratio.shape != ():
+        raise ValueError(f"{name} must be a scalar in (0, 1]; got a tracer of shape {ratio.shape}")
+    report = functools.partial(_check_ratio_values, name=name)  # on the host, only for a value out of range
+    jax.lax.cond((ratio > 0) & (ratio <= 1), lambda r: None, lambda r: jax.debug.callback(report, r), ratio)
     return ratio
+
+
+def _check_ratio_values(values, name: str) -> None:
+    """:func:`check_ratio` of the values a traced ratio takes (a batch of them under vmap), on the host."""
+    values = np.asarray(values)
+    values = values.astype(np.float64 if values.dtype == np.float64 else np.float32).ravel()
+    bad = values[~((values > 0) & (values <= 1))]
+    if bad.size:
+        check_ratio(bad[0].item() if bad.dtype == np.float64 else bad[0], name)
 
 
 def check_columns(nb: Any, needed: int, what: str) -> None:

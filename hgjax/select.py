@@ -433,6 +433,8 @@ def soft_select(scores, ratio, *, temperature=0.05, largest: bool = True, valid=
     Raises:
       ValueError: if ``scores`` is not one-dimensional, ``valid`` not a bool array of its
         shape, or a concrete ``ratio`` or ``temperature`` is out of range (NaN, 0 or below).
+      jax.errors.JaxRuntimeError: a traced ``ratio`` out of (0, 1] where the program runs
+        (jit, vmap, grad), with the same message.
 
     Examples:
       >>> import jax.numpy as jnp, hgjax

@@ -399,3 +399,62 @@ def test_errors():
         hgjax.soft_weights(nb, 1.5, method="hkc")
     with pytest.raises(TypeError, match="bogus"):
         hgjax.soft_score(nb, "hkc", bogus=1)
+
+
+BAD_RATIOS = [1.5, 0.0, -0.2, float("nan")]
+RATIO_ENTRIES = {  # every traced entry that takes a ratio; LHF's goes through its kept count first
+    "soft_weights": lambda nb, r: hgjax.soft_weights(nb, r, method="ea"),
+    "soft_weights-lhf": lambda nb, r: hgjax.soft_weights(nb, r, method="lhf"),
+    "soft_select": lambda nb, r: hgjax.soft_select(nb.points[:, 0], r),
+}
+
+
+def _ratio_message(ratio):
+    return rf"ratio must be in \(0, 1\]; got {ratio}"
+
+
+@pytest.mark.parametrize("ratio", BAD_RATIOS)
+@pytest.mark.parametrize("entry", RATIO_ENTRIES)
+def test_a_concrete_ratio_out_of_range_raises_value_error_naming_it(entry, ratio):
+    nb = setup("lhf" if entry.endswith("lhf") else "ea")[1]
+    with pytest.raises(ValueError, match=_ratio_message(ratio)):
+        RATIO_ENTRIES[entry](nb, ratio)
+
+
+@pytest.mark.parametrize("ratio", BAD_RATIOS)
+@pytest.mark.parametrize("transform", ["jit", "vmap", "grad"])
+@pytest.mark.parametrize("entry", RATIO_ENTRIES)
+def test_a_traced_ratio_out_of_range_stops_the_program_naming_it(entry, transform, ratio):
+    nb = setup("lhf" if entry.endswith("lhf") else "ea")[1]
+    f = functools.partial(RATIO_ENTRIES[entry], nb)
+    traced = {"jit": jax.jit(f),
+              "vmap": jax.jit(lambda r: jax.vmap(f)(jnp.stack([jnp.float32(RATIO), r]))),
+              "grad": jax.jit(jax.grad(lambda r: f(r).sum()))}[transform]
+    good = np.asarray(traced(jnp.float32(RATIO)))
+    assert np.isfinite(good).all()
+    with pytest.raises(jax.errors.JaxRuntimeError, match=_ratio_message(ratio)):
+        np.asarray(traced(jnp.float32(ratio)))
+
+
+def test_a_traced_ratio_gives_the_concrete_ratio_weights():
+    _, nb = setup("ea")
+    np.testing.assert_array_equal(jax.jit(lambda r: hgjax.soft_weights(nb, r, method="ea"))(RATIO),
+                                  jax.jit(lambda: hgjax.soft_weights(nb, RATIO, method="ea"))())
+
+
+def test_a_traced_ratio_must_be_a_scalar_number():
+    _, nb = setup("ea")
+    with pytest.raises(ValueError, match=r"ratio must be a scalar in \(0, 1\]; got a tracer of shape \(2,\)"):
+        jax.jit(lambda r: hgjax.soft_weights(nb, r, method="ea"))(jnp.array([0.2, 0.3]))
+    with pytest.raises(TypeError, match="ratio must be a number"):
+        jax.jit(lambda r: hgjax.soft_weights(nb, r, method="ea"))(jnp.array(True))
+
+
+@pytest.mark.parametrize("entry", ["resample", "soft_resample", "keep"])
+def test_a_ratio_that_sets_the_count_kept_refuses_a_tracer(entry):
+    pts, nb = setup("ea")
+    call = {"resample": lambda r: hgjax.resample(pts, r, method="ea", search="jax"),
+            "soft_resample": lambda r: hgjax.soft_resample(pts, r, method="ea"),
+            "keep": lambda r: hgjax.keep(pts[:, 0], r, method="ea")}[entry]
+    with pytest.raises(TypeError, match=r"ratio must be concrete here: it sets the number of points kept"):
+        jax.jit(call)(RATIO)
