@@ -7,15 +7,17 @@ Every method whose build takes ``search`` (``hgjax.METHODS``), each size in a fr
 peak resident memory is that method's), on the float32 box surface (``_report.box_cloud``). Each
 round times, in turn: the floor (``cKDTree`` kNN16 on the Morton-sorted copy, tree build
 included), the host build (``hgjax.neighbourhoods(p, m)``), the traced build compiled once and
-called with the cell capacity and edge an eager build recorded (the device path), the whole
+called with no sizes (the k-nearest kinds) or the columns an eager build recorded (balls and
+graphs; the device path), the whole
 resample jitted (``jax.jit(lambda q: hgjax.resample(q, 0.2, method=m, search="jax", ...))``,
 for the methods that keep their top scores), the host resample, and the engine with its tiles
 built by the traced search (``hgjax.tiles.resample(p, 0.2, method=m, search="jax")``, the
 GPU/TPU default, where the method's tiles can). Each result is checked against the host's:
 neighbour sets equal; kept indices that differ (ties of float scores at the cut may differ when
 the scores are computed inside one fused program). Medians over the rounds after a warm-up;
-ratios to the floor measured beside each call. The same script runs on a GPU
-(``bench/gpu_check.sh``).
+ratios to the floor measured beside each call. Sizing: the first, cold eager traced build of the
+process (seconds, XLA compilations and their seconds) and the first call of the jitted build
+(compiled then). The same script runs on a GPU (``bench/gpu_check.sh``).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ sys.path.insert(0, str(HERE))
 import _report  # noqa: E402
 
 RATIO = 0.2
+COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"  # one per XLA compilation
 PARAMS = {"gfr": {"mode": "top"}}  # GFR's deterministic top scores: the selection a traced resample can run
 
 
@@ -63,17 +66,26 @@ def measure(n: int, method: str, repeats: int) -> dict:
     q = _report.morton_copy(p)
     entry = hgjax.METHODS[method]
     extra = PARAMS.get(method, {})
-    host = hgjax.neighbourhoods(p, method)
-    eager = hgjax.neighbourhoods(p, method, search="jax")
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, seconds, **_: compiles.append(seconds) if event == COMPILE_EVENT else None)
+    t = time.perf_counter()
+    eager = hgjax.neighbourhoods(p, method, search="jax")  # cold: the sizes (a ball's or graph's columns) found
+    jax.block_until_ready(eager.idx)
+    sizing = {"seconds": time.perf_counter() - t, "compiles": len(compiles), "compile s": sum(compiles)}
     cells = {k: v for k, v in eager.params if k == "capacity"}  # the columns a ball or graph needs; none for kNN
     build = jax.jit(lambda x: hgjax.neighbourhoods(x, method, search="jax", **cells))
+    t = time.perf_counter()
     traced = build(p)
+    jax.block_until_ready(traced.idx)
+    sizing["jit first call s"] = time.perf_counter() - t
+    host = hgjax.neighbourhoods(p, method)
     same = bool(np.array_equal(np.asarray(traced.idx), host.idx)) and int(traced.overflow) == 0
     kept = hgjax.resample(p, RATIO, method=method, **extra)
     calls = {"host build": lambda: hgjax.neighbourhoods(p, method).idx, "traced build": lambda: build(p).idx,
              "host resample": lambda: hgjax.resample(p, RATIO, method=method, **extra)}
     differ = {}
-    if entry.select is None or (entry.keeps_top is not None and entry.keeps_top(extra)):
+    if entry.select is None or hgjax.engine.keeps_top(entry, extra):
         whole = jax.jit(lambda x: hgjax.resample(x, RATIO, method=method, search="jax", **cells, **extra))
         calls["jitted resample"] = lambda: whole(p)
         differ["jitted resample"] = len(set(kept.tolist()) - set(np.asarray(whole(p)).tolist()))
@@ -86,7 +98,7 @@ def measure(n: int, method: str, repeats: int) -> dict:
             times["floor"].append(_report.knn16_seconds(q))
             times[name].append(_timed(fn))
     return {"n": n, "method": method, **{k: statistics.median(v) for k, v in times.items()},
-            "cells": cells, "same": same,
+            "cells": cells, "sizing": sizing, "same": same,
             "differ": differ, "peak_mb": _report.peak_mb()}
 
 
@@ -120,19 +132,22 @@ def main() -> None:
 
 def _table(rows: list[dict]) -> list[str]:
     table = ["| N | method | floor s | host build | traced build | jitted resample | jitted resample s |"
-             " host resample | engine, traced tiles | cells (capacity, edge) | traced sets == host | kept differing"
-             " (jitted; engine) | peak MB |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             " host resample | engine, traced tiles | columns | traced sets == host | kept differing"
+             " (jitted; engine) | cold eager build s (compiles, compile s) | jit first call s | peak MB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            table.append(f"| {r['n']:,} | {r['method']} | {r['error']} |" + " |" * 10)
+            table.append(f"| {r['n']:,} | {r['method']} | {r['error']} |" + " |" * 12)
             continue
-        d = r["differ"]
-        cells = ", ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in r["cells"].values())
+        d, s = r["differ"], r["sizing"]
+        cells = ", ".join(str(v) for v in r["cells"].values()) or "-"
         seconds = f"{r['jitted resample']:.3f}" if "jitted resample" in r else "-"
         table.append(f"| {r['n']:,} | {r['method']} | {r['floor']:.3f} | {_ratio(r, 'host build')} |"
                      f" {_ratio(r, 'traced build')} | {_ratio(r, 'jitted resample')} | {seconds} |"
                      f" {_ratio(r, 'host resample')} | {_ratio(r, 'engine, traced tiles')} | {cells} | {r['same']} |"
-                     f" {d.get('jitted resample', '-')}; {d.get('engine, traced tiles', '-')} | {r['peak_mb']:.0f} |")
+                     f" {d.get('jitted resample', '-')}; {d.get('engine, traced tiles', '-')} |"
+                     f" {s['seconds']:.1f} ({s['compiles']}, {s['compile s']:.1f}) | {s['jit first call s']:.1f} |"
+                     f" {r['peak_mb']:.0f} |")
     return table
 
 

@@ -112,10 +112,10 @@ class Method:
         None for a method that never draws.
       ranks_as: (another method, why) when this one keeps that one's points by definition
         (the demo says so where it sees it), or None.
-      keeps_top: ``keeps_top(params) -> bool`` for a method with its own ``select``: whether
-        that selection with these selection parameters keeps the m top ranked values, ties by
-        index (as :func:`hgjax.top_k`), so a traced resample (``search="jax"``) may rank with
-        ``jax.lax.top_k`` instead (GFR's ``mode="top"``); None: never.
+      keeps_top: for a method with its own ``select``, the selection parameters with which it
+        keeps the m top ranked values, ties by index (as :func:`hgjax.top_k`), so that a traced
+        resample (``search="jax"``) may rank with ``jax.lax.top_k`` instead (GFR's
+        ``{"mode": "top"}``); None: never.
 
     Examples:
       >>> import hgjax
@@ -141,7 +141,7 @@ class Method:
     select: Callable | None = None
     check_key: Callable | None = None
     ranks_as: tuple | None = None
-    keeps_top: Callable | None = None
+    keeps_top: dict | None = None
 
     @property
     def accepted(self) -> frozenset:

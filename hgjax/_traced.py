@@ -147,13 +147,13 @@ def _raise_overflow(overflow) -> None:
 def guard(overflow):
     """``overflow`` (an int32 report: 0, the columns needed, or -1), checked: a non-zero report raises.
 
-    Eagerly it raises ValueError at once. Traced (under ``jit``, ``vmap``, ``grad``) a host
-    callback raises the same ValueError when the compiled program runs, so the caller's call
-    fails (as a ``jax.errors.JaxRuntimeError`` carrying the message) instead of returning a
-    truncated neighbourhood.
+    Eagerly it raises ValueError at once. Traced (under ``jit``, ``vmap``, ``grad``) the same
+    ValueError is raised where the compiled program runs (:func:`hgjax._validate.fail_where`),
+    so the caller's call fails (as a ``jax.errors.JaxRuntimeError`` carrying the message)
+    instead of returning a truncated neighbourhood.
     """
     if _stream.is_traced(overflow):
-        jax.debug.callback(_raise_overflow, overflow)
+        _validate.fail_where(overflow != 0, _raise_overflow, overflow)
     else:
         _raise_overflow(overflow)
     return overflow

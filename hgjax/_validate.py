@@ -314,9 +314,20 @@ def check_traced_ratio(ratio: Any, name: str = "ratio"):
         raise TypeError(f"{name} must be a number in (0, 1]; got a tracer of dtype {ratio.dtype}")
     if ratio.shape != ():
         raise ValueError(f"{name} must be a scalar in (0, 1]; got a tracer of shape {ratio.shape}")
-    report = functools.partial(_check_ratio_values, name=name)  # on the host, only for a value out of range
-    jax.lax.cond((ratio > 0) & (ratio <= 1), lambda r: None, lambda r: jax.debug.callback(report, r), ratio)
+    fail_where(~((ratio > 0) & (ratio <= 1)), functools.partial(_check_ratio_values, name=name), ratio)
     return ratio
+
+
+def fail_where(bad, report, *operands) -> None:
+    """Where the traced program runs, call ``report(*operands)`` on the host when ``bad`` holds.
+
+    ``report`` raises (it also sees the values of a whole batch under ``vmap``: it must raise
+    only for the bad ones), which stops the program: the caller's call fails with a
+    :class:`jax.errors.JaxRuntimeError` carrying its message instead of giving a result, under
+    ``jit``, ``vmap`` and ``grad`` alike. No callback runs otherwise (a ``lax.cond``); the
+    program still carries the callback's effect, a fixed cost per call (none per point).
+    """
+    jax.lax.cond(jnp.any(bad), lambda *o: jax.debug.callback(report, *o), lambda *o: None, *operands)
 
 
 def _check_ratio_values(values, name: str) -> None:

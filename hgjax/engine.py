@@ -235,15 +235,22 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
     return (done.idx, done.scores) if return_scores else done.idx
 
 
+def keeps_top(entry: Method, params: dict) -> bool:
+    """Whether ``entry``'s selection with ``params`` keeps the top scores, ties by index (:attr:`Method.keeps_top`)."""
+    return entry.keeps_top is not None and all(params.get(k) == v for k, v in entry.keeps_top.items())
+
+
 def _pure(points, ratio, entry: Method, return_scores, params: dict):
     """``top_k(score(neighbourhoods(points, search="jax")))``: a resample in pure JAX, under a caller's ``jit``.
 
     The kept count ceil(ratio N) sets a shape: ``ratio`` is static. Ties are broken by index
     as :func:`hgjax.top_k` breaks them (``jax.lax.top_k`` lists the lower index first).
     """
-    if entry.select is not None and not (entry.keeps_top is not None and entry.keeps_top(params)):
-        raise ValueError(f"method {entry.name!r} selects on the host ({entry.select.__module__}) with these parameters;"
-                         " search='jax' resamples with a selection that keeps the top scores")
+    if entry.select is not None and not keeps_top(entry, params):
+        how = ("" if entry.keeps_top is None else
+               "; pass " + ", ".join(f"{k}={v!r}" for k, v in entry.keeps_top.items()) + " to keep its top scores")
+        raise ValueError(f"method {entry.name!r} selects on the host with these parameters, which search='jax' cannot"
+                         f" run inside one program{how}")
     return_scores = _validate.check_bool(return_scores, "return_scores")
     nb = pipeline.neighbourhoods(points, entry.name, **params)
     scores = pipeline.score(nb, entry.name, **params)

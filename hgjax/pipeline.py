@@ -120,8 +120,8 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     Raises:
       TypeError: a ``ratio`` (it belongs to :func:`keep` and :func:`resample`), or invalid
         parameters.
-      ValueError: invalid method or parameters; neighbourhoods of the traced search that
-        overflowed their capacity (called eagerly: ``nb.overflow``).
+      ValueError: invalid method or parameters; neighbourhoods whose ``overflow`` is set (under
+        ``jit`` when the program runs).
 
     Examples:
       >>> import jax, numpy as np, hgjax

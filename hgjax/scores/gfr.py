@@ -707,11 +707,6 @@ def _select(scores, m: int, *, key=None, mode: str = "random") -> np.ndarray:
     return select.weighted_sample(key, inclusion(np.ldexp(values, shift), total.value(shift), n), m)
 
 
-def _keeps_top(params: dict) -> bool:
-    """Whether the selection with these parameters keeps the top scores, ties by index (``mode="top"``)."""
-    return _validate.check_choice(params.get("mode", "random"), "mode", MODES) == "top"
-
-
 def _untiled(params: dict) -> tuple[str, str] | None:
     if params.get("variant") != "reference":
         return None
@@ -875,6 +870,6 @@ METHOD = _method.Method(
     params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "max_nn", "radius_factor", "search",
                                  "variant"),
                             score=("chunk_size", "progress", "variant"), soft_score=("variant",), select=("mode",)),
-    select=_select, check_key=check_key, keeps_top=_keeps_top, bytes_per_sample=4096,
+    select=_select, check_key=check_key, keeps_top={"mode": "top"}, bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=_reach, resolve=resolve_build, halo=_first_halo,
                           scores=tiled_scores, select=tiled_select, refused=_untiled))

@@ -452,7 +452,8 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic. With
         ``search="jax"`` under ``jit`` it sets a static shape: pass the one an eager build
         recorded (``nb.params``); without it, 256 columns for "invariant" (a cube never
-        holds more) and 128 for "reference" (an overflow is recorded on ``nb.overflow``).
+        holds more) and 128 for "reference" (a wider cube stops the program, naming the
+        capacity it needs).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search,
         :func:`hgjax._traced_cube.cube`: jit, vmap; the host's neighbour sets and ``scale``,
         every whole-cloud decision (d factor, resolution) traced too).
