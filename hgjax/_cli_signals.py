@@ -5,9 +5,9 @@
 the clean-up of partial files runs to its end, and holds a signal that comes inside an import
 until the import ends. The console script ends the process at once instead
 (:func:`_exit_at_once`, :func:`_exit`): unwinding could free arrays that library threads still
-read. The console script itself is :func:`console`, which handles both signals from its first
-statement, before :mod:`hgjax.cli` is imported. This module imports nothing heavy:
-:func:`hgjax.cli.main` installs the handlers before JAX is imported.
+read. The console script (:func:`hgjax.__main__.console`) calls :func:`exit_on_signals` first,
+before :mod:`hgjax.cli` is imported. This module imports nothing heavy: :func:`hgjax.cli.main`
+installs the handlers before JAX is imported.
 """
 
 from __future__ import annotations
@@ -52,24 +52,24 @@ def _exit_at_once(name: str) -> None:
     os._exit(code)
 
 
+_DEFAULT_HANDLERS = ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL))
+"""Each handled signal with the handler it has unless the parent process set it to be ignored."""
+
+
 def _at_once(signum, frame) -> None:
-    """The handler of :func:`console` until :func:`hgjax.cli.main` installs its own."""
+    """The handler of :func:`exit_on_signals` until :func:`hgjax.cli.main` installs its own."""
     _exit_at_once(signal.Signals(signum).name)
 
 
-def console() -> None:
-    """The ``hgjax`` console script (and ``python -m hgjax``): :func:`hgjax.cli.main`, with SIGINT
-    and SIGTERM ending the run at once (:func:`_exit_at_once`) from the first statement on, while
-    :mod:`hgjax.cli` and the standard library's modules it needs are imported, so that a signal in
-    the first milliseconds prints the run's one line, never a traceback from an import.
-    :func:`hgjax.cli.main` then installs its own handlers in their place (:func:`_signals`).
+def exit_on_signals() -> None:
+    """From now on, SIGINT and SIGTERM end the process at once (:func:`_exit_at_once`), until
+    :func:`hgjax.cli.main` installs its own handlers in their place (:func:`_signals`). The console
+    script calls this first, so that a signal while :mod:`hgjax.cli` and the standard library's
+    modules it needs are imported prints the run's one line, never a traceback from an import.
     Signals the parent set to be ignored stay ignored."""
-    for signum, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
+    for signum, default in _DEFAULT_HANDLERS:
         if signal.getsignal(signum) is default:
             signal.signal(signum, _at_once)
-    from hgjax.cli import main
-
-    main()
 
 
 @contextlib.contextmanager
@@ -112,7 +112,7 @@ def _signals(received: list, exit_now: bool = False):
             raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
     saved = {}
-    for signum, default in ((signal.SIGINT, signal.default_int_handler), (signal.SIGTERM, signal.SIG_DFL)):
+    for signum, default in _DEFAULT_HANDLERS:
         if signal.getsignal(signum) in (default, _at_once):
             saved[signum] = signal.signal(signum, handler)
     try:

@@ -9,7 +9,7 @@ import hgjax
 
 PACKAGE = pathlib.Path(hgjax.__file__).parent
 GENERIC = ["engine.py", "tiles.py", "_tiling.py", "select.py", "cli.py", "_cli_common.py", "_cli_batch.py",
-           "_cli_survey.py", "_cli_compare.py", "_cli_signals.py", "survey.py", "pipeline.py"]
+           "_cli_survey.py", "_cli_compare.py", "_cli_signals.py", "__main__.py", "survey.py", "pipeline.py"]
 
 
 def _module(path: pathlib.Path) -> str:

@@ -270,7 +270,7 @@ def interrupted(name, *args, **kwargs):
 
 builtins.__import__ = interrupted
 sys.argv = ["hgjax", "--help"]
-from hgjax._cli_signals import console
+from hgjax.__main__ import console
 console()
 """
 
