@@ -1,20 +1,33 @@
 """The method registry: :data:`METHODS`, lookup by name, and the split of parameters by stage.
 
 Each method module declares its own entry (:class:`hgjax.Method` or :class:`hgjax.Sampler`,
-:mod:`hgjax._method`); this module only collects them.
+:mod:`hgjax._method`); this module only collects them, under the names :mod:`hgjax._names` lists
+(the command line reads those without importing the method modules).
 """
 
 from __future__ import annotations
 
-from hgjax import _validate, samplers
+from hgjax import _names, _validate, samplers
 from hgjax._method import Method, Sampler
 from hgjax.scores import ea, gfr, hkc, hkf, lhf, mss, pca_ac
 
 __all__ = ["DEFAULT", "METHODS", "Method", "Sampler"]
 
-METHODS: dict[str, Method | Sampler] = {m.name: m for m in (
-    hkc.METHOD, hkf.METHOD, lhf.METHOD, gfr.METHOD, ea.METHOD, pca_ac.METHOD, mss.METHOD, *samplers.SAMPLERS)}
-DEFAULT = hkc.METHOD.name
+
+def _by_name(*entries: Method | Sampler) -> dict[str, Method | Sampler]:
+    """{name: entry} of ``entries``; RuntimeError unless their names are those :mod:`hgjax._names` lists."""
+    found = {m.name: m for m in entries}
+    declared = (tuple(sorted(n for n, m in found.items() if isinstance(m, Method))),
+                tuple(sorted(n for n, m in found.items() if isinstance(m, Sampler))))
+    if declared != (_names.SCORING, _names.SAMPLERS):
+        raise RuntimeError(f"the method modules declare scoring methods {declared[0]} and samplers {declared[1]};"
+                           f" hgjax._names lists {_names.SCORING} and {_names.SAMPLERS}")
+    return found
+
+
+METHODS: dict[str, Method | Sampler] = _by_name(
+    hkc.METHOD, hkf.METHOD, lhf.METHOD, gfr.METHOD, ea.METHOD, pca_ac.METHOD, mss.METHOD, *samplers.SAMPLERS)
+DEFAULT = _names.DEFAULT
 """The method of :func:`hgjax.resample`, :func:`hgjax.tiles.resample` and the command line when none is named."""
 
 
@@ -27,8 +40,7 @@ def scoring(method: str) -> Method:
     """The :class:`Method` of ``method``; a sampler (no scores) raises ValueError listing the scoring methods."""
     found = entry(method)
     if not isinstance(found, Method):
-        raise ValueError(f"method {method!r} is a sampler without scores; expected one of"
-                         f" {sorted(m for m, e in METHODS.items() if isinstance(e, Method))}")
+        raise ValueError(f"method {method!r} is a sampler without scores; expected one of {list(_names.SCORING)}")
     return found
 
 

@@ -42,6 +42,7 @@ import os
 import sys
 import warnings
 
+from hgjax import _names
 from hgjax._cli_batch import cmd_resample, cmd_score
 from hgjax._cli_common import (  # noqa: F401  (re-exported)
     DEFAULT_RATIO,
@@ -123,13 +124,6 @@ examples:
 }
 """Each command's ``--help`` examples."""
 
-METHOD_NAMES = ("ea", "fps", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac", "uniform", "voxel")
-"""The names of :data:`hgjax.METHODS`, sorted, spelled here so that building the parser (and so
-``--help``) imports neither NumPy nor JAX; a test keeps them equal to the registry's."""
-SCORING_NAMES = ("ea", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac")
-"""The scoring methods of :data:`METHOD_NAMES` (those that are a :class:`hgjax.Method`)."""
-DEFAULT_METHOD = "hkc"
-"""The registry's default method (``hgjax._registry.DEFAULT``)."""
 OUTPUT_FORMATS = ("ply", "xyz", "txt", "npy", "pcd", "las", "laz")
 """The formats :func:`hgjax.io.write_points` writes (:data:`hgjax.io.WRITE_EXTENSIONS` without the dots)."""
 
@@ -221,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``hgjax`` command (exposed for documentation tools).
 
     It imports neither NumPy nor JAX, so ``--help`` answers at once."""
-    methods, scoring = list(METHOD_NAMES), list(SCORING_NAMES)
+    methods, scoring = list(_names.METHODS), list(_names.SCORING)
     parser = argparse.ArgumentParser(prog="hgjax", description="Point-cloud resampling with hypergraph signal"
                                      " processing (HKC, HKF, LHF) and baselines, in JAX.",
                                      epilog=EPILOG, formatter_class=_Formatter)
@@ -271,8 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
                        " cloud's centre (default 1: the whole cloud)")
 
     def with_method(p, names):
-        p.add_argument("--method", choices=names, default=DEFAULT_METHOD,
-                       help=f"one of {', '.join(names)} (default {DEFAULT_METHOD})")
+        p.add_argument("--method", choices=names, default=_names.DEFAULT,
+                       help=f"one of {', '.join(names)} (default {_names.DEFAULT})")
         p.add_argument("--variant", default=None, help="score variant, e.g. invariant or reference")
         p.add_argument("-p", "--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                        help="method parameter, e.g. -p lengths=10,30 (repeatable; see hgjax.METHODS)")

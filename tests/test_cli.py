@@ -1,5 +1,6 @@
 """The ``hgjax`` command line, in this process (``hgjax.cli.main``) and as a subprocess."""
 
+import argparse
 import dataclasses
 import os
 import pathlib
@@ -288,11 +289,26 @@ def test_help_imports_neither_numpy_nor_jax_and_shows_its_own_examples(command):
     assert ("130  interrupted" in proc.stdout) == (not command)  # the global notes once, in hgjax --help
 
 
-def test_the_parsers_names_are_the_registrys():
-    assert list(cli.METHOD_NAMES) == sorted(hgjax.METHODS)
-    assert list(cli.SCORING_NAMES) == [m for m in sorted(hgjax.METHODS) if isinstance(hgjax.METHODS[m], hgjax.Method)]
-    assert cli.DEFAULT_METHOD == hgjax._registry.DEFAULT
-    assert cli.OUTPUT_FORMATS == tuple(ext[1:] for ext in io.WRITE_EXTENSIONS)
+def _option(command: str, dest: str):
+    commands = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    return next(a for a in commands[command]._actions if a.dest == dest)
+
+
+@pytest.mark.parametrize("command", ["resample", "score"])
+def test_the_parsers_methods_are_the_registrys(command):
+    method = _option(command, "method")
+    names = [m for m in sorted(hgjax.METHODS) if command == "resample" or isinstance(hgjax.METHODS[m], hgjax.Method)]
+    assert (method.choices, method.default) == (names, hgjax._registry.DEFAULT)
+
+
+def test_the_parsers_formats_are_the_writers():
+    assert tuple(_option("resample", "format").choices) == tuple(ext[1:] for ext in io.WRITE_EXTENSIONS)
+
+
+def test_the_registry_refuses_method_names_its_name_list_does_not_hold():
+    with pytest.raises(RuntimeError, match="hgjax._names lists"):
+        hgjax._registry._by_name(*[e for m, e in hgjax.METHODS.items() if m != "fps"])
+    assert hgjax._registry._by_name(*hgjax.METHODS.values()) == hgjax.METHODS
 
 
 @pytest.mark.parametrize("args, message", [
@@ -344,8 +360,9 @@ def test_unwritable_output_is_refused_before_computing(capsys, tmp_path, monkeyp
 
     monkeypatch.setattr(engine, "run", fail)
     monkeypatch.setattr(io, "read_points", fail)
-    code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "no" / "dir" / "x.ply")
-    assert code == 2 and "directory" in err and "does not exist" in err
+    (tmp_path / "file").write_text("")
+    code, _, err = run_here(capsys, "resample", MESH, "-o", tmp_path / "file" / "dir" / "x.ply")
+    assert code == 2 and "cannot create the directory of -o" in err and "Not a directory" in err, err
     (tmp_path / "out" / "scan_lamppost.ply").mkdir(parents=True)
     code, _, err = run_here(capsys, "resample", MESH, LAMPPOST, "-o", tmp_path / "out")
     assert code == 2 and "scan_lamppost.ply: it is a directory" in err
