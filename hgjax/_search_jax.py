@@ -737,7 +737,9 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
         float dtype (float64 under x64). With ``dedupe`` every copy uses its location's first
         copy's radius (the host queries each location once).
       columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
-      dedupe, slots, edge, count, gid, chunk, spill: as :func:`knn`. The default edge is the
+      dedupe, edge, count, gid, chunk, spill: as :func:`knn`.
+      slots: as :func:`knn`; a ball reads at least twice its columns (with ``max_count``, the
+        larger of the two) per step, so that a step is not mostly the running selection. The default edge is the
         largest radius times 1.1 (traced).
       metric: ``"l2"``, ``"l2sq"`` (``radius`` is then a squared radius) or ``"linf"`` (static).
       max_count: the host's ``max_count`` (static): a row whose ball holds ``max_count``
@@ -783,7 +785,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
         def inside(acc, c):  # every candidate of the ball, counted exactly
             return acc + jnp.sum(_below(c["hi"], c["lo"], h, metric, h_lo), axis=1, dtype=jnp.int32)
 
-        s, held = _scan(cloud, qi, block, width, slots, metric, inside, jnp.zeros(qi.shape, jnp.int32))
+        s, held = _scan(cloud, qi, block, width, max(slots, 2 * width), metric, inside, jnp.zeros(qi.shape, jnp.int32))
         take = _below(s["hi"], s["lo"], h, metric, h_lo)
         used = h
         if max_count is not None:  # a full ball shrinks to exclude its max_count-th point

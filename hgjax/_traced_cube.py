@@ -45,6 +45,7 @@ picks the k); a single location gets spacing 1 and irregularity 0.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -98,15 +99,60 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     """
     p = jnp.asarray(points)
     n = p.shape[0]
-    traced = _stream.is_traced(p)
-    cells = _traced.CELL_SLOTS if cell_slots is None else cell_slots
+    slots = _traced.CELL_SLOTS if cell_slots is None else cell_slots
+    statics = dict(metric=metric, widen=widen, kernel_size=kernel_size, d_factor=d_factor, ramp=ramp, spacing=spacing,
+                   local_k=local_k, max_count=max_count, dedupe=dedupe, slots=slots)
+    if _stream.is_traced(p):
+        columns = capacity if capacity is not None else (max_count or COLUMNS)
+        idx, scale, overflow = _balls(p, cell_edge, columns=columns, spacing_k=None, **statics)
+        local, lo = _traced.local_frame(p)
+        return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record({**params, "search": "jax"}),
+                                      overflow=_traced.guard(overflow), points_lo=lo)
+    # Eagerly the same program, jitted once per setting: the spacing's k from the host's count of locations
+    # (no switch over every k), the columns grown to what the fullest row reports.
+    locations = len(np.unique(np.asarray(p), axis=0)) if dedupe else n  # as the search sees the points
+    spacing_k = min(local_k, locations - 1) if isinstance(spacing, str) and spacing == "local" else None
+    columns = capacity if capacity is not None else (max_count or FIRST_COLUMNS)
+    while True:
+        idx, scale, overflow = _jitted_balls(columns=columns, spacing_k=spacing_k, **statics)(p, cell_edge)
+        needed = int(overflow)
+        if needed < 0:
+            raise RuntimeError("the traced search could not cover some row within its passes")
+        if needed == 0:
+            break
+        _validate.check_capacity(capacity, needed, "cube")
+        columns = spatial.bucket(needed)
+    width = int(jnp.max(jnp.sum(idx < n, axis=1)))
+    _validate.check_capacity(capacity, width, "cube")
+    cols = spatial.bucket(width) if capacity is None else capacity
+    idx = idx[:, :cols] if idx.shape[1] >= cols else jnp.pad(idx, ((0, 0), (0, cols - idx.shape[1])), constant_values=n)
+    local, lo = _traced.host_frame(points)
+    record = {**params, "search": "jax", "capacity": cols}
+    return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record(record),
+                                  overflow=jnp.zeros((), jnp.int32), points_lo=lo)
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted_balls(**statics):
+    return jax.jit(functools.partial(_balls, **statics))
+
+
+def _balls(p, cell_edge, *, metric: str, widen: float, kernel_size: int, d_factor, ramp, spacing, local_k: int,
+           max_count: int | None, dedupe: bool, slots: int, columns: int, spacing_k: int | None):
+    """(idx (N, columns) int32, scale (N,), overflow): the cubes or balls and their voxel spacing, pure JAX.
+
+    ``spacing_k``: the local spacing's k when known (eagerly, from the host's count of
+    locations), or None to pick it from the traced count (a ``lax.switch``). ``overflow``: 0,
+    the columns the fullest row needs when more than ``columns``, or -1 (a row not covered).
+    """
+    n = p.shape[0]
     x64 = bool(jax.config.jax_enable_x64)
-    searches = _Searches(p, traced, cells, cell_edge)
+    searches = _Searches(p, slots, cell_edge)
     # the spacing and the d factor
     near = None
     if isinstance(spacing, str) and spacing == "local":
         near = searches.knn(local_k + 1, dedupe)
-        res, res_lo = _local_spacing(p, near, local_k, dedupe, traced, x64)
+        res, res_lo = _local_spacing(p, near, local_k, dedupe, spacing_k, x64)
     elif isinstance(spacing, str):
         other = searches.knn(2, False)
         res, res_lo = _mean_other(p, other, x64)
@@ -125,22 +171,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     radius, radius_lo = _times(factor, factor_lo, res, res_lo, x64)
     radius = jnp.broadcast_to(jnp.asarray(radius, jnp.float64 if x64 else jnp.float32), (n,))
     radius_lo = None if radius_lo is None else jnp.broadcast_to(radius_lo, (n,))
-    # the cube or ball
-    columns = capacity if capacity is not None else (max_count or COLUMNS) if traced else FIRST_COLUMNS
     found = searches.within(radius, radius_lo, columns, metric, dedupe, max_count)
-    if traced:
-        idx = found.idx
-        overflow = _traced.guard(searches.overflow)
-        record = {**params, "search": "jax"}
-    else:
-        width = int(found.columns_needed)
-        _validate.check_capacity(capacity, width, "cube")
-        cols = spatial.bucket(width) if capacity is None else capacity
-        idx = found.idx[:, :cols]
-        if idx.shape[1] < cols:
-            idx = jnp.concatenate([idx, jnp.full((n, cols - idx.shape[1]), n, idx.dtype)], axis=1)
-        overflow = jnp.zeros((), jnp.int32)
-        record = {**params, "search": "jax", "capacity": cols}
     # scale d = (2 / k) x the radius used / widen, as the host
     used = found.reach
     if x64:
@@ -150,25 +181,19 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
         h = (jnp.where(shrunk, used, radius), jnp.where(shrunk, 0, 0 if radius_lo is None else radius_lo))
         scaled = _exact.pair_mul(*_exact.pair_const(2 / kernel_size), *h)
         scale = _p_round(_exact.pair_div(*scaled, *_exact.pair_const(widen)))
-    local, lo = _traced.local_frame(p) if traced else _traced.host_frame(points)
-    scale = lax.stop_gradient(scale).astype(local.dtype)
-    return spatial.Neighbourhoods(local, idx.astype(jnp.int32), scale, params=spatial.record(record),
-                                  overflow=overflow, points_lo=lo)
+    return found.idx.astype(jnp.int32), lax.stop_gradient(scale), searches.overflow
 
 
 class _Searches:
-    """The build's traced searches, with one ``slots`` and (where given) one first cell edge: under
-    ``jit`` their overflow summed up (the columns a ball needs, or -1); eagerly each grown until it
-    does not overflow."""
+    """The build's traced searches, with one ``slots`` and (where given) one first cell edge, their
+    overflow summed up: 0, the columns a ball needs, or -1 (a row not covered)."""
 
-    def __init__(self, p, traced: bool, slots: int, edge):
-        self.p, self.traced, self.slots, self.edge = p, traced, slots, edge
+    def __init__(self, p, slots: int, edge):
+        self.p, self.slots, self.edge = p, slots, edge
         self.overflow = jnp.zeros((), jnp.int32)
 
     def _run(self, query, *args, default_edge=None, **kwargs):
         edge = default_edge if self.edge is None else self.edge
-        if not self.traced:
-            return _search_jax.grown(query, self.p, *args, slots=self.slots, edge=edge, **kwargs)
         found = query(self.p, *args, slots=self.slots, edge=edge, **kwargs)
         wide = jnp.where(found.columns_needed > found.idx.shape[-1], found.columns_needed, 0)
         this = jnp.where(found.uncovered, -1, wide).astype(jnp.int32)
@@ -194,16 +219,14 @@ def _sq_pairs(p, j):
     return _sq_pairs_of(p, np.arange(p.shape[0]), j)
 
 
-def _local_spacing(p, near, local_k: int, dedupe: bool, traced: bool, x64: bool):
-    """(spacing, lo) (N,): :func:`hgjax.spatial.local_spacing` of every point, k lowered to the other locations."""
+def _local_spacing(p, near, local_k: int, dedupe: bool, spacing_k: int | None, x64: bool):
+    """(spacing, lo) (N,): :func:`hgjax.spatial.local_spacing` of every point, k lowered to the other locations
+    (``spacing_k`` when known, else from the traced count of locations)."""
     n = p.shape[0]
-    if dedupe:
-        locations = jnp.sum(near.idx[:, 0] == jnp.arange(n, dtype=near.idx.dtype))
-    else:
-        locations = n
+    if spacing_k is not None or not dedupe:
+        return _spacing_k(p, near, min(local_k, n - 1) if spacing_k is None else spacing_k, x64)
+    locations = jnp.sum(near.idx[:, 0] == jnp.arange(n, dtype=near.idx.dtype))
     branches = [lambda kk=kk: _spacing_k(p, near, kk, x64) for kk in range(local_k + 1)]
-    if not traced or not dedupe:
-        return branches[min(local_k, int(locations) - 1)]()
     return lax.switch(jnp.clip(locations - 1, 0, local_k), branches)
 
 

@@ -1,7 +1,5 @@
-"""Strict settings for the whole suite: x64 available, no implicit rank promotion; one persistent
-compilation cache for the session and the one Dask cluster."""
-
-import os
+"""Strict settings for the whole suite: x64 available, no implicit rank promotion; a persistent
+compilation cache per test process and the one Dask cluster."""
 
 import jax
 import numpy as np
@@ -21,16 +19,13 @@ def dtype(request):
 
 @pytest.fixture(scope="session", autouse=True)
 def compilation_cache(tmp_path_factory):
-    """JAX's persistent compilation cache in a temporary folder for the session, for this process
-    and (JAX_COMPILATION_CACHE_DIR) every process it starts: CLI runs, notebook kernels, Dask
-    workers load the streamed kernels (whose shapes do not depend on N) that another compiled.
+    """JAX's persistent compilation cache in a temporary folder of this pytest process, for it and
+    (JAX_COMPILATION_CACHE_DIR) every process it starts: CLI runs, notebook kernels, Dask workers
+    load the streamed kernels (whose shapes do not depend on N) that another compiled.
 
-    Every program is cached, however fast it compiled (as the CLI does), and the pytest-xdist
-    workers of one run share the folder, so a program compiled by one worker or one test file
-    is loaded, not compiled again, by the others."""
-    base = tmp_path_factory.getbasetemp()
-    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's folder, above gw0, gw1
-    directory = str(shared / "jax-cache")
+    Every program is cached, however fast it compiled (as the CLI does). Each pytest-xdist worker
+    has its own folder (its basetemp), so two workers never write one cache entry at once."""
+    directory = str(tmp_path_factory.getbasetemp() / "jax-cache")
     before = jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("JAX_COMPILATION_CACHE_DIR", directory)
@@ -66,7 +61,7 @@ def client():
 # loadgroup hands groups to whichever worker is free in collection order, so these start first and
 # the run ends on short groups (other test files, then the doctests of hgjax/): neither worker idles
 # while the other finishes a long one. By test count (xdist's default order) the notebooks came last.
-LONGEST_GROUPS = ("tests/test_traced_neighbourhoods.py", "tests/test_traced_graph.py", "tests/test_search_jax.py",
+LONGEST_GROUPS = ("tests/test_traced_jit.py", "tests/test_traced_neighbourhoods.py", "tests/test_traced_graph.py", "tests/test_search_jax.py",
                   "tests/test_signals.py", "tests/test_traced_tiles.py", "tests/test_kdtree.py",
                   "tests/test_api.py", "tests/test_soft.py", "tests/test_notebooks.py", "tests/test_mss.py",
                   "tests/test_cli.py", "tests/test_ragged.py", "tests/test_eval_edges.py", "tests/test_survey.py",

@@ -88,7 +88,7 @@ def test_setup_commands_are_the_first_block_and_the_test_command_is_ci():
     assert first.group(1) == "bash"
     commands = [line.split("   #")[0].rstrip() for line in first.group(2).splitlines()]
     ci = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if line.startswith('pip install ".[test]"')]
-    assert commands == ['pip install ".[plot]" && hgjax demo', ci[0]] and len(ci) == 1
+    assert commands == ['pip install ".[plot,las]" && hgjax demo', ci[0]] and len(ci) == 1
 
 
 def test_local_links_exist():
@@ -128,3 +128,25 @@ def test_speed_table_is_the_linked_results_files():
         assert (floor, search, peak) == rows[method], method
         assert scale == tiled.get(method, ""), method
     assert methods == set(rows) == set(hgjax.METHODS) - {"fps"}
+
+
+@pytest.mark.slow
+def test_command_line_block_runs_as_written(tmp_path, cli_cache):
+    """Each line of the command-line block, in order, in a folder beside ../shared (as a fresh clone is)."""
+    shared = ROOT.parent / "shared"
+    if not (shared / "data").is_dir():
+        pytest.skip("../shared/data is not beside the checkout")
+    (tmp_path / "shared").symlink_to(shared)
+    work = tmp_path / "clone"
+    work.mkdir()
+    block = next(b for b in blocks("bash") if b.startswith("hgjax "))
+    for line in block.splitlines():
+        command = line.split("   #")[0].split()
+        assert command[0] == "hgjax", line
+        proc = subprocess.run([sys.executable, "-m", "hgjax", *command[1:]], cwd=work, capture_output=True, text=True,
+                              timeout=TIMEOUT)
+        assert proc.returncode == 0, f"{line}\n{proc.stderr[-3000:]}"
+    for made in ("kept.ply", "lamppost.laz", "edges.laz", "kept/scan_lamppost.laz", "kept/scan_table_mug.laz",
+                 "scored.pcd"):
+        assert (work / made).stat().st_size > 0, made
+    assert any((work / "out").iterdir())

@@ -59,7 +59,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _stream, _traced, _validate, select, spatial, spectrum
+from hgjax import _exact, _method, _stream, _traced, _validate, select, spatial, spectrum
 from hgjax.scores import _common, ea, eigen
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
@@ -321,10 +321,13 @@ def mix(gamma_a, gamma_b, big_a, big_b):
     Returns:
       (N,) combined gamma; eps = 0.5 when Gamma_a + Gamma_b = 0.
     """
-    xp = jnp if _stream.is_traced(gamma_a, gamma_b, big_a, big_b) else np
-    total = big_a + big_b
-    eps = xp.where(total > 0, big_b / xp.where(total > 0, total, 1), 0.5).astype(gamma_a.dtype)
-    return eps * gamma_a + (1 - eps) * gamma_b
+    if not _stream.is_traced(gamma_a, gamma_b, big_a, big_b):
+        total = big_a + big_b
+        eps = np.where(total > 0, big_b / np.where(total > 0, total, 1), 0.5).astype(gamma_a.dtype)
+        return eps * gamma_a + (1 - eps) * gamma_b
+    total = big_a + big_b  # traced: each product and the quotient rounded on its own, as NumPy rounds them
+    eps = jnp.where(total > 0, _exact.div(big_b, jnp.where(total > 0, total, 1)), 0.5).astype(gamma_a.dtype)
+    return _exact.mul(eps, gamma_a) + _exact.mul(1 - eps, gamma_b)
 
 
 def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe: bool | None = None,
