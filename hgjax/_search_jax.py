@@ -51,8 +51,8 @@ Same answers as the host, bit for bit, by the exact arithmetic of :mod:`hgjax._e
   except where two distances that the host tells apart differ by less than about 2^-44
   relative, or where float64 rounding itself breaks an exact tie: not seen on any test cloud.
 
-HKC/HKF's per-point spacing (:func:`hgjax.spatial.local_spacing`) is :func:`local_spacing` of a
-17-nearest search, in the host's float64 operations and order (NumPy's pairwise mean); their
+HKC/HKF's per-point spacing (:func:`hgjax.spatial.local_spacing`) is
+:func:`hgjax._traced_cube.local_spacing` of a 17-nearest search, in the host's float64 operations and order (NumPy's pairwise mean); their
 ball is :func:`within` with ``max_count``; GFR's capped radius graph is :func:`knn` with
 ``metric="l2sq"`` and ``radius``.
 
@@ -85,7 +85,7 @@ from jax import lax
 
 from hgjax import _exact
 
-__all__ = ["Found", "grown", "knn", "local_spacing", "within"]
+__all__ = ["Found", "grown", "knn", "within"]
 
 SENTINEL_CELL = np.iinfo(np.int32).max  # cell of a padding row or of a point that is no candidate
 MAX_CELL = 1 << 30  # cell coordinates are clipped here (never reached by a sensible edge)
@@ -807,46 +807,6 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
     out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, _chunk(chunk, n), _spill(spill, n))
     columns_needed = jnp.max(jnp.where(cloud.real, out["width"], 0)).astype(jnp.int32)
     return _found(cloud, out, slots, columns_needed, 0)
-
-
-# ----------------------------------------------------------------------------- HKC/HKF's spacing
-
-def local_spacing(found: Found):
-    """HKC/HKF's per-point sample spacing, :func:`hgjax.spatial.local_spacing`, from a traced kNN.
-
-    s_i = sqrt(pi / k x mean over the k + 1 points j of row i of r_j^2), r_j the distance of
-    point j's (k + 1)-th point (itself first), 1 where s_i = 0; with the same float64
-    operations in the same order as the host (NumPy's pairwise mean), so under x64 the
-    spacing is the host's to the last bit.
-
-    Args:
-      found: :func:`knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
-        ``LOCAL_K + 1`` = 17); the cloud must hold at least k + 1 distinct locations (the
-        host then lowers k; this does not).
-
-    Returns:
-      (spacing, reach): (N,) each; reach the distance within which every point the estimate
-      used lies (the row's own (k + 1)-th distance plus the largest of its neighbours').
-      Padding rows (``count``) get spacing 1 and reach 0.
-
-    Examples:
-      >>> import numpy as np
-      >>> from hgjax import _search_jax
-      >>> p = np.c_[np.mgrid[0:8, 0:8].reshape(2, -1).T, np.zeros(64)].astype(np.float32)
-      >>> s, _ = _search_jax.local_spacing(_search_jax.knn(p, 17, dedupe=True))
-      >>> round(float(s[27]), 3)  # inside an 8 x 8 grid of spacing 1
-      0.991
-    """
-    idx, rk = found.idx, found.reach
-    n, width = idx.shape[-2], idx.shape[-1]
-    k = width - 1
-    real = idx[:, 0] < n
-    near = jnp.where(real[:, None], rk[jnp.minimum(idx, n - 1)], 0)
-    mean = _exact.div(_exact.numpy_sum(_exact.mul(near, near)), width)
-    spacing = jnp.sqrt((math.pi / k) * mean)
-    spacing = jnp.where(real & (spacing > 0), spacing, 1.0)
-    reach = jnp.where(real, rk + jnp.max(near, axis=1), 0)
-    return spacing, reach
 
 
 # ----------------------------------------------------------------------------- eager regrowth

@@ -6,7 +6,7 @@ the ball of radius sqrt(3) k d_i / 2 that holds it in every orientation), with t
 spacing d_i decided as the host decides it (:func:`hgjax.scores.voxel.resolve`), all traced:
 
 * ``spacing="local"``: d_i = f x the point's local spacing (:func:`hgjax.spatial.local_spacing`
-  of its ``local_k`` nearest locations: :func:`hgjax._search_jax.local_spacing` of a
+  of its ``local_k`` nearest locations: :func:`local_spacing` of a
   (local_k + 1)-nearest search);
 * ``spacing="mean_other"``: d = f x the mean distance from the seeded sample
   (:func:`hgjax.spatial.sample_ids`: N is static, so the sample is static NumPy) to each
@@ -56,7 +56,7 @@ from jax import lax
 from hgjax import _exact, _search_jax, _stream, _traced, _validate, spatial
 from hgjax._search_jax import _pair_keys
 
-__all__ = ["COLUMNS", "cube", "linear_ramp"]
+__all__ = ["COLUMNS", "cube", "linear_ramp", "local_spacing"]
 
 COLUMNS = 128
 """Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
@@ -214,6 +214,44 @@ class _Searches:
 
 # ----------------------------------------------------------------------------- the host's statistics
 
+def local_spacing(found: _search_jax.Found):
+    """HKC/HKF's per-point sample spacing, :func:`hgjax.spatial.local_spacing`, from a traced kNN.
+
+    s_i = sqrt(pi / k x mean over the k + 1 points j of row i of r_j^2), r_j the distance of
+    point j's (k + 1)-th point (itself first), 1 where s_i = 0; with the same float64
+    operations in the same order as the host (NumPy's pairwise mean), so under x64 the
+    spacing is the host's to the last bit.
+
+    Args:
+      found: :func:`hgjax._search_jax.knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
+        ``LOCAL_K + 1`` = 17); the cloud must hold at least k + 1 distinct locations (the
+        host then lowers k; this does not).
+
+    Returns:
+      (spacing, reach): (N,) each; reach the distance within which every point the estimate
+      used lies (the row's own (k + 1)-th distance plus the largest of its neighbours').
+      Padding rows (``count``) get spacing 1 and reach 0.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax import _search_jax, _traced_cube
+      >>> p = np.c_[np.mgrid[0:8, 0:8].reshape(2, -1).T, np.zeros(64)].astype(np.float32)
+      >>> s, _ = _traced_cube.local_spacing(_search_jax.knn(p, 17, dedupe=True))
+      >>> round(float(s[27]), 3)  # inside an 8 x 8 grid of spacing 1
+      0.991
+    """
+    idx, rk = found.idx, found.reach
+    n, width = idx.shape[-2], idx.shape[-1]
+    k = width - 1
+    real = idx[:, 0] < n
+    near = jnp.where(real[:, None], rk[jnp.minimum(idx, n - 1)], 0)
+    mean = _exact.div(_exact.numpy_sum(_exact.mul(near, near)), width)
+    spacing = jnp.sqrt((math.pi / k) * mean)
+    spacing = jnp.where(real & (spacing > 0), spacing, 1.0)
+    reach = jnp.where(real, rk + jnp.max(near, axis=1), 0)
+    return spacing, reach
+
+
 def _sq_pairs(p, j):
     """The squared distance from every point to point ``j`` (N,) as a float32 pair (exact differences)."""
     return _sq_pairs_of(p, np.arange(p.shape[0]), j)
@@ -239,7 +277,7 @@ def _spacing_k(p, near, kk: int, x64: bool):
     idx = near.idx[:, :kk + 1]
     if x64:
         found = dataclasses.replace(near, idx=idx, dist=near.dist[:, :kk + 1], reach=near.dist[:, kk])
-        return _search_jax.local_spacing(found)[0], None
+        return local_spacing(found)[0], None
     sh, sl = _sq_pairs(p, idx[:, kk])  # r_j^2 of every point j
     safe = jnp.minimum(idx, n - 1)
     total = _exact.pair_sum(sh[safe], sl[safe])

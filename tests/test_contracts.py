@@ -1,4 +1,4 @@
-"""Library contracts found by fuzzing (issue 24): scale-free FPS, EA and PCA-AC, one check of
+"""Library contracts: scale-free FPS, EA and PCA-AC, one check of
 ``scores`` for every method, ``chunk_size`` named, an empty ASCII PCD named."""
 
 import numpy as np

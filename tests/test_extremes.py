@@ -1,4 +1,4 @@
-"""Extreme coordinates and refused parameters (issue 47's faults): a right result or a clear
+"""Extreme coordinates and refused parameters: a right result or a clear
 ValueError naming the argument and the accepted range, raised before any work; never a crash,
 a hang, NaN scores or a repeated index.
 

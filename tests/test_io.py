@@ -426,7 +426,7 @@ def test_pcd_needs_its_extra(tmp_path, monkeypatch, pcd_cloud):
         io.write_points(tmp_path / "d.pcd", np.eye(3))
 
 
-# ------------------------------------------------------------------ every output is an input (issue 47)
+# ------------------------------------------------------------------ every output is an input
 
 def _cli(capsys, *args):
     from hgjax.cli import main

@@ -1,4 +1,4 @@
-"""hgjax.io on the faults a fuzz found (issue 47): each file is read right or refused naming the file and
+"""hgjax.io: each file is read right or refused naming the file and
 the fault; never a silently short read or a lossy round trip."""
 
 import struct

@@ -1,5 +1,5 @@
 """The host k-d tree engines (hgjax._kdtree): pykdtree where installed, cKDTree otherwise, the same
-neighbourhoods (issue 46). Distances bitwise equal to cKDTree's for every query hgjax makes; every
+neighbourhoods. Distances bitwise equal to cKDTree's for every query hgjax makes; every
 method keeps the same points with either engine, in one process and in tiles; without pykdtree
 SciPy answers."""
 

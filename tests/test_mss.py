@@ -1,4 +1,4 @@
-"""MSS (hgjax.scores.mss, issue 22): kernel against the naive NumPy loop, transformations of the
+"""MSS (hgjax.scores.mss): kernel against the naive NumPy loop, transformations of the
 execution (streaming; jit and vmap in tests/test_api.py's variants matrix) and of the cloud
 (rotation, translation, scale, permutation), finite gradients of its smooth twin on degenerate
 clouds, and the retraining of its edge model (bench/mss_training/train_edges.py)."""

@@ -1,4 +1,4 @@
-"""One resume rule for every mode (issue 47): the manifest in a directory of outputs (hgjax.survey.run_record,
+"""One resume rule for every mode: the manifest in a directory of outputs (hgjax.survey.run_record,
 reusable, write_manifest, read_manifest) decides what --skip-existing keeps, file by file (the command line)
 and in a survey (hgjax.survey.resample_files), with one line per output saying it was skipped or why it is
 recomputed; a corrupt manifest is a clear error; a file reached twice is read once; an interrupted survey of

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hgjax import _search_jax as search
-from hgjax import spatial
+from hgjax import _traced_cube, spatial
 
 from fixtures import box_surface, degenerate_clouds, lattice_shell, sphere, uniform_cloud
 
@@ -173,7 +173,7 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
     float64), the ball of sqrt(3) k / 2 f times it, shrunk below 256 points; the same bits."""
     factor = np.sqrt(3.0) * 3 / 2 * 1.6
     with x64_mode(True):
-        spacing = jax.jit(lambda p, c: search.local_spacing(search.knn(p, 17, dedupe=True, slots=SLOTS,
+        spacing = jax.jit(lambda p, c: _traced_cube.local_spacing(search.knn(p, 17, dedupe=True, slots=SLOTS,
                                                                        count=c)))
         ball = traced_within(256, "l2", True, 256, True)  # a sparse point's ball holds up to 255
         for name in ("quantised_1mm", "duplicated", "mixed_density", "georeferenced"):

@@ -1,6 +1,6 @@
 """Signals at any moment of an ``hgjax`` run, in every mode (one process, tiles, a survey of files,
 ``--workers``): SIGINT ends it with exit code 130 and SIGTERM with 143, with one line, no partial or
-temporary file and no process left behind, start-up's imports included (issue 47). Subprocesses of
+temporary file and no process left behind, start-up's imports included. Subprocesses of
 the installed console script; the schedule of signals is seeded, the moments they land are not."""
 
 import concurrent.futures

@@ -5,7 +5,7 @@ the host builder of the neighbourhoods it needs, and ``score`` / ``soft_score`` 
 :class:`hgjax.Neighbourhoods`: :mod:`~hgjax.scores.hkc` (Eq. 11), :mod:`~hgjax.scores.hkf`
 (Eq. 12), :mod:`~hgjax.scores.lhf` (Eqs. 14-16), :mod:`~hgjax.scores.gfr`,
 :mod:`~hgjax.scores.ea`, :mod:`~hgjax.scores.pca_ac`, and beyond the paper
-:mod:`~hgjax.scores.mss` (multi-scale sharpness, issue 22); :mod:`~hgjax.scores.voxel` is the cubic
+:mod:`~hgjax.scores.mss` (multi-scale sharpness); :mod:`~hgjax.scores.voxel` is the cubic
 kernel shared by HKC and HKF.
 """
 

@@ -1,5 +1,5 @@
 """Multi-scale sharpness (MSS): a small learned model over rotation-invariant multi-scale
-features of one k-nearest neighbourhood. Beyond the paper (issue 22).
+features of one k-nearest neighbourhood. Beyond the paper.
 
 One k-nearest query of K = max(``SCALES``) points (the point itself first, then by distance)
 serves every prefix k <= K. For each scale k the covariance C_k of the k nearest points has
@@ -23,7 +23,7 @@ and across scales the normals' agreement |n_8 . n_32|, |n_16 . n_32|, the radius
 r_8 / r_32, r_16 / r_32, and e0 at the finer scales ``FINE`` = (6, 12) (a sharp small-scale
 signal where the cloud is clean). One more input is the same for every point: the cloud's noise level
 (:func:`noise_of`, the root of the median e0 at ``NOISE_K`` neighbours over the seeded sample of
-:func:`hgjax.spatial.sample_ids`; issue 22's noise-aware scale selection), so that the model can
+:func:`hgjax.spatial.sample_ids`: a noise-aware choice of scale), so that the model can
 trust the fine scales on a clean cloud and the coarse ones on a noisy cloud. A tiled run
 resolves it once from the sample (:func:`resolve`, like HKC's ``d_factor``) and gives it to
 every tile. The model's inputs x (F + 1,) (:func:`inputs`) give the score
@@ -473,7 +473,7 @@ def _tile_kernel(params: dict):
 METHOD = _method.Method(
     "mss", "knn", largest=True, needs_key=False,
     summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 6 to 32 neighbours and the cloud's noise level, trained on synthetic shapes",
-    citation="Pauly, Keiser, Gross, Eurographics 2003; hgjax issue 22", build=neighbourhoods, score=score,
+    citation="Pauly, Keiser, Gross, Eurographics 2003; Hackel, Wegner, Schindler, CVPR 2016", build=neighbourhoods, score=score,
     soft_score=soft_score,
     params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "search"),
                           score=("chunk_size", "noise", "progress"), soft_score=("noise",)),
