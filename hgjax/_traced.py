@@ -128,20 +128,16 @@ def knn(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int =
     return spatial.Neighbourhoods(local, idx, params=record, overflow=overflow, points_lo=lo)
 
 
-def _overflow_message(worst: np.ndarray) -> str | None:
-    """What an overflow report (0, the columns needed, or -1 for a row its cells never covered) asks for."""
+def _raise_overflow(overflow) -> None:
+    """Raise for an overflow report (0, the columns needed, or -1 for a row its cells never covered), saying what to do."""
+    worst = np.asarray(overflow)
     if not (worst != 0).any():
-        return None
+        return
     needed = int(worst.max())
     how = (f"capacity={needed} (or capacity=None outside jit, which sizes it)" if needed > 0 else
            "points whose coordinates are finite (a row's neighbours were not found within the search's passes)")
-    return f"the traced neighbour search overflowed: some neighbourhoods would be truncated; rebuild them with {how}"
-
-
-def _raise_overflow(overflow) -> None:
-    message = _overflow_message(np.asarray(overflow))
-    if message is not None:
-        raise ValueError(message)
+    raise ValueError(f"the traced neighbour search overflowed: some neighbourhoods would be truncated; rebuild them"
+                     f" with {how}")
 
 
 def guard(overflow):

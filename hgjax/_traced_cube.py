@@ -104,7 +104,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
                    local_k=local_k, max_count=max_count, dedupe=dedupe, slots=slots)
     if _stream.is_traced(p):
         columns = capacity if capacity is not None else (max_count or COLUMNS)
-        idx, scale, overflow = _balls(p, cell_edge, columns=columns, spacing_k=None, **statics)
+        idx, scale, overflow, _ = _balls(p, cell_edge, columns=columns, spacing_k=None, **statics)
         local, lo = _traced.local_frame(p)
         return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record({**params, "search": "jax"}),
                                       overflow=_traced.guard(overflow), points_lo=lo)
@@ -114,7 +114,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     spacing_k = min(local_k, locations - 1) if isinstance(spacing, str) and spacing == "local" else None
     columns = capacity if capacity is not None else (max_count or FIRST_COLUMNS)
     while True:
-        idx, scale, overflow = _jitted_balls(columns=columns, spacing_k=spacing_k, **statics)(p, cell_edge)
+        idx, scale, overflow, width = _jitted_balls(columns=columns, spacing_k=spacing_k, **statics)(p, cell_edge)
         needed = int(overflow)
         if needed < 0:
             raise RuntimeError("the traced search could not cover some row within its passes")
@@ -122,7 +122,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
             break
         _validate.check_capacity(capacity, needed, "cube")
         columns = spatial.bucket(needed)
-    width = int(jnp.max(jnp.sum(idx < n, axis=1)))
+    width = int(width)
     _validate.check_capacity(capacity, width, "cube")
     cols = spatial.bucket(width) if capacity is None else capacity
     idx = idx[:, :cols] if idx.shape[1] >= cols else jnp.pad(idx, ((0, 0), (0, cols - idx.shape[1])), constant_values=n)
@@ -139,11 +139,12 @@ def _jitted_balls(**statics):
 
 def _balls(p, cell_edge, *, metric: str, widen: float, kernel_size: int, d_factor, ramp, spacing, local_k: int,
            max_count: int | None, dedupe: bool, slots: int, columns: int, spacing_k: int | None):
-    """(idx (N, columns) int32, scale (N,), overflow): the cubes or balls and their voxel spacing, pure JAX.
+    """(idx (N, columns) int32, scale (N,), overflow, width): the cubes or balls and their voxel spacing, pure JAX.
 
     ``spacing_k``: the local spacing's k when known (eagerly, from the host's count of
     locations), or None to pick it from the traced count (a ``lax.switch``). ``overflow``: 0,
-    the columns the fullest row needs when more than ``columns``, or -1 (a row not covered).
+    the columns the fullest row needs when more than ``columns``, or -1 (a row not covered);
+    ``width``: the fullest row's count.
     """
     n = p.shape[0]
     x64 = bool(jax.config.jax_enable_x64)
@@ -181,7 +182,7 @@ def _balls(p, cell_edge, *, metric: str, widen: float, kernel_size: int, d_facto
         h = (jnp.where(shrunk, used, radius), jnp.where(shrunk, 0, 0 if radius_lo is None else radius_lo))
         scaled = _exact.pair_mul(*_exact.pair_const(2 / kernel_size), *h)
         scale = _p_round(_exact.pair_div(*scaled, *_exact.pair_const(widen)))
-    return found.idx.astype(jnp.int32), lax.stop_gradient(scale), searches.overflow
+    return found.idx.astype(jnp.int32), lax.stop_gradient(scale), searches.overflow, found.columns_needed
 
 
 class _Searches:
