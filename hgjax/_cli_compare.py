@@ -3,9 +3,10 @@
 ``compare`` runs a list of methods on one input and prints a markdown table of their coverage
 gaps (:func:`_coverage`, in units of the intrinsic resolution: :func:`_gap_unit`) and of the
 share of sharp features they keep; with ``-o DIR`` it writes the table as compare.md and
-compare.csv and the picture compare.png. ``demo`` runs every method on the built-in
-edge-labelled box-union cloud and reports the precision of the kept edge points. Pictures need
-matplotlib; without it a note replaces them (:func:`_picture`).
+compare.csv and the picture compare.png. ``demo`` samples a CAD part with known sharp edges
+(:data:`BRACKET`), has every method keep as many points as lie on an edge, ranks the methods by
+the share of edge points they keep and draws them. Pictures need matplotlib; without it a note
+replaces them (:func:`_picture`).
 """
 
 from __future__ import annotations
@@ -114,6 +115,11 @@ def _picture(points, kept: dict, path: str, args, **style) -> bool:
     return True
 
 
+BRACKET = ((0, 0, 0, 16, 10, 2), (0, 0, 2, 3, 10, 10), (3, 4, 2, 7, 6, 6), (9, 2, 2, 13, 8, 5))
+"""The demo's part, four boxes (lower and upper corners): a base plate, a wall at one end, a rib
+between them and a block on the plate."""
+
+
 def cmd_demo(args) -> None:
     import numpy as np
 
@@ -122,29 +128,42 @@ def cmd_demo(args) -> None:
     folder = os.path.dirname(os.path.abspath(args.output))
     if not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(f"cannot write the picture {args.output}: {folder} is not a writable folder")
-    cloud = hgjax.eval.box_union_cloud(seed=args.seed, n_points=args.n_points)
+    boxes = np.reshape(BRACKET, (-1, 2, 3)).astype(float)
+    cloud = hgjax.eval.sample_box_union(boxes, n_points=args.n_points, seed=args.seed)
     edge = np.asarray(cloud.edge_mask)
-    print(f"demo cloud: {len(edge)} points on a union of boxes, {int(edge.sum())} labelled edge points,"
-          f" keeping {args.ratio:g}")
-    print(f"{'method':<8} {'points':>7} {'kept':>6} {'seconds':>8} {'edge precision':>15}")
+    n, n_edge = edge.size, int(edge.sum())
+    ratio = n_edge / n if args.ratio is None else args.ratio
+    print(f"demo cloud: {n} points sampled at random on an L-bracket (a plate, a wall, a rib and a block);\n"
+          f"{n_edge} of them ({100 * n_edge / n:.1f} %) lie within {cloud.delta / cloud.resolution:g} point spacings"
+          " of a sharp edge.")
     key, progress = _key(args), _progress(args)
-    kept, same = {}, {}
+    kept, same, recall, seconds = {}, {}, {}, {}
     for method in sorted(hgjax.METHODS):
-        idx, _, seconds = _compute(hgjax.METHODS[method], cloud.points, args.ratio, {}, key, progress, args)
+        idx, _, seconds[method] = _compute(hgjax.METHODS[method], cloud.points, ratio, {}, key, progress, args)
         same[method] = next((m for m, other in kept.items() if np.array_equal(np.sort(other), np.sort(idx))), None)
         kept[method] = idx
-        note = "" if same[method] is None else f"  same points as {same[method]}"
-        print(f"{method:<8} {len(edge):>7} {idx.size:>6} {seconds:>8.2f} {float(edge[idx].mean()):>15.3f}{note}")
+        recall[method] = float(edge[idx].sum()) / n_edge
     size = next(iter(kept.values())).size
-    print(f"edge precision: the share of kept points that are labelled edge points; at most"
-          f" {min(int(edge.sum()), size)} / {size} = {min(int(edge.sum()), size) / size:.3f} (every edge point"
-          f" kept), {edge.mean():.3f} for a random subset on average.")
+    share = "the edge points' share, " if args.ratio is None else ""
+    print(f"Each method keeps {size} points ({share}ratio {ratio:.4g}).\nEdge recall: the share of the {n_edge}"
+          f" edge points kept; {min(size, n_edge) / n_edge:.3f} at best, {size / n:.3f} for a random subset on"
+          " average.\n")
+    ranking = sorted(kept, key=lambda m: -recall[m])
+    print(f"{'method':<8} {'kept':>6} {'seconds':>8} {'edge recall':>12}")
+    for method in ranking:
+        note = "" if same[method] is None else f"  same points as {same[method]}"
+        print(f"{method:<8} {kept[method].size:>6} {seconds[method]:>8.2f} {recall[method]:>12.3f}{note}")
     for method, first in same.items():
         alike = getattr(hgjax.METHODS[method], "ranks_as", None)
         if alike is not None and alike[0] == first:
             print(f"{method} keeps the points of {first}: {alike[1]}.")
-    if _picture(np.asarray(cloud.points), kept, args.output, args,
-                title="hgjax demo: kept points (red) over the cloud"):
+    panels = {"labelled edge points": np.flatnonzero(edge)}
+    for method in ranking:
+        if same[method] is None:
+            names = ", ".join([method] + [m for m in ranking if same[m] == method])
+            panels[f"{names}: edge recall {recall[method]:.2f}"] = kept[method]
+    if _picture(np.asarray(cloud.points), panels, args.output, args, columns=5,
+                title=f"hgjax demo: the {size} points each method keeps (red), best first"):
         print(f"wrote the picture to {os.path.abspath(args.output)}")
     print("next: hgjax resample YOUR_SCAN.ply -o kept.ply --method hkc --ratio 0.2   (or hgjax compare"
           " YOUR_SCAN.ply -o out/ to pick a method)")

@@ -62,7 +62,7 @@ from hgjax._cli_signals import (
 
 EPILOG = """\
 examples:
-  hgjax demo                                       all methods on a built-in box-union cloud
+  hgjax demo                                       every method on a built-in CAD part, ranked
   hgjax resample scan.ply -o kept.ply --method hkc --ratio 0.2
   hgjax score scan.pcd -o scored.ply --method lhf -p lengths=10,30
   hgjax compare bunny.ply -o out/ --methods hkc,hkf,lhf,fps
@@ -119,7 +119,8 @@ examples:
     "demo": """\
 examples:
   hgjax demo
-  hgjax demo --n-points 50000 --ratio 0.1 -o demo.png --view 30,-45
+  hgjax demo --n-points 50000 -o demo.png --view 30,-45
+  hgjax demo --ratio 0.2         edge recall when a fifth of the points is kept
 """ + MORE,
 }
 """Each command's ``--help`` examples."""
@@ -325,11 +326,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", parents=[common], help="all methods on a built-in edge-labelled cloud",
                        epilog=EXAMPLES["demo"], formatter_class=_Formatter,
-                       description="Sample a union of boxes with known sharp edges, run every method,"
-                       " print the point counts, the time and the precision of kept edge points, and"
-                       " draw the kept points.")
+                       description="Sample a CAD part (an L-bracket) with known sharp edges, have every"
+                       " method keep as many points as lie on an edge, print the share of edge points each"
+                       " keeps (edge recall), best first, and draw the kept points.")
     p.add_argument("--n-points", type=_positive(int), default=20000, help="cloud size (default 20000)")
-    p.add_argument("--ratio", type=_ratio, default=DEFAULT_RATIO, help=f"fraction kept (default {DEFAULT_RATIO})")
+    p.add_argument("--ratio", type=_ratio, default=None, help="fraction kept (default: the share of points on"
+                   " an edge)")
     p.add_argument("-o", "--output", default=DEMO_PICTURE, metavar="PNG",
                    help=f"picture of the kept points (default {DEMO_PICTURE} in the current folder; needs"
                    " matplotlib)")

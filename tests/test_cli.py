@@ -4,6 +4,7 @@ import argparse
 import dataclasses
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -248,18 +249,26 @@ def test_score_float64(tmp_path, capsys):
     assert score.dtype == np.float64
 
 
-def test_demo_runs_every_method_and_draws_them(tmp_path):
+def test_demo_ranks_every_method_by_edge_recall_and_draws_them_in_the_working_folder(tmp_path, monkeypatch,
+                                                                                    capsys):
     import matplotlib.image
 
-    proc = run("demo", "--n-points", 2000, "--quiet", "-o", tmp_path / "demo.png")
-    assert proc.returncode == 0, proc.stderr
-    for method in hgjax.METHODS:
-        assert f"\n{method} " in proc.stdout
-    assert " 2000    400 " in proc.stdout
-    assert proc.stderr == ""
-    assert f"wrote the picture to {tmp_path / 'demo.png'}" in proc.stdout
-    assert proc.stdout.splitlines()[-1].startswith("next: hgjax resample ")
-    assert matplotlib.image.imread(tmp_path / "demo.png").shape[1] > 1000
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_here(capsys, "demo", "--n-points", 2000, "--quiet")
+    assert code == 0 and err == "", err
+    edges = int(re.search(r"^(\d+) of them", out, re.M).group(1))
+    rows = [cells for cells in map(str.split, out.splitlines())
+            if cells[:1] and cells[0] in hgjax.METHODS and cells[1].isdigit()]
+    recall = {row[0]: float(row[3]) for row in rows}
+    assert sorted(recall) == sorted(hgjax.METHODS) and all(int(row[1]) == edges for row in rows)
+    assert list(recall.values()) == sorted(recall.values(), reverse=True)
+    assert min(recall[m] for m in ("ea", "hkc", "lhf", "mss")) > 1.5 * max(recall[m] for m in ("fps", "uniform",
+                                                                                                   "voxel"))
+    assert f"the share of the {edges} edge points kept; 1.000 at best" in out
+    assert next(row for row in rows if row[0] == "hkf")[4:] == ["same", "points", "as", "hkc"]
+    assert f"wrote the picture to {tmp_path / cli.DEMO_PICTURE}" in out
+    assert out.splitlines()[-1].startswith("next: hgjax resample ")
+    assert matplotlib.image.imread(tmp_path / cli.DEMO_PICTURE).shape[1] > 1000
 
 
 def test_version_and_help(capsys):
