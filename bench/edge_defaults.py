@@ -61,7 +61,7 @@ RULES = {
            "the real clouds (6, 12); no irregularity rule separates them, since pced_abc_7033, the one "
            "lattice-like real cloud, favours short pairs while the synthetic grid favours long ones). Before "
            "this study the default was (6, 12), which missed the grid (by 0.099) and random (0.058) regimes.",
-    "gfr": "radius_factor = {gfr} resolutions (`hgjax._graph.RADIUS_FACTOR`, bench/results/gfr_radius.md: the largest "
+    "gfr": "radius_factor = {gfr} resolutions (`hgjax._graph.RADIUS_FACTOR`, bench/results/archive/gfr_radius.md: the largest "
            "mean F1/best among the factors within 0.05 of the best in every synthetic setting, ties to the "
            "smallest graph).",
     "ea": "k = {ea} (`ea.DEFAULT_K`, shared with PCA-AC): the Bazazian et al. setting.",
