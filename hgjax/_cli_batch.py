@@ -116,6 +116,8 @@ def _check_inputs(args, jobs, total: int, check) -> tuple[list[tuple[str, str, d
             failed[path] = str(err) if path in str(err) else f"{path}: {err}"
         else:
             good.append((path, target, record))
+    if failed and not args.keep_going and total == 1:
+        raise UsageError(next(iter(failed.values())))
     if failed and not args.keep_going:
         raise UsageError(f"{len(failed)} of {total} inputs cannot be processed, nothing was written"
                          " (--keep-going writes the others):\n  " + "\n  ".join(failed.values()))

@@ -184,6 +184,8 @@ def _param(text: str) -> tuple[str, object]:
     name, sep, value = text.partition("=")
     if not sep or not name.isidentifier():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE; got {text!r}")
+    if value.lower() in ("true", "false"):
+        return name, value.lower() == "true"
     try:
         return name, ast.literal_eval(value)
     except (ValueError, SyntaxError):
@@ -348,8 +350,17 @@ def cache_dir() -> str | None:
     return os.path.join(base, "hgjax", "jax")
 
 
-def _print_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    print(f"hgjax: warning: {message}", file=sys.stderr)
+def _warning_printer():
+    """A ``warnings.showwarning`` for one run: each message on one line, once (an input read when
+    checked and again when computed warns once)."""
+    said = set()
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        if str(message) not in said:
+            said.add(str(message))
+            print(f"hgjax: warning: {message}", file=sys.stderr)
+
+    return show
 
 
 @contextlib.contextmanager
@@ -378,7 +389,7 @@ def _session(dtype: str):
             jax.config.update(name, value)
         compilation_cache.reset_cache()
         with warnings.catch_warnings():
-            warnings.showwarning = _print_warning
+            warnings.showwarning = _warning_printer()
             if dtype == "float32":
                 warnings.filterwarnings("ignore", category=hgjax.PrecisionWarning)
             yield

@@ -4,6 +4,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -139,3 +140,45 @@ def test_persistent_compilation_cache(tmp_path):
     assert not (tmp_path / "xdg-off").exists()
     run({"XDG_CACHE_HOME": str(tmp_path / "xdg")}, "c.ply")
     assert cache_files(tmp_path / "xdg" / "hgjax" / "jax")
+
+
+def test_a_warning_about_an_input_is_printed_once(capsys, tmp_path):
+    """Each input is read when checked and again when computed; its warning is printed once."""
+    src = tmp_path / "scans"
+    src.mkdir()
+    for name in "ab":
+        points = cloud(600)
+        points[5] = np.nan
+        np.savetxt(src / f"{name}.xyz", points)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        code, _, err = run_here(capsys, "resample", src, "-o", tmp_path / "out", "--method", "uniform")
+    assert code == 0, err
+    for name in "ab":
+        assert err.count(f"{src / name}.xyz: dropped 1 of 600 points with NaN or inf coordinates") == 1, err
+
+
+def test_one_input_that_cannot_be_read_is_reported_alone(capsys, tmp_path):
+    path = tmp_path / "ragged.xyz"
+    path.write_text("1 2 3\n4 5 6\n7 8\n")
+    code, _, err = run_here(capsys, "resample", path, "-o", tmp_path / "out.ply")
+    assert code == 2
+    assert err == f"hgjax resample: error: cannot read {path}: line 3 has 2 values where the lines before it have 3\n"
+
+
+@pytest.mark.parametrize("text, value", [("true", True), ("False", False), ("TRUE", True)])
+def test_a_parameter_of_true_or_false_is_a_boolean(capsys, monkeypatch, tmp_path, text, value):
+    from hgjax import engine
+
+    calls, composition = [], engine.run
+
+    def spy(points, ratio, *, method, params, **rest):
+        calls.append(dict(params))
+        return composition(points, ratio, method=method, params=params, **rest)
+
+    monkeypatch.setattr(engine, "run", spy)
+    io.write_points(tmp_path / "c.ply", cloud(600))
+    code, _, err = run_here(capsys, "resample", tmp_path / "c.ply", "-o", tmp_path / "out.ply", "--method", "ea",
+                            "-p", f"dedupe={text}")
+    assert code == 0, err
+    assert calls and all(params["dedupe"] is value for params in calls)

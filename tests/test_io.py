@@ -125,7 +125,7 @@ def test_pcd_errors_name_the_file(tmp_path, pcd_cloud):
     with pytest.raises(io.PointCloudReadError, match=f"{path}.*truncated"):
         io.read_points(path)
     path.write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nPOINTS 1\nDATA zip\n")
-    with pytest.raises(io.PointCloudReadError, match=f"{path}: invalid PCD header: data: .*got 'zip'"):
+    with pytest.raises(io.PointCloudReadError, match=f"{path}: invalid PCD header: DATA: .*got 'zip'"):
         io.read_points(path)
     path.write_bytes(b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nPOINTS 3\nDATA ascii\n1 2 3\n")
     with pytest.raises(io.PointCloudReadError, match=f"{path}: ascii PCD data is truncated"):

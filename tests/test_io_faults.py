@@ -56,7 +56,49 @@ def test_a_repeated_column_name_is_refused(tmp_path):
     _refused(path, "'x' twice", "columns 1 and 4")
 
 
+@pytest.mark.parametrize("text, line, found, before", [("1 2 3\n4 5 6 7\n", 2, 4, 3),
+                                                       ("x y z\n1 2 3\n\n# note\n4 5 6\n7 8\n", 6, 2, 3)])
+def test_a_text_row_of_another_width_is_reported_on_its_line(tmp_path, text, line, found, before):
+    path = tmp_path / "ragged.xyz"
+    path.write_text(text)
+    message = _refused(path, f"line {line} has {found} values where the lines before it have {before}")
+    assert "usecols" not in message and "at row" not in message
+
+
+def test_an_extension_hgjax_does_not_read_is_named_with_those_it_reads(tmp_path):
+    path = tmp_path / "scan.foo"
+    path.write_text("1 2 3\n")
+    message = _refused(path, "hgjax does not read .foo files; give one of .ply, .xyz, .txt, .npy, .pcd, .las, .laz")
+    assert ".obj" in message and "NotImplementedError" not in message
+    bare = tmp_path / "scan"
+    bare.write_text("1 2 3\n")
+    _refused(bare, "hgjax does not read files without an extension")
+
+
 # ------------------------------------------------------------------ PLY, NPY, PCD, STL, LAS
+
+def test_a_ply_without_its_ply_line_is_not_a_ply_file(tmp_path):
+    path = tmp_path / "garbage.ply"
+    path.write_text("garbage\n1 2 3\n")
+    _refused(path, "not a PLY file (its first line is not `ply`)")
+
+
+@pytest.mark.parametrize("lines, says", [
+    ({"FIELDS": None}, "invalid PCD header: no FIELDS line"),
+    ({"POINTS": None}, "invalid PCD header: no POINTS line"),
+    ({"SIZE": "SIZE 4 4 four"}, "invalid PCD header: SIZE: 'four' is not a whole number"),
+    ({"WIDTH": "WIDTH 2.5"}, "invalid PCD header: WIDTH: '2.5' is not a whole number"),
+])
+def test_a_pcd_header_fault_names_its_line(tmp_path, lines, says):
+    pytest.importorskip("pypcd4")
+    header = {"VERSION": "VERSION 0.7", "FIELDS": "FIELDS x y z", "SIZE": "SIZE 4 4 4", "TYPE": "TYPE F F F",
+              "COUNT": "COUNT 1 1 1", "WIDTH": "WIDTH 2", "HEIGHT": "HEIGHT 1", "POINTS": "POINTS 2",
+              "DATA": "DATA ascii"}
+    header.update(lines)
+    path = tmp_path / "bad.pcd"
+    path.write_text("\n".join(line for line in header.values() if line) + "\n1 2 3\n4 5 6\n")
+    message = _refused(path, says)
+    assert "Field required" not in message and "invalid literal" not in message
 
 def test_ascii_ply_with_fewer_rows_than_its_header_is_refused(tmp_path):
     path = tmp_path / "short.ply"

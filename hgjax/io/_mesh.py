@@ -14,9 +14,20 @@ from hgjax.io._errors import PointCloudReadError
 
 
 def _read_trimesh(path: str, samples: int, seed: int) -> tuple[dict[str, np.ndarray], None, bool]:
-    """(columns, no header, whether they are samples of a mesh) of any file trimesh loads."""
+    """(columns, no header, whether they are samples of a mesh) of any file trimesh loads; another
+    extension is refused, naming those that are read."""
     import trimesh
 
+    loaded = trimesh.available_formats()
+    if not any(path.lower().endswith(f".{kind}") for kind in loaded):
+        from hgjax.io import _FORMATS
+
+        meshes = sorted(f".{kind}" for kind in loaded if kind.isalpha() and f".{kind}" not in _FORMATS
+                        and kind != "zip")  # archives of meshes are read too, but are not a format to name
+        extension = os.path.splitext(path)[1]
+        what = f"{extension} files" if extension else "files without an extension"
+        raise PointCloudReadError(f"cannot read {path}: hgjax does not read {what}; give one of"
+                                  f" {', '.join(list(_FORMATS) + meshes)}")
     geometry = trimesh.load(path)
     if isinstance(geometry, trimesh.Scene):
         if not geometry.geometry:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import warnings
 from typing import BinaryIO, Callable
 
@@ -31,9 +32,9 @@ def _read_pcd(path: str, samples: int = 0, seed: int = 0) -> tuple[dict[str, np.
         try:
             meta = pypcd4.MetaData.parse_header(lines)
         except ValueError as err:  # pydantic's ValidationError
-            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}"
-                                 + ("" if e["type"] == "missing" else f" (got {e.get('input')!r})")
-                                 for e in getattr(err, "errors", lambda: [])()) or str(err)
+            problems = "; ".join(f"no {e['loc'][0].upper()} line" if e["type"] == "missing" else
+                                 f"{e['loc'][0].upper()}: {e['msg']} (got {e.get('input')!r})"
+                                 for e in getattr(err, "errors", lambda: [])()) or _not_a_number(err, lines)
             raise PointCloudReadError(f"cannot read {path}: invalid PCD header: {problems}") from None
         n, fields = meta.points, list(zip(meta.fields, meta.type, meta.size, meta.count))
         if meta.data == pypcd4.Encoding.ASCII:
@@ -56,6 +57,17 @@ def _read_pcd(path: str, samples: int = 0, seed: int = 0) -> tuple[dict[str, np.
                 parts = [table[next(stored)] for _ in range(count)]
                 raw[name] = np.stack(parts, axis=1)
     return _pcd_columns(raw), None, False
+
+
+def _not_a_number(err: ValueError, lines: list[str]) -> str:
+    """A header value that Python's int() or float() refused, named with its line's keyword; other errors as
+    they are."""
+    found = re.search(r"(?:(?P<int>invalid literal for int\(\) with base 10)|could not convert string to float):"
+                      r" '(?P<value>.*)'", str(err))
+    if found is None:
+        return str(err)
+    keyword = next((line.split()[0] for line in lines if found["value"] in line.split()[1:]), "a line")
+    return f"{keyword.upper()}: {found['value']!r} is not a {'whole ' * bool(found['int'])}number"
 
 
 def _pcd_ascii_fields(fh: BinaryIO, fields: list[tuple], n: int, path: str) -> dict[str, np.ndarray]:

@@ -23,13 +23,12 @@ _PLY_ORDER = {"ascii": "=", "binary_little_endian": "<", "binary_big_endian": ">
 
 
 def _ply_layout(fh: BinaryIO) -> tuple[str, int, np.dtype, int] | None:
-    """(format, vertex count, vertex dtype, header lines) of a PLY point cloud, ``fh`` left at its data.
+    """(format, vertex count, vertex dtype, header lines) of a PLY point cloud, ``fh`` (read past its
+    ``ply`` line) left at its data.
 
-    None when the file is something else this reader leaves to trimesh: not a PLY header, a
+    None when the file is something else this reader leaves to trimesh: a header without an end, a
     vertex property that is a list or of an unknown type, or another element with rows (faces:
     a mesh)."""
-    if fh.readline().strip() != b"ply":
-        return None
     fmt, elements, lines = None, [], 1
     for raw_line in iter(lambda: fh.readline(1 << 16), b""):
         lines += 1
@@ -58,6 +57,8 @@ def _read_ply(path: str, samples: int, seed: int) -> tuple[dict[str, np.ndarray]
     """A PLY point cloud read exactly (every vertex property in its stored type, the vertex
     count checked against the header); meshes and other PLY files through trimesh."""
     with open(path, "rb") as fh:
+        if fh.readline().strip() != b"ply":
+            raise PointCloudReadError(f"cannot read {path}: not a PLY file (its first line is not `ply`)")
         layout = _ply_layout(fh)
         if layout is None:
             return _read_trimesh(path, samples, seed)

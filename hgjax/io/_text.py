@@ -64,16 +64,14 @@ def _integer_columns(path: str, table: np.ndarray, columns: list[int], skip: int
 
 
 _NOT_A_NUMBER = re.compile(r"could not convert string (?P<token>.*) to \w+ at row (?P<row>\d+), column (?P<column>\d+)")
+_COLUMNS_CHANGED = re.compile(r"the number of columns changed from (?P<before>\d+) to (?P<after>\d+) at row"
+                              r" (?P<row>\d+)")
 
 
-def _on_its_line(err: ValueError, path: str, skip: int) -> Exception:
-    """NumPy's "at row R" (R counting data rows from 0, after ``skip`` lines, comments and blank lines
-    left out) said as the file's line, counted from 1 as an editor counts: a PointCloudReadError; other
-    errors as they are."""
-    found = _NOT_A_NUMBER.search(str(err))
-    if found is None:
-        return err
-    row, line = int(found["row"]), skip
+def _line(path: str, skip: int, row: int) -> int:
+    """The file's line, counted from 1 as an editor counts, of data row ``row`` (counted from 0 after
+    ``skip`` lines, comment and blank lines left out, as NumPy reads them)."""
+    line = skip
     with open(path, encoding="utf-8-sig", errors="replace") as fh:
         for _ in range(skip):
             fh.readline()
@@ -83,8 +81,22 @@ def _on_its_line(err: ValueError, path: str, skip: int) -> Exception:
                 if row == 0:
                     break
                 row -= 1
-    return PointCloudReadError(f"cannot read {path}: line {line}, column {found['column']}: {found['token']} is"
-                               " not a number")
+    return line
+
+
+def _on_its_line(err: ValueError, path: str, skip: int) -> Exception:
+    """NumPy's "at row R" (a token that is not a number: R counts data rows from 0; a row of another
+    number of values: from 1) said as the file's line (:func:`_line`): a PointCloudReadError; other
+    errors as they are."""
+    found = _NOT_A_NUMBER.search(str(err))
+    if found is not None:
+        return PointCloudReadError(f"cannot read {path}: line {_line(path, skip, int(found['row']))}, column"
+                                   f" {found['column']}: {found['token']} is not a number")
+    found = _COLUMNS_CHANGED.search(str(err))
+    if found is not None:
+        return PointCloudReadError(f"cannot read {path}: line {_line(path, skip, int(found['row']) - 1)} has"
+                                   f" {found['after']} values where the lines before it have {found['before']}")
+    return err
 
 
 def _read_text(path: str, samples: int = 0, seed: int = 0) -> tuple[dict[str, np.ndarray], None, bool]:
