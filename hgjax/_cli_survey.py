@@ -112,6 +112,8 @@ def _resample_survey(args, params: dict) -> None:
     _stage(args, "total", start)
     for message in result.failures.values():
         _say(f"hgjax resample: failed: {message}")
-    _say(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs to {args.output} ({result.manifest})")
+    kept = f" ({len(result.skipped)} up to date, kept)" if result.skipped else ""
+    _say(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs{kept} to {args.output}"
+         f" ({result.manifest})")
     if result.failures:
-        raise BatchFailure(f"{len(result.failures)} of {len(inputs)} inputs failed: {', '.join(result.failures)}")
+        raise BatchFailure(f"{len(result.failures)} of {len(inputs)} inputs failed{kept}: {', '.join(result.failures)}")

@@ -182,3 +182,19 @@ def test_a_parameter_of_true_or_false_is_a_boolean(capsys, monkeypatch, tmp_path
                             "-p", f"dedupe={text}")
     assert code == 0, err
     assert calls and all(params["dedupe"] is value for params in calls)
+
+
+def test_a_survey_rerun_counts_the_outputs_kept_up_to_date(capsys, tmp_path):
+    src = tmp_path / "survey"
+    src.mkdir()
+    for i in range(2):
+        io.write_points(src / f"t{i}.xyz", cloud(400) + [3.0 * i, 0, 0])
+    (src / "bad.xyz").write_text("1 2 3\n4 5\n")
+    args = ["resample", src, "-o", tmp_path / "out", "--tile", 2, "--keep-going", "--skip-existing", "--quiet",
+            "--method", "uniform"]
+    code, _, err = run_here(capsys, *args)
+    assert code == 1 and "wrote 2 of 3 outputs to" in err and "1 of 3 inputs failed: " in err, err
+    code, _, err = run_here(capsys, *args)
+    assert code == 1, err
+    assert "wrote 0 of 3 outputs (2 up to date, kept) to" in err, err
+    assert "1 of 3 inputs failed (2 up to date, kept): " in err, err
