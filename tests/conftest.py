@@ -55,17 +55,23 @@ def client():
         yield c
 
 
-# The groups that take longest or hold the longest tests, longest first (the summed durations of
-# a run on a loaded machine: test_api 450 s, test_soft 285 s, test_cli and test_ragged 140 s each,
-# the notebooks 80 s of which one test 54 s, ...). pytest-xdist's
-# loadgroup hands groups to whichever worker is free in collection order, so these start first and
-# the run ends on short groups (other test files, then the doctests of hgjax/): neither worker idles
-# while the other finishes a long one. By test count (xdist's default order) the notebooks came last.
-LONGEST_GROUPS = ("tests/test_traced_jit.py", "tests/test_traced_neighbourhoods.py", "tests/test_traced_graph.py", "tests/test_search_jax.py",
-                  "tests/test_signals.py", "tests/test_traced_tiles.py", "tests/test_kdtree.py",
-                  "tests/test_api.py", "tests/test_soft.py", "tests/test_notebooks.py", "tests/test_mss.py",
-                  "tests/test_cli.py", "tests/test_ragged.py", "tests/test_eval_edges.py", "tests/test_survey.py",
-                  "tests/test_scores.py", "dask-client", "tests/test_cli_scan.py")
+# Per tier (the README's two test commands select one with -m; any other selection takes the full tier's),
+# the groups that take longest or hold the longest tests, longest first: the fast tier's from its summed
+# durations on a loaded machine (test_cli 135 s, test_gfr 75 s, test_soft 69 s, ...), the full tier's as
+# measured on the whole suite before the tiers (the traced-search files, the signal loop, the API and soft
+# matrices, the notebooks, ...). pytest-xdist's loadgroup hands groups to whichever worker is free in
+# collection order, so these start first and the run ends on short groups (other test files, then the
+# doctests of hgjax/): neither worker idles while the other finishes a long one.
+LONGEST_GROUPS = {
+    "not full": ("tests/test_cli.py", "tests/test_gfr.py", "tests/test_soft.py", "tests/test_cli_scan.py",
+                 "tests/test_scores.py", "tests/test_baselines.py", "tests/test_tiles.py", "tests/test_survey.py",
+                 "tests/test_resample.py", "tests/test_mss.py", "tests/test_cli_files.py", "tests/test_ragged.py"),
+    "full": ("tests/test_traced_jit.py", "tests/test_traced_neighbourhoods.py", "tests/test_traced_graph.py",
+             "tests/test_search_jax.py", "tests/test_signals.py", "tests/test_traced_tiles.py", "tests/test_kdtree.py",
+             "tests/test_api.py", "tests/test_soft.py", "tests/test_notebooks.py", "tests/test_mss.py",
+             "tests/test_cli.py", "tests/test_ragged.py", "tests/test_eval_edges.py", "tests/test_survey.py",
+             "tests/test_scores.py", "dask-client", "tests/test_cli_scan.py"),
+}
 
 
 def pytest_configure(config):
@@ -79,13 +85,14 @@ def _group(item) -> str:
     return "dask-client" if "client" in getattr(item, "fixturenames", ()) else item.nodeid.split("::")[0]
 
 
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
-def pytest_collection_modifyitems(items):
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups and -m deselects
+def pytest_collection_modifyitems(config, items):
     """Groups for pytest-xdist's ``--dist loadgroup`` (the README's test command): the tests of one
     file run in one worker (its module fixtures and compiled kernels are made once), and every test
     of the Dask ``client`` runs in one worker, so the suite starts one LocalCluster. Items are put in
-    group order: :data:`LONGEST_GROUPS`, the other test files, the doctests (each stable)."""
-    rank = {group: i for i, group in enumerate(LONGEST_GROUPS)}
+    group order: the tier's :data:`LONGEST_GROUPS`, the other test files, the doctests (each stable)."""
+    longest = LONGEST_GROUPS.get(config.getoption("markexpr"), LONGEST_GROUPS["full"])
+    rank = {group: i for i, group in enumerate(longest)}
     for item in items:
         item.add_marker(pytest.mark.xdist_group(_group(item)))
     doctest = lambda item: not _group(item).startswith(("tests/", "dask-client"))  # noqa: E731

@@ -93,6 +93,7 @@ def test_shared_soft_scores_are_the_same_functions():
     assert hgjax.METHODS["pca_ac"].build is hgjax.METHODS["ea"].build
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method,static,fn", [c[1:] for c in KERNEL_CASES], ids=[c[0] for c in KERNEL_CASES])
 def test_variants_agree(method, static, fn, dtype):
     """eager == jit(argument) == jit(closed-over) == vmap over a batch == vmap over a ragged batch
@@ -111,6 +112,7 @@ def test_variants_agree(method, static, fn, dtype):
     assert not any(np.isnan(w).any() for w in want)
 
 
+@pytest.mark.full
 def test_lhf_score_is_ratio_free_and_its_soft_weights_trace_the_ratio():
     nb = hgjax.neighbourhoods(cloud(), "lhf")
     gamma = host_score(nb, "lhf")
@@ -126,6 +128,7 @@ def test_lhf_score_is_ratio_free_and_its_soft_weights_trace_the_ratio():
     np.testing.assert_allclose(b, hgjax.soft_weights(nb, 0.5, method="lhf"), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method,static,floats", [
     ("hkc", {}, {}), ("hkf", {"variant": "reference"}, {}), ("lhf", {}, {}), ("ea", {}, {})])
 def test_host_path_is_chunk_size_invariant_bitwise(method, static, floats):
@@ -134,6 +137,7 @@ def test_host_path_is_chunk_size_invariant_bitwise(method, static, floats):
     np.testing.assert_array_equal(host_score(nb, method, chunk_size=1000, **static, **floats), base)  # 3 chunks
 
 
+@pytest.mark.full
 def test_lhf_eigh_kernels_finish_on_default_chunks_and_under_vmap():
     """The eigh-based LHF kernels (reference variant, eigh solver): the eager default 8192-row
     chunk (8 blocks in one lax.map) and jit(vmap) over a batch must finish and agree.

@@ -70,6 +70,7 @@ def test_smallest_eigenvalue_matches_lapack(dtype):
     assert np.all(np.abs(got - ref[:, 0]) <= 16 * np.finfo(dtype).eps * scale + 1e-300)
 
 
+@pytest.mark.full
 def test_smallest_eigenvalue_gradient(dtype):
     m = hard_symmetric_3x3(seed=1).astype(dtype)
     ref = np.linalg.eigh(m.astype(np.float64))
@@ -145,6 +146,7 @@ def test_scores_do_not_modify_input():
     np.testing.assert_array_equal(p, copy)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", sorted(degenerate_clouds()))
 def test_degenerate_clouds_give_finite_scores(name):
     p = degenerate_clouds()[name]
@@ -283,6 +285,7 @@ def test_resample_counts(method, ratio):
     assert len(set(idx.tolist())) == len(idx) and idx.min() >= 0 and idx.max() < 257
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", NEW_METHODS)
 @pytest.mark.parametrize("name", sorted(degenerate_clouds()))
 def test_resample_degenerate(method, name):

@@ -86,6 +86,7 @@ def test_resample_scan_carries_colour(tmp_path, capsys):
     assert len(kept) == 200 and len(np.unique(kept.points, axis=0)) == 200
 
 
+@pytest.mark.full
 def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, runs):
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "gfr",
                             "-p", "mode=top", "--ratio", 0.1, "--dtype", "float64")  # the suite runs with x64
@@ -162,6 +163,7 @@ def test_parameter_errors_exit_2(capsys, tmp_path, args, message):
     assert not (tmp_path / "k.ply").exists()
 
 
+@pytest.mark.full
 def test_search_is_the_engines_and_keeps_the_same_points(capsys, tmp_path, runs):
     """--search names the search of the engine's tiles (the backend's default without it): the
     traced search keeps and writes what the host's k-d tree does."""
@@ -190,6 +192,7 @@ def test_a_search_the_tiles_cannot_build_with_is_the_engines_error(capsys, tmp_p
     assert not (tmp_path / "k.ply").exists()
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["hkc", "gfr", "voxel"])
 def test_count_keeps_exactly_m_points(capsys, tmp_path, method):
     for count in (1, 333, 1771):
@@ -422,6 +425,7 @@ def test_available_memory_from_the_system():
     assert 2**20 < memory < 2**50
 
 
+@pytest.mark.full
 def test_ctrl_c_exits_130_with_one_line(tmp_path):
     scans = tmp_path / "scans"
     scans.mkdir()

@@ -55,6 +55,7 @@ def test_directory_of_scans_to_a_directory(capsys, tmp_path):
         assert kept.attributes["score"].shape == (500,)
 
 
+@pytest.mark.full
 def test_several_files_share_the_compiled_kernels(capsys, tmp_path):
     import jax
 
@@ -124,6 +125,7 @@ def cache_files(directory):
     return [name for _, _, names in os.walk(directory) for name in names]
 
 
+@pytest.mark.full
 def test_persistent_compilation_cache(tmp_path):
     mesh = tmp_path / "c.ply"
     io.write_points(mesh, cloud(1500))

@@ -173,6 +173,7 @@ def test_dash_is_refused_and_never_made_a_file(tmp_path, scan, capsys, monkeypat
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.full
 def test_kept_points_keep_the_scan_order(tmp_path, scan):
     proc = hgjax_cli(tmp_path, "resample", scan / "scan.las", "-o", tmp_path / "in.las", "--method", "hkc")
     assert proc.returncode == 0, proc.stderr
@@ -186,6 +187,7 @@ def test_kept_points_keep_the_scan_order(tmp_path, scan):
     np.testing.assert_array_equal(np.sort(best["gps_time"]), gps)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("stage, action", [("read", "SIGINT"), ("neighbours", "SIGINT"), ("score", "SIGINT"),
                                            ("write", "SIGINT"), ("neighbours", "SIGTERM"), ("write", "SIGTERM")])
 def test_signals_at_every_stage_exit_cleanly(tmp_path, scan, stage, action):
@@ -199,6 +201,7 @@ def test_signals_at_every_stage_exit_cleanly(tmp_path, scan, stage, action):
     assert os.listdir(out) == []  # neither the output nor a temporary file
 
 
+@pytest.mark.full
 def test_ctrl_c_during_a_laz_write_exits_130(tmp_path, scan):
     proc = hgjax_cli(tmp_path, "resample", scan / "scan.las", "-o", tmp_path / "kept.laz", "--method", "fps",
                      hook="write:SIGINT")
@@ -206,6 +209,7 @@ def test_ctrl_c_during_a_laz_write_exits_130(tmp_path, scan):
     assert os.listdir(tmp_path) == ["hook"]
 
 
+@pytest.mark.full
 def test_kill_9_during_a_write_is_cleaned_up_by_the_next_run(tmp_path, scan):
     out = tmp_path / "out"
     out.mkdir()
@@ -265,6 +269,7 @@ def test_a_bad_file_in_a_batch(tmp_path, scan):
     assert before == {name: os.stat(tmp_path / "out" / name).st_mtime_ns for name in ("a.ply", "d.ply")}
 
 
+@pytest.mark.full
 def test_verbose_prints_the_seconds_of_each_stage(tmp_path, scan):
     """The stages of the composition hgjax.resample runs: in tiles (PCA-AC as one), or on the whole cloud."""
     for method, stages in ((["hkc"], ["plan", "tiles", "keep"]), (["pca_ac"], ["plan", "tiles", "keep"]),
@@ -276,6 +281,7 @@ def test_verbose_prints_the_seconds_of_each_stage(tmp_path, scan):
         assert all(seconds.strip().endswith(" s") and float(seconds.split()[0]) >= 0 for _, seconds in lines)
 
 
+@pytest.mark.full
 def test_score_writes_finite_values(tmp_path):
     line = np.c_[np.linspace(0.0, 1.0, 500), np.zeros(500), np.zeros(500)]  # HKC: +inf where no low band
     io.write_points(tmp_path / "line.ply", line)
@@ -312,6 +318,7 @@ def test_samples_memory_uses_the_method_cost_and_the_cgroup_limit(tmp_path, monk
     assert cli._available_memory(str(tmp_path / "v1")) == min(unlimited, 2**28)
 
 
+@pytest.mark.full
 def test_compare_on_an_all_equal_cloud(tmp_path):
     io.write_points(tmp_path / "same.xyz", np.ones((100, 3)))
     proc = hgjax_cli(tmp_path, "compare", tmp_path / "same.xyz", "--methods", "fps,hkc")

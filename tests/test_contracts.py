@@ -115,6 +115,7 @@ def test_parameters_are_named_in_their_errors(call, error, match):
         call(uniform_cloud(100))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["hkc", "hkf", "lhf"])
 def test_tau_gradient_is_finite_however_small_tau_is(method):
     import jax
@@ -140,6 +141,7 @@ def _dot_precisions(jaxpr) -> list:
     return found
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", SCORING)
 def test_every_product_runs_at_full_precision(cloud, method):
     """A GPU may run a default-precision float32 product in TF32: a local frame lost its bits

@@ -12,6 +12,8 @@ import pytest
 import hgjax
 from hgjax import _tiling, tiles
 
+pytestmark = pytest.mark.full
+
 distributed = pytest.importorskip("distributed")
 
 CASES = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("gfr", {"key": jax.random.key(1)}), ("gfr", {"mode": "top"}),

@@ -146,6 +146,7 @@ def test_metrics_errors():
         hgjax.eval.edge_metrics(pts, np.ones(3, bool), np.array([0, 0]))
 
 
+@pytest.mark.full
 def test_quick_bench(tmp_path):
     sys.path.insert(0, str(ROOT / "bench"))
     import edge_table

@@ -84,6 +84,7 @@ def test_reference_graph_is_the_authors_rule(name):
     assert pairs_of((idx, first)) == want
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", sorted(clouds()))
 def test_reference_matches_naive(name, dtype):
     p = clouds()[name].astype(dtype)
@@ -127,6 +128,7 @@ def exact_location_graph(index, r, max_nn):
     return keeps | keeps.T, inside
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("max_nn", [graph_module.MAX_NN, 69])
 def test_dense_balls_are_asked_once(max_nn):
     """A plane lattice holds about 316 points in a ball of 10 spacings: every row asks one bounded query
@@ -205,6 +207,7 @@ def test_a_float64_context_reaches_the_pair_sums_thread():
 
 
 # ------------------------------------------------------------------ invariant default
+@pytest.mark.full
 @pytest.mark.parametrize("name", ["random", "box_surface", "duplicates", "jittered_grid", "graded"])
 @pytest.mark.parametrize("max_nn", [100, 4])
 def test_invariant_matches_naive(name, max_nn):
@@ -272,6 +275,7 @@ def scores_and_gradient(points, idx, first, weights_dtype):
     return f(points), jax.grad(lambda x: jnp.sum(f(x)))(points)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("variant", ["invariant", "reference"])
 @pytest.mark.parametrize("name", sorted(degenerate_clouds()))
 def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
@@ -286,6 +290,7 @@ def test_degenerate_scores_and_gradients_are_finite(name, variant, dtype):
         assert not s.any() and not g.any()
 
 
+@pytest.mark.full
 def test_gradient_finite_when_a_graph_collapses():
     p = box_surface(100, 9)
     idx, _ = graph(p)
@@ -295,12 +300,14 @@ def test_gradient_finite_when_a_graph_collapses():
         assert np.isfinite(g).all()
 
 
+@pytest.mark.full
 def test_gradient_matches_finite_differences():
     p = box_surface(60, 10)
     idx, _ = graph(p)
     check_grads(jax.jit(lambda x: high_pass(x, idx)), (jnp.asarray(p),), order=1, modes=["rev"], eps=1e-6, atol=1e-6, rtol=1e-6)
 
 
+@pytest.mark.full
 def test_jit_and_vmap_match_single_calls():
     batch = [box_surface(300, s) for s in range(3)]
     idx = [graph(p)[0] for p in batch]

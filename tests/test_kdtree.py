@@ -36,6 +36,7 @@ def engine(request, monkeypatch):
     return request.param
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", list(_clouds()))
 @pytest.mark.parametrize("k, bound", [(1, np.inf), (16, np.inf), (33, np.inf), (64, np.inf), (64, "ball"), (109, "ball")])
 def test_distances_equal_ckdtree_bitwise(name, k, bound, engine):
@@ -77,7 +78,7 @@ def test_tree_pickles_as_its_points(engine):
         np.testing.assert_array_equal(got, want)
 
 
-@pytest.mark.slow
+@pytest.mark.full
 @pytest.mark.parametrize("name", ["rounded", "duplicated"])
 def test_every_method_keeps_the_same_points_with_either_engine(name, monkeypatch):
     """Kept indices and scores of every scoring method, in one process and in tiles (those that tile),
@@ -106,6 +107,7 @@ def test_every_method_keeps_the_same_points_with_either_engine(name, monkeypatch
             np.testing.assert_array_equal(np.asarray(got), np.asarray(wanted), err_msg=m)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name", list(degenerate_clouds()))
 @pytest.mark.parametrize("k", [1, 5, 16, 39])
 def test_knn_of_degenerate_clouds_is_the_naive_order(name, k, engine):

@@ -27,6 +27,7 @@ def host_score(points):
     return np.asarray(hgjax.score(hgjax.neighbourhoods(points, "mss"), "mss"))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("cloud", ["random", "boxes"])
 def test_fast_matches_naive(cloud, dtype):
     p = uniform_cloud(150, seed=1) if cloud == "random" else box_union(300, seed=2)
@@ -46,6 +47,7 @@ def one_neighbourhood(seed=3):
 NOISE = 0.1  # a cloud noise level (mss.noise_level) for the kernel tests
 
 
+@pytest.mark.full
 def test_kernel_jit_equals_eager_and_grad_is_finite():
     """jit == eager, and a finite, non-zero gradient of the compiled kernel; its derivatives against
     finite differences: tests/test_soft.py::test_check_grads_scores (the soft score is this kernel)."""
@@ -104,6 +106,7 @@ def test_a_given_noise_level_is_used_and_checked():
         hgjax.resample(p, 0.2, method="mss", noise="low")
 
 
+@pytest.mark.full
 def test_a_new_cloud_size_does_not_recompile():
     kernel = _stream._jitted(mss.sharpness, 0)
     for n in (400, 9000):  # chunks of one block and of CHUNK_BLOCKS blocks (_stream.chunk_rows)
@@ -119,6 +122,7 @@ weighted_soft_score_and_grad = jax.jit(jax.value_and_grad(
     lambda p, idx, w: jnp.sum(w * hgjax.soft_score(hgjax.Neighbourhoods(p, idx), "mss"))))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", sorted(degenerate_clouds()))
 def test_soft_gradients_finite_on_degenerate_clouds(case):
     """float32 (tests/test_soft.py::test_gradients_finite_on_degenerate_clouds: every method in float64)."""
@@ -142,6 +146,7 @@ def overlap(a, b):
 FANDISK = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "fandisk.obj"
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("cloud", ["boxes", "fandisk"])
 def test_kept_set_is_invariant_to_rotation_translation_scale_and_permutation(cloud):
     # Random surface samples: on a lattice, tied neighbour distances and tied scores make any
@@ -183,6 +188,7 @@ def _train_edges():
     return module
 
 
+@pytest.mark.full
 def test_a_small_retraining_reproduces_the_shipped_ranking():
     """bench/mss_training/train_edges.py from the shipped seed: the same weights bit for bit when run twice,
     and, trained on 21 clouds (3 per family) for 150 steps, on held-out clouds (shape seeds outside the training set,

@@ -80,6 +80,7 @@ def test_a_box_union_of_20000_points_does_not_warn():
     assert not precision_warnings(lambda: (hgjax.resample(p, 0.2), hgjax.knn(p, 8)))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("build", list(BUILDERS))
 @pytest.mark.parametrize("cloud", [georeferenced, cluster_and_outlier])
 def test_detail_float32_loses_warns(cloud, build):

@@ -117,6 +117,7 @@ def soft_and_grad(method):
     return jax.jit(jax.value_and_grad(loss, has_aux=True))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["lhf", "ea"])
 def test_soft_scores_and_weights_of_the_batch_equal_each_clouds_own(method):
     nbs, batch = ragged(method, np.dtype(np.float64))
@@ -150,6 +151,7 @@ def test_lhf_order_statistics_come_from_the_real_rows_only():
 
 
 # HKF's and PCA-AC's soft weights are HKC's and EA's (the registry's soft scores).
+@pytest.mark.full
 @pytest.mark.parametrize("method", [m for m in SCORING if m not in ("hkf", "pca_ac")])
 def test_soft_weights_hold_ratio_times_each_count_with_zero_gradient_on_padding(method):
     _, batch = ragged(method, np.dtype(np.float64))

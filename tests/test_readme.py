@@ -66,17 +66,20 @@ def test_every_python_block_is_run_by_one_test():
     assert all(not (is_script(b) and is_pending(b)) for b in python)
 
 
+@pytest.mark.full
 def test_python_blocks_run_in_order(tmp_path):
     """Every block but the scripts and the pending ones, in one interpreter and one namespace."""
     shared = [b for b in blocks("python") if not is_script(b) and not is_pending(b)]
     run(tmp_path, "readme_blocks.py", DRIVER.format(blocks=shared))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("index", [i for i, b in enumerate(blocks("python")) if is_script(b)])
 def test_script_block_runs_as_main(tmp_path, index):
     run(tmp_path, f"readme_script_{index + 1}.py", blocks("python")[index])
 
 
+@pytest.mark.full
 @pytest.mark.skipif(not hasattr(hgjax, "survey"), reason="hgjax.survey has not landed yet")
 @pytest.mark.parametrize("index", [i for i, b in enumerate(blocks("python")) if is_pending(b)])
 def test_survey_block_runs_alone(tmp_path, index):
@@ -130,7 +133,7 @@ def test_speed_table_is_the_linked_results_files():
     assert methods == set(rows) == set(hgjax.METHODS) - {"fps"}
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_command_line_block_runs_as_written(tmp_path, cli_cache):
     """Each line of the command-line block, in order, in a folder beside ../shared (as a fresh clone is)."""
     shared = ROOT.parent / "shared"

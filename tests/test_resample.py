@@ -170,6 +170,7 @@ def test_checks_fire_for_jax_arrays_and_under_a_caller_jit_boundary():
     np.testing.assert_array_equal(idx, hgjax.resample(uniform_cloud(N), 0.2))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("cloud_name", sorted(degenerate_clouds()))
 @pytest.mark.parametrize("name", sorted(SCORES))
 def test_degenerate_clouds_give_no_nan(cloud_name, name, dtype):

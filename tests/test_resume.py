@@ -82,6 +82,7 @@ def _change(what, src, out, monkeypatch):
         os.unlink(out / "a.ply")
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", list(PER_FILE))
 def test_per_file_resume_matrix(capsys, tmp_path, monkeypatch, case):
     before, after, what, want = PER_FILE[case]
@@ -129,6 +130,7 @@ def _survey(paths, out, lines=None, **changes):
                                  on_resume=None if lines is None else lines.append, **run)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("case", list(SURVEY))
 def test_survey_resume_matrix(tmp_path, monkeypatch, case):
     before, after, what, reason = SURVEY[case]

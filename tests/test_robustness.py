@@ -28,6 +28,7 @@ def base():
     return p, {m: _locations(p, hgjax.resample(p, 0.2, method=m, **SELECT.get(m, {}))) for m in DEFAULTS}
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", DEFAULTS)
 def test_duplicated_points_keep_the_same_locations(base, method):
     p, kept = base
@@ -53,6 +54,7 @@ def _mixed_density():
     return np.concatenate([sparse, dense])
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", DEFAULTS)
 def test_mixed_densities_give_finite_scores_without_errors(method):
     p = _mixed_density()
@@ -62,6 +64,7 @@ def test_mixed_densities_give_finite_scores_without_errors(method):
     assert nb.idx.shape[1] <= 256  # bounded neighbourhoods: no blow-up in the dense patch
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("x64", [True, False], ids=["x64", "x32"])
 @pytest.mark.parametrize("method", ["hkc", "lhf", "ea", "gfr", "fps"])
 def test_georeferenced_offsets_keep_the_same_points(method, x64):

@@ -109,6 +109,7 @@ CASES = [(name, cloud) for name in sorted(FAST) for cloud in ("random", "grid")
 CASES += [(name, "jittered_grid") for name in sorted(FAST) if name.startswith(KNN)]
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("name,cloud", CASES)
 def test_fast_matches_naive(name, cloud, dtype):
     p = CLOUDS[cloud].astype(dtype)
@@ -406,6 +407,7 @@ def test_kernel_band_energies_turn_with_axis_permutations_not_sign_flips():
     assert changed
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["hkc", "hkf"])
 def test_hkc_hkf_default_is_rotation_translation_and_scale_invariant(method, dtype):
     """Default HKC/HKF scores of a noisy box union under a random similarity: equal to rounding

@@ -79,6 +79,7 @@ def x64_mode(on):
 
 
 # ----------------------------------------------------------------------------- kNN == host
+@pytest.mark.full
 @pytest.mark.parametrize("dedupe", [False, True], ids=["all", "dedupe"])
 @pytest.mark.parametrize("x64,dtype", X64_CASES)
 def test_knn_equals_the_host_on_every_cloud(x64, dtype, dedupe):
@@ -126,6 +127,7 @@ def naive_rows(p, k, metric="l2", radius=None, dedupe=False):
     return np.where(ok, order, n)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("metric", ["l2", "l2sq", "linf"])
 def test_knn_metrics_and_radius_match_brute_force(metric):
     """GFR's capped radius graph: the k nearest by squared distance (then index) closer than r."""
@@ -146,6 +148,7 @@ def host_within(p, h, norm, dedupe, max_count):
     return index.caller_idx(idx), index.to_caller(half)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("metric,max_count", [("l2", 24), ("linf", None)], ids=["ball-max24", "cube"])
 @pytest.mark.parametrize("x64,dtype", X64_CASES)
 def test_within_equals_the_host(x64, dtype, metric, max_count):
@@ -168,6 +171,7 @@ def test_within_equals_the_host(x64, dtype, metric, max_count):
             np.testing.assert_array_equal(np.asarray(found.reach)[:len(q)], radii, err_msg=name)
 
 
+@pytest.mark.full
 def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
     """HKC/HKF's default build: the spacing from 17 nearest distinct points (NumPy's pairwise mean,
     float64), the ball of sqrt(3) k / 2 f times it, shrunk below 256 points; the same bits."""
@@ -193,6 +197,7 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
 
 
 # ----------------------------------------------------------------------------- jit, vmap, grad
+@pytest.mark.full
 def test_jit_equals_eager():
     p = CLOUDS["quantised_1mm"][:64].astype(np.float32)
     eager = search.knn(p, 8, dedupe=True, slots=8)
@@ -202,6 +207,7 @@ def test_jit_equals_eager():
     assert not bool(eager.overflow)
 
 
+@pytest.mark.full
 def test_vmap_over_a_padded_batch_equals_the_loop():
     """A batch of clouds of different sizes, padded with per-cloud counts; and equal-N clouds."""
     names = ("random", "duplicated", "collinear")
@@ -223,6 +229,7 @@ def test_vmap_over_a_padded_batch_equals_the_loop():
             np.testing.assert_array_equal(stacked.idx[i], spatial.knn(same[i], 8).idx)
 
 
+@pytest.mark.full
 def test_gradients_flow_through_the_points_not_the_choice():
     p = jnp.asarray(CLOUDS["random"][:300])
 
@@ -239,6 +246,7 @@ def test_gradients_flow_through_the_points_not_the_choice():
 
 
 # ----------------------------------------------------------------------------- overflow, never truncation
+@pytest.mark.full
 def test_blocks_are_read_whole_however_few_slots_and_a_small_edge_is_flagged_and_grown():
     p = CLOUDS["random"][:300]
     want = spatial.knn(p, 8).idx
@@ -254,6 +262,7 @@ def test_blocks_are_read_whole_however_few_slots_and_a_small_edge_is_flagged_and
         np.testing.assert_array_equal(wider.idx, want)
 
 
+@pytest.mark.full
 def test_rows_missed_by_the_edge_are_searched_again_under_jit():
     """An edge too small for some rows: wider levels redo them (no overflow); with no spill
     they are reported."""
@@ -268,6 +277,7 @@ def test_rows_missed_by_the_edge_are_searched_again_under_jit():
         assert bool(none.overflow) and bool(none.uncovered) and float(none.edge_needed) > 0.3
 
 
+@pytest.mark.full
 def test_within_reports_the_columns_needed_and_grows_them():
     p = CLOUDS["lattice"]
     h = np.full(len(p), 2.5)
@@ -281,6 +291,7 @@ def test_within_reports_the_columns_needed_and_grows_them():
     assert (np.asarray(found.idx)[:, want.shape[1]:] == len(p)).all()
 
 
+@pytest.mark.full
 def test_a_sparse_2km_tile_needs_no_dense_grid():
     """Patches 10 cm apart in a 2 km x 2 km tile: a dense grid of 8 cm cells would hold 6e8 cells."""
     rng = np.random.default_rng(9)

@@ -23,7 +23,7 @@ import pytest
 import hgjax
 from hgjax import cli, io
 
-pytestmark = [pytest.mark.usefixtures("cli_cache"),
+pytestmark = [pytest.mark.full, pytest.mark.usefixtures("cli_cache"),
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/status")]
 
 SCRIPT = os.path.join(sysconfig.get_path("scripts"), "hgjax")
@@ -145,7 +145,6 @@ def folder(tmp_path_factory):
     return folder
 
 
-@pytest.mark.slow
 def test_100_signals_at_random_moments_in_every_mode(folder):
     """Each mode runs once to the end (its seconds and outputs; :data:`SAME_RUN`), then is stopped at
     moments drawn uniformly over such a run (start-up's imports take most of a small one), SIGINT and

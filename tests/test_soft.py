@@ -93,6 +93,7 @@ def test_soft_hkf_is_soft_hkc():
     np.testing.assert_array_equal(hgjax.soft_score(nb, "hkf"), hgjax.soft_score(nb, "hkc"))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", [m for m in METHODS if m not in ("hkf", "pca_ac")])  # = hkc, ea
 def test_check_grads_scores(method):
     pts = fixtures.box_surface(48, 0, noise=0.01, size=BOX)
@@ -107,6 +108,7 @@ def test_check_grads_scores(method):
     check_grads(jax.jit(f), args, order=1, modes=("fwd", "rev"), eps=1e-6)
 
 
+@pytest.mark.full
 def test_check_grads_weights():
     pts, nb = setup("ea")
     f = jax.jit(lambda p, t, r: weights_of(p, nb, "ea", {"ratio": r, "temperature": t}))
@@ -124,6 +126,7 @@ def value_and_grads(method):
     return jax.jit(jax.value_and_grad(loss, argnums=(0, 2)))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", METHODS)
 def test_gradients_finite_on_degenerate_clouds(method):
     for case, pts in DEGENERATE.items():
@@ -165,6 +168,7 @@ def hard_gamma(s):
     return lhf.gamma(s, jnp.ones(n, bool), lengths=(n,))[0]
 
 
+@pytest.mark.full
 def test_soft_lhf_is_continuous_where_the_hard_one_jumps_at_the_band_threshold():
     """Two steps of lam tie: the hard gamma switches band, the soft one blends."""
     below, above = (jnp.asarray(spectral_signal((0.01, m, 1.0))) for m in (0.505 - 1e-9, 0.505 + 1e-9))
@@ -177,6 +181,7 @@ def test_soft_lhf_is_continuous_where_the_hard_one_jumps_at_the_band_threshold()
     assert soft_steps == sorted(soft_steps, reverse=True) and soft_steps[-1] < 1e-8
 
 
+@pytest.mark.full
 def test_soft_lhf_gradients_are_exact_at_and_near_the_band_threshold():
     d = jnp.asarray(np.random.default_rng(16).normal(size=(7, 3))).at[0].set(0)
     f = jax.jit(soft_gamma)
@@ -194,6 +199,7 @@ def test_soft_lhf_gradients_are_finite_where_eigenvalues_cross():
         assert np.isfinite(g).all() and np.abs(g).max() > 0
 
 
+@pytest.mark.full
 def test_soft_lhf_jvp_under_jit_equals_eager_near_the_band_threshold():
     """Compiled and op-by-op JVPs agree in 20 directions at 6 distances to the tie (one batch of 120)."""
     s = jnp.asarray(spectral_signal(TIE))
@@ -209,6 +215,7 @@ def test_soft_lhf_jvp_under_jit_equals_eager_near_the_band_threshold():
     np.testing.assert_allclose(jax.jit(jax.vmap(jvp))(x), jax.vmap(jvp)(x), rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.full
 def test_soft_lhf_gradients_finite_on_degenerate_signals(dtype):
     """Symmetric, empty, collinear, duplicate and near-isotropic signals at tiny and huge scales."""
     rng = np.random.default_rng(17)
@@ -225,6 +232,7 @@ def test_soft_lhf_gradients_finite_on_degenerate_signals(dtype):
         assert float(jnp.abs(g[2]).max()) > 0  # not frozen: the near-isotropic signal has a gradient
 
 
+@pytest.mark.full
 def test_soft_lhf_at_low_tau_is_the_hard_kernel_on_degenerate_signals():
     for p in (fixtures.uniform_cloud(40, seed=18), *(DEGENERATE[c] for c in ("collinear", "coplanar", "duplicates"))):
         idx = hgjax.knn(p, 8).idx
@@ -249,6 +257,7 @@ def lattice_neighbourhoods(seed):
     return hgjax.neighbourhoods(jittered_lattice(seed), "hkc", variant="reference", resolution=1.0, d_factor=1.0)
 
 
+@pytest.mark.full
 def test_soft_counts_converge_to_hard_counts():
     nb = lattice_neighbourhoods(0)
     offsets = jnp.asarray(np.where(nb.mask[..., None], np.r_[nb.points, np.zeros((1, 3))][nb.idx] - nb.points[:, None], 0))
@@ -262,6 +271,7 @@ def test_soft_counts_converge_to_hard_counts():
     assert errors[-1] < 1e-12 and errors[0] > 1e-3
 
 
+@pytest.mark.full
 def test_soft_hkc_converges_to_beta_over_one_plus_beta():
     nb = lattice_neighbourhoods(1)
     beta = np.asarray(hgjax.score(nb, "hkc"))
@@ -301,6 +311,7 @@ def test_soft_ea_equals_hard_ea(method):
 # ------------------------------------------------------------------------- soft -> hard
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", METHODS)
 def test_low_temperature_support_matches_hard_selection(method):
     pts, nb = setup(method)
@@ -338,6 +349,7 @@ def test_keeps_float32():
         np.testing.assert_allclose(float(w.sum()), RATIO * N, rtol=1e-4)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", METHODS)
 def test_soft_weights_are_scale_free(method):
     """Clouds scaled by 1e-8 (float32) and by 1e3 give the unit cloud's soft weights
@@ -421,6 +433,7 @@ def test_a_concrete_ratio_out_of_range_raises_value_error_naming_it(entry, ratio
         RATIO_ENTRIES[entry](nb, ratio)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("ratio", BAD_RATIOS)
 @pytest.mark.parametrize("transform", ["jit", "vmap", "grad"])
 @pytest.mark.parametrize("entry", RATIO_ENTRIES)

@@ -15,6 +15,7 @@ VARIANTS = [("hkc", {}), ("hkc", {"variant": "reference"}), ("hkf", {}), ("hkf",
             ("lhf", {}), ("lhf", {"variant": "reference"}), ("lhf", {"solver": "eigh"}), ("ea", {}), ("pca_ac", {})]
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", SCORING)
 def test_every_scoring_method_is_chunk_invariant_through_resample(method):
     p = box_surface(3000, seed=1)
@@ -24,6 +25,7 @@ def test_every_scoring_method_is_chunk_invariant_through_resample(method):
         np.testing.assert_array_equal(hgjax.resample(p, 0.2, method=method, key=key, chunk_size=chunk), base)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method, params", VARIANTS, ids=[f"{m}-{'-'.join(map(str, p.values()))}" for m, p in VARIANTS])
 def test_scores_are_bitwise_chunk_invariant(method, params):
     p = box_surface(3000, seed=2)
@@ -47,6 +49,7 @@ def test_chunk_rows_come_from_a_fixed_set_and_fit_small_streams():
     assert len({_stream.chunk_rows(total=t) for t in range(1, 20 * unit, 97)}) == _stream.CHUNK_BLOCKS.bit_length()
 
 
+@pytest.mark.full
 def test_large_float32_streaming_run_with_small_chunks():
     p = box_surface(100_000, seed=2).astype(np.float32)
     nb = hgjax.neighbourhoods(p, "lhf")
@@ -58,6 +61,7 @@ def test_large_float32_streaming_run_with_small_chunks():
     assert len(np.unique(idx)) == 20_000
 
 
+@pytest.mark.full
 def test_compilations_are_bounded_by_the_chunk_sizes_whatever_the_cloud_size():
     sizes = [_stream.BLOCK << i for i in range(_stream.CHUNK_BLOCKS.bit_length())]  # 1, 2, 4, ... blocks
     kernels = [(hkc._kernel(3, "invariant"), 1, "hkc", True), (hkf._kernel(3, "invariant"), 1, "hkf", True),
@@ -87,6 +91,7 @@ def test_compilations_are_bounded_by_the_chunk_sizes_whatever_the_cloud_size():
         assert events == [], (method, events)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["hkc", "lhf", "ea", "mss", "gfr"])
 def test_eager_soft_scores_of_a_new_cloud_size_compile_nothing(method):
     """Called eagerly, a soft score streams through its compiled kernel as hgjax.score does: once it

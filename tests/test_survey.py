@@ -104,6 +104,7 @@ def test_manifest_records_the_resolved_plan_and_threshold(tmp_path, method):
         assert resolved["selection"]["score_sum"] == pytest.approx(float(np.sum(scores, dtype=np.float64)), rel=1e-12)
 
 
+@pytest.mark.full
 def test_survey_on_a_local_cluster(tmp_path, client):
     paths, cloud = _survey(tmp_path)
     survey.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, client=client)
@@ -152,6 +153,7 @@ def test_skip_existing_resumes(tmp_path):
     assert len(changed.written) == 2
 
 
+@pytest.mark.full
 def test_cli_survey_on_two_workers(tmp_path):
     paths, cloud = _survey(tmp_path, n_files=2, n=1500)
     out = tmp_path / "kept"
@@ -165,7 +167,7 @@ def test_cli_survey_on_two_workers(tmp_path):
     assert "Worker process still alive" not in run.stderr and "warn" not in run.stderr.lower(), run.stderr
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_cli_workers_close_without_a_kill_warning(tmp_path, capsys, monkeypatch):
     """A worker that takes longer than Dask's 4 s to close is waited for, not killed with a warning."""
     distributed = pytest.importorskip("distributed")
@@ -377,6 +379,7 @@ def test_copc_tiles_read_only_the_octree_nodes_they_meet(tmp_path, monkeypatch):
     np.testing.assert_array_equal(out.header.offsets, src.header.offsets)
 
 
+@pytest.mark.full
 def test_copc_among_las_tiles_on_a_local_cluster_keeps_global_ids_in_file_order(tmp_path, client):
     paths, cloud = _survey(tmp_path, ".laz", n_files=1, n=1500)
     copc = io.read_points(COPC).points

@@ -34,6 +34,7 @@ def _tiled(points, method, tile, **params):
     return tiles.resample(points, 0.2, method=method, tile=tile, **KEYED.get(method, {}), **params)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method,params", VARIANTS, ids=[f"{m}-{p.get('variant', p.get('mode', 'default'))}" for m, p in VARIANTS])
 @pytest.mark.parametrize("which", ["smooth", "rounded"])
 def test_tiled_equals_one_process(method, params, which, request):
@@ -45,6 +46,7 @@ def test_tiled_equals_one_process(method, params, which, request):
         np.testing.assert_array_equal(_tiled(p, method, tile, **params), want)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["ea", "lhf"])
 def test_many_small_tiles_give_the_one_process_indices_and_compile_a_few_programs(smooth, method):
     want = hgjax.resample(smooth, 0.2, method=method)
@@ -108,6 +110,7 @@ class _Graph(dict):
     """A GFR tile graph the test can watch (module level: the spilled graphs are pickled)."""
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("mode, disk_free", [("top", None), ("random", None), ("top", 0)])
 def test_gfr_beyond_keep_points_spills_each_graph_between_passes(smooth, mode, disk_free, monkeypatch, tmp_path):
     """Above KEEP_POINTS the first pass keeps each tile's pair sums only (no graph outlives its
@@ -144,6 +147,7 @@ def test_gfr_beyond_keep_points_spills_each_graph_between_passes(smooth, mode, d
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["ea", "hkc"])
 def test_a_halo_given_too_small_grows_to_the_exact_result(smooth, method):
     plan, cloud = tiles.plan(smooth, 0.2, method=method, tile=1.5)
@@ -200,6 +204,7 @@ def test_knn_ties_are_broken_by_global_id(offset):
         assert reach[i] == dist[i, want[-1]]
 
 
+@pytest.mark.full
 def test_mismatched_neighbourhoods_are_refused(smooth):
     nb = hgjax.neighbourhoods(smooth[:500], "hkc", kernel_size=5)
     with pytest.raises(ValueError, match="kernel_size=3 disagrees with the neighbourhoods, built with kernel_size=5"):
@@ -215,6 +220,7 @@ def test_mismatched_neighbourhoods_are_refused(smooth):
         hgjax.score(None, "ea")
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["hkc", "lhf", "ea"])
 def test_one_far_outlier_changes_nothing(smooth, method):
     p = smooth.astype(np.float32)
@@ -239,6 +245,7 @@ def _streamed_peak(path, tile) -> int:
         tracemalloc.stop()
 
 
+@pytest.mark.full
 def test_a_streamed_run_holds_a_tile_and_a_few_bytes_per_point(monkeypatch, tmp_path):
     """Memory of a streamed run is bounded by the tile: a memory-mapped cloud in tiles of about
     3,700 points holds about a quarter of what one tile of the whole cloud holds, and at four
@@ -262,6 +269,7 @@ def test_a_streamed_run_holds_a_tile_and_a_few_bytes_per_point(monkeypatch, tmp_
 TINY = [("ea", {}), ("lhf", {}), ("mss", {}), ("hkc", {}), ("gfr", {"mode": "top"}), ("voxel", {})]
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method,params", TINY, ids=[m for m, _ in TINY])
 def test_tiles_smaller_than_the_spacing_equal_one_process(method, params):
     """A tile holding fewer points than a neighbourhood grows its halo until it holds the whole
@@ -277,6 +285,7 @@ def sparse_cube():
     return np.random.default_rng(5).random((100, 3))
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("tile", [0.005, 0.02, 0.1, 1.0])
 @pytest.mark.parametrize("method", ["hkc", "hkf"])
 def test_cube_tiles_of_any_size_give_the_one_process_indices_and_scores(sparse_cube, method, tile):
@@ -297,6 +306,7 @@ def test_cube_reach_is_unbounded_where_the_index_holds_too_few_locations_for_the
     assert np.isinf(reach).all() if n <= voxel.LOCAL_K else np.isfinite(reach).all()
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("method", ["ea", "lhf"])
 def test_float32_far_from_the_origin_tiles_as_one_process(method):
     """At +1e7 float32 rounds the cloud to a unit grid: many duplicates and ties, the same kept set."""

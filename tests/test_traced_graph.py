@@ -10,6 +10,8 @@ import pytest
 import hgjax
 from fixtures import degenerate_clouds, smooth_and_rounded
 
+pytestmark = pytest.mark.full
+
 VARIANTS = ["invariant", "reference"]
 SEARCHED = ("capacity",)
 

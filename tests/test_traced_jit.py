@@ -8,6 +8,8 @@ import pytest
 import hgjax
 from fixtures import box_union, grid
 
+pytestmark = pytest.mark.full
+
 KNN = ["ea", "lhf", "mss"]
 
 
@@ -20,7 +22,6 @@ def readme_cloud():
     return box_union(20000).astype(np.float32)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("method", KNN + ["hkc", "hkf", "gfr"])
 def test_jitted_resample_of_the_readme_cloud_keeps_the_hosts_points(readme_cloud, method):
     extra = {"mode": "top"} if method == "gfr" else {}

@@ -10,6 +10,8 @@ import pytest
 import hgjax
 from fixtures import degenerate_clouds, smooth_and_rounded
 
+pytestmark = pytest.mark.full
+
 KNN = ["ea", "lhf", "mss"]
 CUBE = ["hkc", "hkf"]  # voxel.neighbourhoods: the invariant ball or the reference cube, and the voxel spacing
 

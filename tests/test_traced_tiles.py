@@ -8,6 +8,8 @@ import hgjax
 from hgjax import _traced, engine, spatial, tiles
 from fixtures import smooth_and_rounded
 
+pytestmark = pytest.mark.full
+
 
 @pytest.fixture(scope="module")
 def cloud():
