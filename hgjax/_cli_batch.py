@@ -19,16 +19,20 @@ from hgjax._cli_common import (
     DEFAULT_RATIO,
     BatchFailure,
     UsageError,
+    _begin,
     _check_samples,
     _compute,
     _expand,
+    _file,
     _is_mesh,
     _key,
     _load,
     _method_params,
     _progress,
+    _say,
     _stage,
     _targets,
+    _tell,
     count_ratio,
 )
 from hgjax._cli_survey import _resample_survey
@@ -108,7 +112,8 @@ def _check_inputs(args, jobs, total: int, check) -> tuple[list[tuple[str, str, d
       UsageError: an input failed and ``--keep-going`` is not set (all failures listed).
     """
     good, failed, data = [], {}, None
-    for path, target, record in jobs:
+    for i, (path, target, record) in enumerate(jobs):
+        _file(_numbered(i, len(jobs), path))
         try:
             data = _load(path, args)
             check(path, target, data)
@@ -122,7 +127,7 @@ def _check_inputs(args, jobs, total: int, check) -> tuple[list[tuple[str, str, d
         raise UsageError(f"{len(failed)} of {total} inputs cannot be processed, nothing was written"
                          " (--keep-going writes the others):\n  " + "\n  ".join(failed.values()))
     for message in failed.values():
-        print(f"hgjax {args.command}: failed: {message}", file=sys.stderr)
+        _say(f"hgjax {args.command}: failed: {message}")
     return good, failed, data if len(jobs) == 1 and good else None
 
 
@@ -135,7 +140,8 @@ def _run_batch(args, jobs, total: int, check, process) -> None:
     from hgjax import survey
 
     good, failed, data = _check_inputs(args, jobs, total, check)
-    for path, target, record in good:
+    for i, (path, target, record) in enumerate(good):
+        _file(_numbered(i, len(good), path))
         try:
             process(path, target, data if data is not None else _load(path, args))
             if record is not None:
@@ -145,11 +151,17 @@ def _run_batch(args, jobs, total: int, check, process) -> None:
             if not args.keep_going:
                 raise
             failed[path] = f"{path}: {type(err).__name__}: {err}"
-            print(f"hgjax {args.command}: failed: {failed[path]}", file=sys.stderr)
+            _say(f"hgjax {args.command}: failed: {failed[path]}")
     if failed:
         kept = total - len(jobs)
         raise BatchFailure(f"{len(failed)} of {total} inputs failed{f' ({kept} up to date, kept)' if kept else ''}:"
                            f" {', '.join(failed)}")
+
+
+def _numbered(i: int, count: int, path: str) -> str:
+    """How the progress names the ``i``-th of ``count`` inputs: its file name, numbered among several."""
+    name = os.path.basename(path)
+    return name if count == 1 else f"{i + 1}/{count} {name}"
 
 
 def _ratio_of(args, path: str, n: int) -> float | None:
@@ -199,11 +211,11 @@ def cmd_resample(args) -> None:
             idx = np.sort(idx)
         kept = data.subset(idx)
         start = time.perf_counter()
+        _begin("write", idx.size)
         io.write_points(target, kept.points, attributes=kept.attributes,
                         scores=None if scores is None else scores[idx], header=data.header)
         _stage(args, "write", start)
-        print(f"{args.method}: kept {idx.size} of {n} points of {path} in {seconds:.2f} s -> {target}",
-              file=sys.stderr)
+        _tell(args, f"{args.method}: kept {idx.size} of {n} points of {path} in {seconds:.2f} s -> {target}")
 
     _run_batch(args, jobs, total, check, process)
 
@@ -241,9 +253,9 @@ def cmd_score(args) -> None:
         _, scores, seconds = _compute(entry, data.points, args.ratio, params, key, progress, args)
         scores = _finite_scores(scores)
         start = time.perf_counter()
+        _begin("write", len(data))
         io.write_points(target, data.points, attributes=data.attributes, scores=scores, header=data.header)
         _stage(args, "write", start)
-        print(f"{args.method}: scored {len(data)} points of {path} in {seconds:.2f} s -> {target}",
-              file=sys.stderr)
+        _tell(args, f"{args.method}: scored {len(data)} points of {path} in {seconds:.2f} s -> {target}")
 
     _run_batch(args, jobs, total, check, process)

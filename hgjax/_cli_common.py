@@ -22,7 +22,7 @@ FALLBACK_MEMORY = 8 * 2**30
 """Memory assumed where neither /proc/meminfo nor ``os.sysconf`` tells."""
 MESH_EXTENSIONS = (".ply", ".obj", ".stl", ".off", ".glb", ".gltf")
 INPUT_EXTENSIONS = (".ply", ".pcd", ".las", ".laz", ".xyz", ".txt", ".npy") + MESH_EXTENSIONS[1:]
-CLI_PARAMS = {"ratio": "--ratio or --count", "voxel_size": "--voxel-size", "progress": "--quiet",
+CLI_PARAMS = {"ratio": "--ratio or --count", "voxel_size": "--voxel-size", "progress": "--no-progress",
               "key": "--key", "search": "--search"}
 """Method parameters set by options of their own, not by ``-p``."""
 
@@ -203,6 +203,7 @@ def _load(path: str, args):
     from hgjax import METHODS, Method, io
 
     start = time.perf_counter()
+    _begin("read")
     data = io.read_points(path, samples=args.samples, seed=args.seed)
     _stage(args, f"read {path}", start)
     if args.command not in ("resample", "score") or not isinstance(METHODS[args.method], Method):
@@ -261,26 +262,64 @@ def _key(args):
 
 
 def _progress(args) -> bool:
-    return args.progress and sys.stderr.isatty()
+    """Whether the run shows its progress (:mod:`hgjax._progress`)."""
+    return args.progress and not args.quiet
+
+
+def _file(where: str, points: int | None = None) -> None:
+    """The input that the stages to come work on, for the progress (:meth:`hgjax._progress.Progress.file`)."""
+    from hgjax import _progress
+
+    if _progress.current() is not None:
+        _progress.current().file(where, points)
+
+
+def _begin(name: str, total: int | None = None) -> None:
+    """Stage ``name`` begins, for the progress (:meth:`hgjax._progress.Progress.begin`)."""
+    from hgjax import _progress
+
+    if _progress.current() is not None:
+        _progress.current().begin(name, total)
 
 
 def _stage(args, name: str, start: float) -> None:
-    """With ``--verbose``, print the seconds since ``start`` spent in stage ``name``."""
+    """Stage ``name``, begun at ``start``, ended (:func:`_seconds`)."""
     _seconds(args, name, time.perf_counter() - start)
 
 
 def _seconds(args, name: str, seconds: float) -> None:
-    """With ``--verbose``, print the ``seconds`` spent in stage ``name``."""
-    if args.verbose:
+    """Stage ``name`` ended after ``seconds``: the run's progress goes on to the next one and, with ``--verbose``,
+    prints the seconds (:meth:`hgjax._progress.Progress.ended`)."""
+    from hgjax import _progress
+
+    if _progress.current() is not None:
+        _progress.current().ended(name, seconds)
+    elif args.verbose:
         _say(f"  {name}: {seconds:.3f} s")
 
 
 def _say(line: str) -> None:
-    """``line`` on stderr, written whole between the progress lines that Dask callback threads print
-    (:meth:`hgjax._tiling.Ticker.say`)."""
-    from hgjax._tiling import Ticker
+    """``line`` on stderr, written whole between the progress lines (:func:`hgjax._progress.say`)."""
+    from hgjax import _progress
 
-    Ticker.say(line)
+    _progress.say(line)
+
+
+def _tell(args, line: str) -> None:
+    """A line that says what a run did (an output written), unless ``--quiet``."""
+    if not args.quiet:
+        _say(line)
+
+
+def _first_stage(entry, params: dict) -> str:
+    """The engine's first stage for ``entry`` with ``params`` (:data:`hgjax.engine.STAGES`): a sampler's, a
+    method's on the whole cloud at once (one that cannot run in tiles), or the plan of its tiles."""
+    from hgjax import Sampler, engine
+
+    if isinstance(entry, Sampler):
+        return engine.STAGES["sampler"][0]
+    whole = entry.refused(params) is not None and not entry.tiling.whole_selection
+    return engine.STAGES["whole cloud" if whole else "tiles"][0]
 
 
 def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):
@@ -302,6 +341,7 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
     extra = {} if voxel_size is None else {"voxel_size": voxel_size}
     if progress and "progress" in entry.resample_params:
         extra["progress"] = True
+    _begin(_first_stage(entry, params), len(points))
     idx, scores = hgjax.tiles.resample(points, ratio, method=entry.name, key=key, return_scores=True,
                                        on_stage=lambda name, seconds: _seconds(args, name, seconds), **params,
                                        **extra)

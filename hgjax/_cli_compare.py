@@ -21,6 +21,7 @@ from hgjax._cli_common import (
     _check_samples,
     _compute,
     _expand,
+    _file,
     _key,
     _load,
     _progress,
@@ -66,6 +67,7 @@ def cmd_compare(args) -> None:
     rows, kept = [], {}
     key, progress = _key(args), _progress(args)
     for method in methods:
+        _file(method)
         idx, _, seconds = _compute(hgjax.METHODS[method], data.points, args.ratio, {}, key, progress, args)
         mean, worst = _coverage(data.points, idx)
         kept[method] = idx
@@ -139,6 +141,7 @@ def cmd_demo(args) -> None:
     key, progress = _key(args), _progress(args)
     kept, same, recall, seconds = {}, {}, {}, {}
     for method in sorted(hgjax.METHODS):
+        _file(method)
         idx, _, seconds[method] = _compute(hgjax.METHODS[method], cloud.points, ratio, {}, key, progress, args)
         same[method] = next((m for m, other in kept.items() if np.array_equal(np.sort(other), np.sort(idx))), None)
         kept[method] = idx

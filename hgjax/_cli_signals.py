@@ -46,7 +46,8 @@ def _exit_at_once(name: str) -> None:
         with contextlib.suppress(OSError, ValueError, AttributeError):
             child.kill()
     code, message = SIGNAL_EXITS[name]
-    os.write(2, f"hgjax: {message}\n".encode())
+    clear = "\r\x1b[K" if os.isatty(2) else ""  # a terminal's progress status line, if one is drawn
+    os.write(2, f"{clear}hgjax: {message}\n".encode())
     with contextlib.suppress(OSError):
         os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
     os._exit(code)

@@ -21,10 +21,12 @@ from hgjax._cli_common import (
     UsageError,
     _expand,
     _key,
+    _progress,
     _refuse_stdout,
     _say,
     _seconds,
     _stage,
+    _tell,
 )
 
 
@@ -49,9 +51,8 @@ def _dask_client(args):
         with distributed.Client(args.scheduler) as client:
             yield client
         return
-    if args.progress:
-        print(f"hgjax resample: starting a local Dask cluster of {args.workers} worker processes", file=sys.stderr,
-              flush=True)
+    if _progress(args):
+        _say(f"hgjax resample: starting a local Dask cluster of {args.workers} worker processes")
     with distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                                   dashboard_address=":0", host="127.0.0.1") as cluster:
         with distributed.Client(cluster) as client:
@@ -69,8 +70,9 @@ def _dask_client(args):
 def _resample_survey(args, params: dict) -> None:
     """``resample`` with --tile, --workers or --scheduler: every input one cloud (:func:`hgjax.survey.resample_files`).
 
-    Unless ``--quiet``, a first line at once, then the survey's progress (a tqdm bar per stage where stderr is
-    a terminal, plain lines otherwise); ``--verbose`` prints each stage's seconds and the total."""
+    Unless ``--quiet`` or ``--no-progress``, a first line at once, then the survey's progress (its files and
+    tiles counted into the run's stages, :mod:`hgjax._progress`); ``--verbose`` prints each stage's seconds and
+    the total."""
     from hgjax import io, survey
 
     if args.workers is not None and args.scheduler is not None:
@@ -95,10 +97,9 @@ def _resample_survey(args, params: dict) -> None:
     start = time.perf_counter()
     inputs = _expand(args.inputs)
     ratio = DEFAULT_RATIO if args.ratio is None else args.ratio
-    if args.progress:  # within a second of the start; progress lines follow (a tqdm bar per stage on a terminal)
-        print(f"hgjax resample: {args.method} keeps {ratio:g} of a survey of {len(inputs)} files as one cloud"
-              f"{'' if args.tile is None else f' in tiles of {args.tile:g}'} -> {args.output}", file=sys.stderr,
-              flush=True)
+    if _progress(args):  # within a second of the start; the progress follows
+        _say(f"hgjax resample: {args.method} keeps {ratio:g} of a survey of {len(inputs)} files as one cloud"
+             f"{'' if args.tile is None else f' in tiles of {args.tile:g}'} -> {args.output}")
     if os.path.isdir(args.output):
         for temp in io.remove_stale_temporaries(args.output):
             print(f"hgjax: removed {temp}, left by a killed run", file=sys.stderr)
@@ -106,14 +107,14 @@ def _resample_survey(args, params: dict) -> None:
         client = None if args.workers is None and args.scheduler is None else stack.enter_context(_dask_client(args))
         result = survey.resample_files(inputs, args.output, ratio, method=args.method, tile=args.tile, client=client,
                                        key=_key(args), keep_going=args.keep_going, skip_existing=args.skip_existing,
-                                       progress=args.progress,
+                                       progress=_progress(args),
                                        on_stage=lambda name, seconds: _seconds(args, name, seconds),
                                        on_resume=_say, **params)
     _stage(args, "total", start)
     for message in result.failures.values():
         _say(f"hgjax resample: failed: {message}")
     kept = f" ({len(result.skipped)} up to date, kept)" if result.skipped else ""
-    _say(f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs{kept} to {args.output}"
-         f" ({result.manifest})")
+    _tell(args, f"{args.method}: wrote {len(result.written)} of {len(inputs)} outputs{kept} to {args.output}"
+          f" ({result.manifest})")
     if result.failures:
         raise BatchFailure(f"{len(result.failures)} of {len(inputs)} inputs failed{kept}: {', '.join(result.failures)}")

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _precision, _validate
+from hgjax import _progress as run_progress
 
 BLOCK = 1024  # rows per vmapped block
 ACCELERATOR_BLOCK = 16384  # rows per vmapped block of a traced map on a GPU/TPU: fewer sequential steps
@@ -133,7 +134,8 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       row_args: per-row arrays (N, ...), mapped with the rows.
       args: arrays broadcast to every row (traced: new values do not recompile).
       chunk_size: rows per streamed chunk (concrete path only; never changes results).
-      progress: tqdm bar on stderr for long streamed runs.
+      progress: report the rows sent: to the command line's run (:func:`hgjax._progress.current`), else
+        as a tqdm bar on stderr for a long stream.
       narrow: the rows list their neighbours first and padding after, and ``fn`` gives the
         same result whatever the number of padding columns (e.g. exact counts). The
         streamed path then runs each row in the kernel as narrow as its neighbours
@@ -225,7 +227,7 @@ class Stream:
         self.fn, self.ext, self.args, self.n = fn, ext, args, int(ext[2])
         self.chunk = chunk_rows(chunk_size, total)
         self.pending, self.outputs, self.rows = None, [], 0
-        self.bar = _progress(total, progress and total > 4 * self.chunk)
+        self.bar = _counter(total, progress, self.chunk)
 
     def push(self, own, idx, row_args=()) -> None:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K) and ``row_args`` (R, ...) each;
@@ -313,7 +315,7 @@ class NarrowStream:
                  total: int = 0):
         self.new = functools.partial(Stream, fn, ext, args=args, chunk_size=chunk_size, total=total)
         self.n, self.streams, self.widths = int(ext[2]), {}, []
-        self.bar = _progress(total, progress and total > 4 * chunk_rows(chunk_size, total))
+        self.bar = _counter(total, progress, chunk_rows(chunk_size, total))
 
     def push(self, own, idx, row_args=()) -> None:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K), listed first, and ``row_args``."""
@@ -370,11 +372,18 @@ def _sharded(fn: Callable, n_row_args: int, n_args: int) -> Callable:
     return jax.jit(run)
 
 
-def _progress(total: int, enabled: bool):
-    if not enabled:
+def _counter(total: int, progress: bool, chunk: int):
+    """The counter of a stream's ``total`` rows sent in chunks of ``chunk``, with ``progress``: the command line's
+    run's (:func:`hgjax._progress.current`), else a tqdm bar for a stream of more than 4 chunks."""
+    if not progress:
+        return None
+    run = run_progress.current()
+    if run is not None:
+        return run.rows(total)
+    if total <= 4 * chunk:
         return None
     try:
         from tqdm.auto import tqdm
     except ImportError:  # tqdm is optional; progress is then silent
         return None
-    return tqdm(total=total, unit="pt", unit_scale=True, file=sys.stderr, leave=False)
+    return tqdm(total=total, desc="hgjax score", unit="pt", unit_scale=True, file=sys.stderr, leave=False)

@@ -35,7 +35,7 @@ import time
 import jax
 import numpy as np
 
-from hgjax import _stream, select, spatial
+from hgjax import _progress, _stream, select, spatial
 
 __all__ = ["Cloud", "Dask", "Here", "Plan", "Source", "tile_scores"]
 
@@ -285,13 +285,15 @@ class Source:
 
 
 class Ticker:
-    """The progress of one pass of tasks of known sizes on stderr (a survey's, ``progress``).
+    """The progress of one pass of tasks of known sizes (a survey's, ``progress``), called with a task's key
+    as it ends, from any thread.
 
-    A tqdm bar of the points done where stderr is a terminal and tqdm is installed; else a
-    first line as the pass starts (``hgjax tiles: tile scores: 12 tiles, 1.2M points``), then,
-    at most one a :attr:`PERIOD` and at the last task, the tasks and points done, the rate and
-    the time left (``hgjax tiles: tile scores 3/12 tiles, 210k/1.2M points, 53k points/s, ETA
-    19 s``). Called with a task's key as it ends, from any thread.
+    Under the command line, a count of its run's progress (:func:`hgjax._progress.current`). Else, a
+    tqdm bar of the points done where stderr is a terminal and tqdm is installed; else a first line as
+    the pass starts (``hgjax tiles: tile scores: 12 tiles, 1.2M points``), then, at most one a
+    :attr:`PERIOD` and at the last task, the tasks and points done, the rate and, once it can be told
+    (:class:`hgjax._progress.Rate`), the time left (``hgjax tiles: tile scores 3/12 tiles, 210k/1.2M
+    points, 53k points/s, ETA 19 s``).
 
     Args:
       what: the pass's name, or its task function (named by it: ``_tile_scores`` is "tile scores").
@@ -300,14 +302,17 @@ class Ticker:
     """
 
     PERIOD = 1.0
-    SAYING = threading.Lock()
 
     def __init__(self, what, sizes: dict, *, task: str = "tile", unit: str = "points", prefix: str = "hgjax tiles"):
         self.what = what if isinstance(what, str) else what.__name__.strip("_").replace("_", " ")
         self.sizes, self.total, self.task, self.unit, self.prefix = sizes, sum(sizes.values()), task, unit, prefix
         self.done, self.amount, self.lock = 0, 0, threading.Lock()
         self.start = self.said = time.perf_counter()
-        self.bar = None
+        self.rate = _progress.Rate(self.start)
+        self.bar, self.run = None, _progress.current()
+        if self.run is not None:
+            self.counted = self.run.count(self.what, self.total, len(sizes), task, unit)
+            return
         if sys.stderr.isatty():
             try:
                 from tqdm import tqdm
@@ -320,6 +325,9 @@ class Ticker:
             self.say(f"{prefix}: {self.what}: {len(sizes)} {task}s, {self.si(self.total)} {unit}")
 
     def __call__(self, key) -> None:
+        if self.run is not None:
+            self.run.task_done(self.counted, self.sizes[key])
+            return
         with self.lock:
             self.done += 1
             self.amount += self.sizes[key]
@@ -330,29 +338,16 @@ class Ticker:
                     self.bar.close()
                 return
             now = time.perf_counter()
+            rate = self.rate(self.amount, now)
             if now - self.said < self.PERIOD and not last:
                 return
-            self.said, rate = now, self.amount / max(now - self.start, 1e-9)
-            left = f"{(self.total - self.amount) / rate:.0f} s" if rate > 0 else "unknown"
+            self.said, left = now, self.rate.left(self.amount, self.total, now)
             self.say(f"{self.prefix}: {self.what} {self.done}/{len(self.sizes)} {self.task}s, {self.si(self.amount)}/"
-                     f"{self.si(self.total)} {self.unit}, {self.si(rate)} {self.unit}/s, ETA {left}")
+                     f"{self.si(self.total)} {self.unit}, {self.si(rate)} {self.unit}/s"
+                     + ("" if left is None else f", ETA {left}"))
 
-    @classmethod
-    def say(cls, line: str) -> None:
-        """``line`` on stderr in one write, one line at a time across every ticker and thread (a pass's
-        last line comes from a Dask callback thread while the next pass starts: two ``print`` calls,
-        each a text write and a newline write, would interleave)."""
-        with cls.SAYING:
-            sys.stderr.write(line + "\n")
-            sys.stderr.flush()
-
-    @staticmethod
-    def si(value: float) -> str:
-        """``value`` in at most 3 significant digits with an SI prefix: 950, 3.2k, 12M."""
-        for prefix, scale in (("T", 1e12), ("G", 1e9), ("M", 1e6), ("k", 1e3)):
-            if value >= scale:
-                return f"{value / scale:.3g}{prefix}"
-        return f"{value:.3g}"
+    say = staticmethod(_progress.say)
+    si = staticmethod(_progress.si)
 
 
 def map_tasks(client, fn, items, *args) -> list:

@@ -42,7 +42,7 @@ import os
 import sys
 import warnings
 
-from hgjax import _names
+from hgjax import _names, _progress
 from hgjax._cli_batch import cmd_resample, cmd_score
 from hgjax._cli_common import (  # noqa: F401  (re-exported)
     DEFAULT_RATIO,
@@ -231,8 +231,12 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--dtype", choices=["float32", "float64"], default="float32",
                         help="computation dtype (default float32, after a float64 local frame; float64"
                         " enables JAX x64)")
-    common.add_argument("--quiet", "--no-progress", dest="progress", action="store_false",
-                        help="no progress bar (shown only when stderr is a terminal)")
+    common.add_argument("-q", "--quiet", action="store_true",
+                        help="print only warnings and errors: no progress, no summary line per output")
+    common.add_argument("--no-progress", dest="progress", action="store_false",
+                        help="no progress (by default, a stage that runs over a second of a run over two is"
+                        " shown: a status line on a terminal, else a plain line every few seconds, with its"
+                        " points done, rate and time left)")
     common.add_argument("-v", "--verbose", action="store_true",
                         help="print the seconds of each stage: per file read, the engine's stages (plan, tiles:"
                         " every tile's neighbourhoods and scores, keep; a method on the whole cloud at once:"
@@ -358,7 +362,7 @@ def _warning_printer():
     def show(message, category, filename, lineno, file=None, line=None) -> None:
         if str(message) not in said:
             said.add(str(message))
-            print(f"hgjax: warning: {message}", file=sys.stderr)
+            _progress.say(f"hgjax: warning: {message}")
 
     return show
 
@@ -421,8 +425,10 @@ def _run(argv, received: list, held) -> int:
         return int(exc.code or 0)
     with held():
         _import_engine()
+    progress = _progress.Progress(f"hgjax {args.command}", show=args.progress and not args.quiet,
+                                  terminal=sys.stderr.isatty(), verbose=args.verbose)
     try:
-        with _session(args.dtype):
+        with _session(args.dtype), _progress.installed(progress):
             COMMANDS[args.command](args)
     except (UsageError, ValueError, TypeError, ImportError) as err:  # includes hgjax's validation
         if received:

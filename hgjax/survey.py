@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from hgjax import _registry, _tiling, _validate, engine, io, spatial
+from hgjax import _progress, _registry, _tiling, _validate, engine, io, spatial
 from hgjax._method import Method
 
 __all__ = ["MANIFEST", "ManifestError", "SurveyResult", "read_manifest", "resample_files", "reusable", "run_record",
@@ -638,6 +638,8 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
     clock = _ended(on_stage, "check", clock)
     scoring = isinstance(entry, Method)
     lazily = entry.refused(params) is None if scoring else entry.lazy
+    if progress and client is None and _progress.current() is not None and "progress" in entry.resample_params:
+        params = {**params, "progress": True}  # the command line's run counts the rows of each tile's kernels
     if lazily:
         run = engine.run(survey, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
                          on_stage=on_stage, params=dict(params))

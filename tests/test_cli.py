@@ -58,7 +58,7 @@ def runs(monkeypatch):
 
 def test_resample_mesh_to_ply_with_score(tmp_path):
     out = tmp_path / "kept.ply"
-    proc = run("resample", MESH, "-o", out, "--samples", 3000, "--ratio", 0.1, "--method", "hkc", "--quiet",
+    proc = run("resample", MESH, "-o", out, "--samples", 3000, "--ratio", 0.1, "--method", "hkc", "--no-progress",
                "--order", "priority")
     assert proc.returncode == 0, proc.stderr
     assert "kept 300 of 3000" in proc.stderr
@@ -118,13 +118,14 @@ def test_lhf_writes_its_two_lengths_combined_at_the_ratio(capsys, tmp_path, runs
     assert np.abs(combined - hgjax.scores.lhf.combine(gamma, _validate.n_keep(len(points), 0.05))).max() > 1e-3
 
 
-def test_progress_only_when_stderr_is_a_terminal(capsys, tmp_path, monkeypatch, runs):
+def test_the_kernel_rows_are_counted_unless_the_progress_is_off(capsys, tmp_path, monkeypatch, runs):
     args = ["resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "ea"]
     assert run_here(capsys, *args)[0] == 0
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
     assert run_here(capsys, *args)[0] == 0
     assert run_here(capsys, *args, "--quiet")[0] == 0
-    assert [params.get("progress") for _, _, params in runs] == [None, True, None]
+    assert run_here(capsys, *args, "--no-progress")[0] == 0
+    assert [params.get("progress") for _, _, params in runs] == [True, True, None, None]
 
 
 def test_parameters_come_from_the_registry(capsys, tmp_path, monkeypatch):

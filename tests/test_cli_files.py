@@ -44,7 +44,7 @@ def test_directory_of_scans_to_a_directory(capsys, tmp_path):
     (src / "notes.md").write_text("not a scan")
     (src / "sub").mkdir()
     code, _, err = run_here(capsys, "resample", src, "-o", tmp_path / "out", "--format", "pcd", "--count", 500,
-                            "--dtype", "float64")  # the suite runs with x64
+                            "--dtype", "float64", "--no-progress")  # the suite runs with x64
     assert code == 0, err
     assert sorted(os.listdir(tmp_path / "out")) == ["a.pcd", "b.pcd", "c.pcd", survey.MANIFEST]  # -o DIR: a manifest
     assert [line.split(" of ")[1].split()[0] for line in err.splitlines()] == ["4100", "3000", "2500"]  # sorted
@@ -192,7 +192,7 @@ def test_a_survey_rerun_counts_the_outputs_kept_up_to_date(capsys, tmp_path):
     for i in range(2):
         io.write_points(src / f"t{i}.xyz", cloud(400) + [3.0 * i, 0, 0])
     (src / "bad.xyz").write_text("1 2 3\n4 5\n")
-    args = ["resample", src, "-o", tmp_path / "out", "--tile", 2, "--keep-going", "--skip-existing", "--quiet",
+    args = ["resample", src, "-o", tmp_path / "out", "--tile", 2, "--keep-going", "--skip-existing", "--no-progress",
             "--method", "uniform"]
     code, _, err = run_here(capsys, *args)
     assert code == 1 and "wrote 2 of 3 outputs to" in err and "1 of 3 inputs failed: " in err, err
