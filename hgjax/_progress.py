@@ -33,6 +33,7 @@ PERIOD = 5.0  # seconds between two plain lines of one stage
 REDRAW = 0.2  # seconds between two draws of a terminal's status line
 TICK = 0.5  # seconds between two looks at whether a plain line is due
 MIN_SHARE = 0.05  # the share of a stage's total counted after its first count before a time left is given
+MIN_SECONDS = 1.0  # and the seconds since its first count
 BAR = 30  # the most characters of a terminal's bar
 MIN_BAR = 10  # the fewest: none where the terminal has less room
 LABELS = {"tiles": "neighbours/score", "tile scores": "neighbours/score", "neighbourhoods": "neighbours",
@@ -116,20 +117,21 @@ class Rate:
 
     def left(self, done: float, total: float, now: float) -> str | None:
         """The time left at the rate since the first count, or None while less than :data:`MIN_SHARE` of
-        ``total`` was counted after it."""
+        ``total`` was counted after it, or less than :data:`MIN_SECONDS` passed (tasks that end together)."""
         if done >= total:
             return "0 s"
-        if self.first is None or done - self.first[1] < MIN_SHARE * total or now <= self.first[0]:
+        if self.first is None or done - self.first[1] < MIN_SHARE * total or now - self.first[0] < MIN_SECONDS:
             return None
         return duration((total - done) * (now - self.first[0]) / (done - self.first[1]))
 
 
 class _Stage:
-    """One stage of a run: its label, what it counts and since when."""
+    """One stage of a run: its label, what it counts and since when, and the engine stage that began while its
+    tasks still ran (``then``)."""
 
     def __init__(self, label: str, total: float | None, unit: str, now: float):
         self.label, self.total, self.unit, self.start = label, total, unit, now
-        self.detail, self.tasks, self.task, self.pass_ = None, None, None, 0
+        self.detail, self.tasks, self.task, self.pass_, self.then = None, None, None, 0, None
         self.done = self.partial = self.finished = 0
         self.rate, self.said = Rate(now), None
 
@@ -195,11 +197,16 @@ class Progress:
         """Stage ``name`` ended after ``seconds`` (an ``on_stage`` hook): its seconds with ``verbose``, and the
         stage after it (:data:`NEXT`) begins."""
         with self.lock:
-            self._end(time.perf_counter())
-            self.stage = None
+            stage = self.stage
+            running = stage is not None and stage.tasks and stage.finished < stage.tasks
+            if not running:
+                self._end(time.perf_counter())
+                self.stage = None
             if self.verbose:
                 self._line(f"  {name}: {seconds:.3f} s")
-            if name in NEXT:
+            if name in NEXT and running:  # its tasks still run (on Dask workers): the next stage begins after them
+                stage.then = NEXT[name]
+            elif name in NEXT:
                 self.begin(NEXT[name], self.points)
 
     def count(self, what: str, total: float, tasks: int, task: str, unit: str) -> object:
@@ -225,6 +232,8 @@ class Progress:
                 stage.finished += 1
                 stage.partial = 0
                 stage.rate(stage.count(), time.perf_counter())
+                if stage.then is not None and stage.finished == stage.tasks:
+                    self.begin(stage.then, self.points)
 
     def rows(self, total: int) -> _Rows:
         """The counter of a kernel stream of ``total`` rows: the current task's progress within a pass, else

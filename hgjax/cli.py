@@ -234,9 +234,9 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("-q", "--quiet", action="store_true",
                         help="print only warnings and errors: no progress, no summary line per output")
     common.add_argument("--no-progress", dest="progress", action="store_false",
-                        help="no progress (by default, a stage that runs over a second of a run over two is"
-                        " shown: a status line on a terminal, else a plain line every few seconds, with its"
-                        " points done, rate and time left)")
+                        help="hide the progress; by default each stage that lasts over a second, once the run"
+                        " has taken 2 s, is shown with its points done, rate and time left: a status line on a"
+                        " terminal, else a plain line every 5 s")
     common.add_argument("-v", "--verbose", action="store_true",
                         help="print the seconds of each stage: per file read, the engine's stages (plan, tiles:"
                         " every tile's neighbourhoods and scores, keep; a method on the whole cloud at once:"

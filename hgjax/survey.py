@@ -543,9 +543,11 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
       progress: report on stderr, a tqdm bar per stage where stderr is a terminal (and tqdm is
         installed), else plain lines: a first line as each stage starts (the check of the files,
         their census, each pass over the tiles, the copy to disk of a whole-cloud method, the
-        writes), then the files or tiles done, the points done of the total, the rate and the
-        time left (``hgjax tiles: tile scores 3/12 tiles, 210k/1.2M points, 53k points/s, ETA
-        19 s``), at most one line a second.
+        writes), then the files or tiles done, the points done of the total, the rate and,
+        once enough is done to tell (:class:`hgjax._progress.Rate`), the time left (``hgjax tiles:
+        tile scores 3/12 tiles, 210k/1.2M points, 53k points/s, ETA 19 s``), at most one line a
+        second. Under the command line, each pass (and, in this process, the rows of each tile's
+        kernels) counts into its run's progress instead (:mod:`hgjax._progress`).
       on_stage: ``on_stage(name, seconds)``, called as each stage ends: ``"check"`` (headers and
         the read of every input), ``"copy"`` (a whole-cloud method's memmap), the engine's stages
         (:data:`hgjax.engine.STAGES`), ``"write"``.

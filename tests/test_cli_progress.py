@@ -131,6 +131,7 @@ def test_no_time_left_from_a_first_tile_of_a_few_points():
     rate = _progress.Rate(0.0)
     rate(2, 5.8)
     assert rate.left(2, 418_000, 6.0) is None
+    assert rate.left(100_002, 418_000, 6.1) is None  # tiles that end together tell no rate
     assert rate.left(100_002, 418_000, 7.8) == "6.4 s"  # 100k points in the 2 s since the first count
 
 
@@ -146,3 +147,16 @@ def test_a_survey_ticker_gives_no_time_left_from_a_tiny_first_tile(capsys, monke
 def test_durations_read_as_a_person_reads_them():
     assert [_progress.duration(s) for s in (0.04, 8.46, 42, 245, 7380)] == ["0.0 s", "8.5 s", "42 s", "4 min 05 s",
                                                                              "2 h 03 min"]
+
+
+def test_tiles_still_running_on_workers_keep_their_stage_until_they_end():
+    """On Dask the engine's tiles stage ends as the tasks are sent; the user reads their count until they end."""
+    run = _progress.Progress("hgjax resample", show=True, terminal=False)
+    run.begin("plan", 3000)
+    run.ended("plan", 0.1)
+    counted = run.count("tile scores", 3000, 2, "tile", "points")
+    run.ended("tiles", 0.0)
+    run.task_done(counted, 1000)
+    assert run.stage.label == "neighbours/score" and run.stage.finished == 1
+    run.task_done(counted, 2000)
+    assert run.stage.label == "keep"
