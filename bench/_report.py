@@ -186,7 +186,7 @@ def save_box_cloud(n: int, dtype, directory) -> Path:
 class SearchLog:
     """The host k-d tree work of calls made inside ``with log:``, kept to be replayed alone.
 
-    Every :class:`hgjax._kdtree.Tree` built (or first queried) inside is recorded with its
+    Every :class:`hgjax.neighbours.kdtree.Tree` built (or first queried) inside is recorded with its
     points, and every query on it with its arguments, in the order made (queries from
     background threads included). :meth:`seconds` replays them: each tree built anew, its
     queries run one after another with nothing beside them: a method's own neighbour search
@@ -199,9 +199,9 @@ class SearchLog:
     def __enter__(self):
         import threading
 
-        from hgjax import _kdtree
+        from hgjax.neighbours import kdtree
 
-        self._init, self._query, lock = _kdtree.Tree.__init__, _kdtree.Tree.query, threading.Lock()
+        self._init, self._query, lock = kdtree.Tree.__init__, kdtree.Tree.query, threading.Lock()
         log, init, query = self, self._init, self._query
 
         def entry(tree) -> list:
@@ -221,13 +221,13 @@ class SearchLog:
                 entry(tree).append((x, k, bound, p))
             return query(tree, x, k, bound, p)
 
-        _kdtree.Tree.__init__, _kdtree.Tree.query = recorded_init, recorded_query
+        kdtree.Tree.__init__, kdtree.Tree.query = recorded_init, recorded_query
         return self
 
     def __exit__(self, *exc):
-        from hgjax import _kdtree
+        from hgjax.neighbours import kdtree
 
-        _kdtree.Tree.__init__, _kdtree.Tree.query = self._init, self._query
+        kdtree.Tree.__init__, kdtree.Tree.query = self._init, self._query
 
     @property
     def queries(self) -> int:
@@ -237,11 +237,11 @@ class SearchLog:
         """Wall seconds of building every recorded tree and running its recorded queries, in order."""
         import time
 
-        from hgjax import _kdtree
+        from hgjax.neighbours import kdtree
 
         t = time.perf_counter()
         for points, queries in self.trees:
-            tree = _kdtree.Tree(points)
+            tree = kdtree.Tree(points)
             for x, k, bound, p in queries:
                 tree.query(x, k, bound, p)
         return time.perf_counter() - t

@@ -31,7 +31,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import hgjax  # noqa: E402
-from hgjax import _graph, spatial  # noqa: E402
+from hgjax.neighbours import radius_graph, spatial  # noqa: E402
 from hgjax.scores import ea, lhf, voxel  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
@@ -54,14 +54,14 @@ SWEEPS = {
 RULES = {
     "hkc": "d = f x local spacing, f = `voxel.default_d_factor(irregularity)`: {regular} up to irregularity "
            "{lo}, {irregular} from {hi}, linear in between (irregularity = CV of nearest-neighbour distances, "
-           "`hgjax.spatial.SampleStats.irregularity`).",
+           "`hgjax.neighbours.spatial.SampleStats.irregularity`).",
     "hkf": "shares HKC's neighbourhoods and d rule (`voxel.neighbourhoods`).",
     "lhf": "lengths = {lhf} (`lhf.DEFAULT_LENGTHS`, one constant for every cloud): the only pair of the sweep "
            "within 0.05 of the best pair in all three regimes (the grid and random regimes favour long pairs, "
            "the real clouds (6, 12); no irregularity rule separates them, since pced_abc_7033, the one "
            "lattice-like real cloud, favours short pairs while the synthetic grid favours long ones). Before "
            "this study the default was (6, 12), which missed the grid (by 0.099) and random (0.058) regimes.",
-    "gfr": "radius_factor = {gfr} resolutions (`hgjax._graph.RADIUS_FACTOR`, bench/results/archive/gfr_radius.md: the largest "
+    "gfr": "radius_factor = {gfr} resolutions (`hgjax.neighbours.radius_graph.RADIUS_FACTOR`, bench/results/archive/gfr_radius.md: the largest "
            "mean F1/best among the factors within 0.05 of the best in every synthetic setting, ties to the "
            "smallest graph).",
     "ea": "k = {ea} (`ea.DEFAULT_K`, shared with PCA-AC): the Bazazian et al. setting.",
@@ -71,7 +71,7 @@ RULES = {
 def rule_text(method):
     lo, hi = voxel.IRREGULARITY_RANGE
     return RULES[method].format(regular=voxel.REGULAR_D_FACTOR, irregular=voxel.IRREGULAR_D_FACTOR, lo=lo, hi=hi,
-                                lhf=lhf.DEFAULT_LENGTHS, gfr=_graph.RADIUS_FACTOR, ea=ea.DEFAULT_K)
+                                lhf=lhf.DEFAULT_LENGTHS, gfr=radius_graph.RADIUS_FACTOR, ea=ea.DEFAULT_K)
 
 
 def irregularity(points):

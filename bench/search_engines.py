@@ -12,12 +12,12 @@ cloud against itself in one call: kNN with k = 16, 17, 33, 64 (EA/PCA-AC, MSS, H
 Euclidean ball as a bounded kNN (64 columns; radius: the median, over hgjax's seeded sample of 1000
 rows, of the distance to the 50th point, the row's own included, so the median row holds about 50 points
 as HKC's does); GFR's bounded kNN (k = 100 + 9, radius 10 x the median nearest-distinct distance
-x (1 + 1e-5), as ``hgjax._graph``); the Chebyshev cube (p = inf, 64 columns, half-width chosen like the
+x (1 + 1e-5), as ``hgjax.neighbours.radius_graph``); the Chebyshev cube (p = inf, 64 columns, half-width chosen like the
 ball's radius) where the engine has that norm. An engine without a (correct) distance
 bound runs the kNN and masks the hits beyond the bound; its time includes that.
 
 Clouds: ``hgjax.eval.box_surface(N, seed=0)`` per ``--sizes`` and the mug scan (``--no-scan`` skips it),
-both in hgjax's local frame (``hgjax.spatial.local_frame``); conditions: Morton-sorted or random order
+both in hgjax's local frame (``hgjax.neighbours.spatial.local_frame``); conditions: Morton-sorted or random order
 (seed 0), float32 or float64 handed to the engine (cKDTree computes in float64 either way; hgjax hands
 float64 today). Each condition first checks every engine and query against cKDTree on the same array
 (rows whose neighbour sets differ; rows whose sorted distances, cast to float64, differ bitwise), which
@@ -165,18 +165,18 @@ def queries(local: np.ndarray) -> list[tuple[str, int, float, float, str]]:
     """(name, k, bound, p, how the bound was chosen) of every query, for the float64 local cloud."""
     from scipy.spatial import cKDTree
 
-    from hgjax import _graph, spatial
+    from hgjax.neighbours import radius_graph, spatial
 
     stats = spatial.sample_stats(spatial.SpatialIndex(local, dedupe=True))
     res = stats.resolution(robust=True)
-    gfr = np.sqrt(_graph.squared_radius(_graph.RADIUS_FACTOR, stats)) * (1 + 1e-5)
+    gfr = np.sqrt(radius_graph.squared_radius(radius_graph.RADIUS_FACTOR, stats)) * (1 + 1e-5)
     tree, sample = cKDTree(local), local[spatial.sample_ids(local.shape[0])]
     ball = float(np.median(tree.query(sample, k=BALL_COUNT)[0][:, -1]))
     cube = float(np.median(tree.query(sample, k=BALL_COUNT, p=np.inf)[0][:, -1]))
     return [*((f"kNN{k}", k, np.inf, 2, "") for k in (16, 17, 33, 64)),
             ("HKC ball", WIDE, ball, 2, f"radius {ball:.4g} = {ball / res:.2f} x the median nearest distance"),
-            (f"GFR k={_graph.MAX_NN + 9}", _graph.MAX_NN + 9, gfr, 2,
-             f"radius {gfr:.4g} = {_graph.RADIUS_FACTOR:g} x {res:.4g} x (1 + 1e-5)"),
+            (f"GFR k={radius_graph.MAX_NN + 9}", radius_graph.MAX_NN + 9, gfr, 2,
+             f"radius {gfr:.4g} = {radius_graph.RADIUS_FACTOR:g} x {res:.4g} x (1 + 1e-5)"),
             ("cube p=inf", WIDE, cube, np.inf,
              f"half-width {cube:.4g} = {cube / res:.2f} x the median nearest distance")]
 
@@ -289,7 +289,7 @@ def main() -> None:
                f"kNN, masked ({NAPF_RKNN}). Float64 distances bitwise equal to cKDTree's with other sets: ties at the k-th place.")]
     sections = []
     for cloud, make in clouds:
-        local = hgjax.spatial.local_frame(np.asarray(make(), dtype=np.float64))[0]
+        local = hgjax.neighbours.spatial.local_frame(np.asarray(make(), dtype=np.float64))[0]
         n, qs, done = local.shape[0], queries(local), {}
         floor = _report.morton_copy(local)
         ordered = {"Morton": lambda: floor, "random": lambda: local[np.random.default_rng(0).permutation(n)]}

@@ -46,22 +46,22 @@ ENGINE_STAGES = [("plan (bounds, grid, resolved parameters)", "plan"), ("tiles (
 PUBLIC = "public build: `hgjax.neighbourhoods(p, m)`, its own call after the resample"
 STAGES = [
     ("resample (whole call)", "hgjax.engine", "run", 0),
-    ("sample statistics (d_factor)", "hgjax.spatial", "nearest_distances", 1),
+    ("sample statistics (d_factor)", "hgjax.neighbours.spatial", "nearest_distances", 1),
     ("tile_scores (index, neighbourhoods, kernel)", "hgjax._tiling", "tile_scores", 1),
     ("gather (tile points in the frame, float64)", "hgjax._tiling.Cloud", "gather", 2),
-    ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.spatial.SpatialIndex", "__init__", 2),
-    ("spatial_order (Morton codes and sort)", "hgjax.spatial", "spatial_order", 3),
+    ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.neighbours.spatial.SpatialIndex", "__init__", 2),
+    ("spatial_order (Morton codes and sort)", "hgjax.neighbours.spatial", "spatial_order", 3),
     ("device_points (the tile's points to the device)", "hgjax._stream", "device_points", 2),
     ("rows: LHF/EA k-nearest batches (generator steps)", "hgjax.scores.ea", "tile_rows", 2),
     ("rows: HKC/HKF cube batches (generator steps)", "hgjax.scores.voxel", "row_batches", 2),
-    ("knn: exact kNN17 + tie ranking (LHF/EA; HKC/HKF: kNN18 of spacings)", "hgjax.spatial.SpatialIndex", "knn", 3),
+    ("knn: exact kNN17 + tie ranking (LHF/EA; HKC/HKF: kNN18 of spacings)", "hgjax.neighbours.spatial.SpatialIndex", "knn", 3),
     ("tree queries (nearest: LHF/EA kNN17, in the background thread; HKC/HKF batch kNN~64)",
-     "hgjax.spatial.SpatialIndex", "nearest", 3),
-    ("local_spacing", "hgjax.spatial", "local_spacing", 3),
-    ("chunked_knn (spacing of rows outside the batch)", "hgjax.spatial", "chunked_knn", 4),
-    ("cube: the ball rows", "hgjax.spatial.SpatialIndex", "cube", 3),
-    ("_cube_query (re-queries of wider rows)", "hgjax.spatial.SpatialIndex", "_cube_query", 4),
-    ("_ranked (tie ranking: lexsort)", "hgjax.spatial.SpatialIndex", "_ranked", 3),
+     "hgjax.neighbours.spatial.SpatialIndex", "nearest", 3),
+    ("local_spacing", "hgjax.neighbours.spatial", "local_spacing", 3),
+    ("chunked_knn (spacing of rows outside the batch)", "hgjax.neighbours.spatial", "chunked_knn", 4),
+    ("cube: the ball rows", "hgjax.neighbours.spatial.SpatialIndex", "cube", 3),
+    ("_cube_query (re-queries of wider rows)", "hgjax.neighbours.spatial.SpatialIndex", "_cube_query", 4),
+    ("_ranked (tie ranking: lexsort)", "hgjax.neighbours.spatial.SpatialIndex", "_ranked", 3),
     ("covers (halo check)", "hgjax._tiling.Cloud", "covers", 2),
     ("NarrowStream.push (HKC/HKF rows routed by width, chunks dispatched as built)", "hgjax._stream.NarrowStream",
      "push", 2),
@@ -69,10 +69,10 @@ STAGES = [
     ("Stream.push (chunks dispatched as built)", "hgjax._stream.Stream", "push", 2),
     ("Stream.collect (the last chunk, then waiting for the kernel)", "hgjax._stream.Stream", "collect", 2),
     ("_tile_graph (GFR graph and exact pair sums)", "hgjax.scores.gfr", "_tile_graph", 1),
-    ("_kept (bounded kNN queries, k = max_nn + 9: what each location keeps, and cuts)", "hgjax._graph", "_kept",
+    ("_kept (bounded kNN queries, k = max_nn + 9: what each location keeps, and cuts)", "hgjax.neighbours.radius_graph", "_kept",
      2),
-    ("_kept_back (the kept lists read the other way)", "hgjax._graph", "_kept_back", 2),
-    ("_in_ball (0 < q < r from the tree's distances)", "hgjax._graph", "_in_ball", 3),
+    ("_kept_back (the kept lists read the other way)", "hgjax.neighbours.radius_graph", "_kept_back", 2),
+    ("_in_ball (0 < q < r from the tree's distances)", "hgjax.neighbours.radius_graph", "_in_ball", 3),
     ("pair_sums (exact sums of c, c q, c q^2: the moment kernel's row sums)", "hgjax.scores.gfr", "pair_sums", 2),
     ("pair_lengths (q kernel: float64 q)", "hgjax.scores.gfr", "pair_lengths", 3),
     ("ExactSum.of", "hgjax.select.ExactSum", "of", 3),
@@ -148,7 +148,8 @@ def _kernel_split(p, method: str, repeats: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from hgjax import _stream, spatial
+    from hgjax import _stream
+    from hgjax.neighbours import spatial
     from hgjax.scores import _common, hkc, hkf, voxel
 
     index = spatial.SpatialIndex(spatial.local_frame(p)[0], dedupe=True)
@@ -211,10 +212,10 @@ def main() -> None:
     methods = args.methods.split(",")
     p = _report.box_cloud(args.n, np.float32)
     q = p[hgjax.spatial_order(p)]
-    if "gfr" in methods:  # the default invariant radius (10 resolutions), bounded as hgjax._graph._kept bounds it
-        from hgjax import _graph
-        stats = hgjax.spatial.sample_stats(hgjax.spatial.SpatialIndex(q.astype(np.float64), dedupe=True))
-        gfr_bound = np.sqrt(_graph.squared_radius(_graph.RADIUS_FACTOR, stats)) * (1 + 1e-5)
+    if "gfr" in methods:  # the default invariant radius (10 resolutions), bounded as hgjax.neighbours.radius_graph._kept bounds it
+        from hgjax.neighbours import radius_graph
+        stats = hgjax.neighbours.spatial.sample_stats(hgjax.neighbours.spatial.SpatialIndex(q.astype(np.float64), dedupe=True))
+        gfr_bound = np.sqrt(radius_graph.squared_radius(radius_graph.RADIUS_FACTOR, stats)) * (1 + 1e-5)
     per = {m: collections.defaultdict(list) for m in methods}
     per_cpu = {m: collections.defaultdict(list) for m in methods}
     yard, yard_cpu = collections.defaultdict(list), collections.defaultdict(list)

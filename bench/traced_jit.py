@@ -10,7 +10,7 @@ kept points it keeps, whether the two arrays are equal (order included), the fir
 (compilation included) and the median of three warm calls. Then the same compiled program on a
 copy 16 times denser (the cloud scaled by 1/4: a surface holds 16 times the points per area), and
 its arrays against the host's there. Last, the run-time check that stops a jitted program whose ball or
-graph row outgrew its columns (:func:`hgjax._traced.guard`, a host callback): the jitted EA build
+graph row outgrew its columns (:func:`hgjax.neighbours.backend.guard`, a host callback): the jitted EA build
 timed with it and with it replaced by the identity, in alternating rounds.
 """
 
@@ -68,17 +68,17 @@ def guard_cost(n: int, rounds: int = 7) -> dict:
     import numpy as np
 
     import hgjax
-    from hgjax import _traced
+    from hgjax.neighbours import backend
 
     p = hgjax.eval.box_union_cloud(seed=0, n_points=n).points.astype(np.float32)
     checked = jax.jit(lambda q: hgjax.neighbourhoods(q, "ea", search="jax").idx)
-    guard = _traced.guard
-    _traced.guard = lambda overflow: overflow
+    guard = backend.guard
+    backend.guard = lambda overflow: overflow
     try:
         unchecked = jax.jit(lambda q: hgjax.neighbourhoods(q, "ea", search="jax").idx)
         unchecked(p).block_until_ready()
     finally:
-        _traced.guard = guard
+        backend.guard = guard
     checked(p).block_until_ready()
     times = {"checked": [], "unchecked": []}
     for _ in range(rounds):

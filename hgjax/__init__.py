@@ -15,14 +15,16 @@ import importlib.util
 # command line installs its signal handlers before JAX starts (``hgjax.cli.main``).
 _EXPORTS = {
     "hgjax._method": ("Method", "Sampler"),
-    "hgjax._neighbourhoods": ("Neighbourhoods", "stack_neighbourhoods"),
-    "hgjax._precision": ("PrecisionWarning", "local_frame", "working_dtype"),
+    "hgjax.neighbours.container": ("Neighbourhoods", "stack_neighbourhoods"),
+    "hgjax.neighbours.precision": ("PrecisionWarning", "local_frame", "working_dtype"),
     "hgjax._registry": ("METHODS",),
     "hgjax.engine": ("resample",),
     "hgjax.pipeline": ("keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"),
     "hgjax.samplers": ("farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"),
     "hgjax.select": ("soft_select", "top_k", "weighted_sample"),
-    "hgjax.spatial": ("cube", "intrinsic_resolution", "knn", "spatial_order"),
+    "hgjax.neighbours.balls": ("cube",),
+    "hgjax.neighbours.nearest": ("knn",),
+    "hgjax.neighbours.spatial": ("intrinsic_resolution", "spatial_order"),
 }
 _SOURCE = {name: module for module, names in _EXPORTS.items() for name in names}
 

@@ -1,7 +1,7 @@
 """Exact floating-point arithmetic in JAX, to reproduce the host's float64 results bit for bit.
 
-The traced builders (:mod:`hgjax._search_jax`, :mod:`hgjax._traced_cube`,
-:mod:`hgjax._traced_graph`) compute what the host computes with NumPy and SciPy's k-d tree.
+The traced builders (:mod:`hgjax.neighbours.cells`, :mod:`hgjax.neighbours.balls`,
+:mod:`hgjax.neighbours.radius_graph`) compute what the host computes with NumPy and SciPy's k-d tree.
 Two things stand in the way, and this module answers both:
 
 * XLA rewrites floating-point arithmetic. It does not reassociate additions, but its CPU backend

@@ -35,7 +35,7 @@ class Tiling:
         spacing): the first halo tried, and the neighbours per point a Dask task holds.
       resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
         whole cloud, ``stats()`` giving the seeded sample's nearest distances and
-        neighbourhoods (:class:`hgjax.spatial.SampleStats`); None when nothing is decided.
+        neighbourhoods (:class:`hgjax.neighbours.spatial.SampleStats`); None when nothing is decided.
       halo: ``halo(build, first) -> halo``: the first halo once ``resolve`` has run (GFR's
         graph needs twice its radius); None keeps ``first``.
       rows: ``rows(index, rows, build, dtype)``: a tile's neighbourhoods of the sorted-frame
@@ -60,7 +60,7 @@ class Tiling:
         None when the method always tiles.
       searches: the neighbour searches its tiles can build with (the build parameter
         ``search``): ``("host",)``, or ``("host", "jax")`` where ``rows`` also builds with the
-        traced search (:func:`hgjax._traced.index_knn`), the default on a GPU/TPU backend.
+        traced search (:func:`hgjax.neighbours.nearest.index_knn`), the default on a GPU/TPU backend.
     """
 
     params: Callable

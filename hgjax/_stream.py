@@ -29,8 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _precision, _validate
+from hgjax import _validate
 from hgjax import _progress as run_progress
+from hgjax.neighbours import precision
 
 BLOCK = 1024  # rows per vmapped block
 ACCELERATOR_BLOCK = 16384  # rows per vmapped block of a traced map on a GPU/TPU: fewer sequential steps
@@ -185,7 +186,7 @@ def device_points(points: np.ndarray, dtype, lo: np.ndarray | None = None) -> tu
     """(hi, lo or None, n): the n points (n, 3) on the device once, for every chunk of a :class:`Stream`.
 
     hi holds the points as ``dtype`` values and, for float64 points run in float32, lo the
-    remainders points - hi (:func:`hgjax.spatial.split_frame`; or ``lo`` as given, the
+    remainders points - hi (:func:`hgjax.neighbours.spatial.split_frame`; or ``lo`` as given, the
     points then being hi); a chunk's offsets (C, K, 3) are then gathered on the device as
     (hi_j - hi_i) + (lo_j - lo_i): each neighbourhood's offsets to the precision of
     ``dtype`` whatever the frame's origin, with the same bits in every tile that holds the
@@ -194,7 +195,7 @@ def device_points(points: np.ndarray, dtype, lo: np.ndarray | None = None) -> tu
     """
     n, dtype = points.shape[0], np.dtype(dtype)
     if lo is None:
-        points, lo = _precision.split_frame(points, dtype)
+        points, lo = precision.split_frame(points, dtype)
     size = point_rows(n)
     hi = np.zeros((size, 3), dtype)
     hi[:n] = points

@@ -8,7 +8,7 @@ its :class:`hgjax.Method`'s ``tiling`` (:class:`hgjax._method.Tiling`).
    min / max reduction), the number kept, and the build parameters that depend on the
    cloud (HKC/HKF's ``d_factor`` from the sampling irregularity, the reference resolution),
    resolved from the nearest distances of a seeded sample of global ids
-   (:func:`hgjax.spatial.sample_ids`) gathered from the tiles that own them.
+   (:func:`hgjax.neighbours.spatial.sample_ids`) gathered from the tiles that own them.
 2. **Tiles** (:func:`tile_scores`). A point belongs to exactly one tile, the cell
    ``floor((x - lo) / tile)`` of the grid anchored at the cloud's minimum corner (half-open
    ``[lo, hi)`` ownership). A tile is scored on its core points with the points of a halo
@@ -35,7 +35,8 @@ import time
 import jax
 import numpy as np
 
-from hgjax import _progress, _stream, select, spatial
+from hgjax import _progress, _stream, select
+from hgjax.neighbours import spatial
 
 __all__ = ["Cloud", "Dask", "Here", "Plan", "Source", "tile_scores"]
 
@@ -557,7 +558,7 @@ def resolved(plan_: Plan, runner: Here) -> Plan:
     """The plan with the build parameters that depend on the seeded sample (SampleStats) resolved,
     and the first halo the resolved parameters need (:attr:`hgjax._method.Tiling.halo`).
 
-    Where float64 points are cast to float32 (:func:`hgjax.spatial.working_dtype`), the same
+    Where float64 points are cast to float32 (:func:`hgjax.neighbours.spatial.working_dtype`), the same
     sample's finest spacing judges the cast (a :class:`hgjax.PrecisionWarning` where it loses
     it): the statistics the resolution gathered, else gathered for it from the tiles' indices,
     which a run in this process keeps for its scoring pass.
@@ -587,7 +588,7 @@ def bounds(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sample_stats(runner: Here, plan_: Plan) -> spatial.SampleStats:
-    """:class:`hgjax.spatial.SampleStats` of the seeded sample (:func:`hgjax.spatial.sample_ids`), from the tiles that own it."""
+    """:class:`hgjax.neighbours.spatial.SampleStats` of the seeded sample (:func:`hgjax.neighbours.spatial.sample_ids`), from the tiles that own it."""
     wanted = spatial.sample_ids(plan_.n)
     cells = runner.cloud.owners(wanted)
     found = {}
@@ -599,7 +600,7 @@ def sample_stats(runner: Here, plan_: Plan) -> spatial.SampleStats:
 
 
 def tile_stats(cloud: Cloud, cell, plan_: Plan, wanted: np.ndarray) -> dict:
-    """{gid: (distinct, other, offsets, valid)} of the sampled core points of one tile (:class:`hgjax.spatial.SampleStats`)."""
+    """{gid: (distinct, other, offsets, valid)} of the sampled core points of one tile (:class:`hgjax.neighbours.spatial.SampleStats`)."""
     halo = plan_.halo
     while True:
         gids, x, core, index = cloud.indexed(cell, halo, plan_.build["dedupe"])

@@ -27,7 +27,8 @@ import time
 import jax
 import numpy as np
 
-from hgjax import _registry, _tiling, _traced, _validate, pipeline, select
+from hgjax import _registry, _tiling, _validate, pipeline, select
+from hgjax.neighbours import backend
 from hgjax._method import Method, Sampler
 
 __all__ = ["STAGES", "Run", "checked_tile", "planned", "resample", "run"]
@@ -128,7 +129,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
 
 def searched(entry: Method | Sampler, params: dict) -> dict:
     """``params`` with the run's neighbour search: the one named, else the backend's default
-    (:func:`hgjax._traced.default_search`) where the method's tiles can build with it.
+    (:func:`hgjax.neighbours.backend.default_search`) where the method's tiles can build with it.
 
     Raises:
       ValueError: a ``search`` the method's tiles cannot build with.
@@ -137,12 +138,12 @@ def searched(entry: Method | Sampler, params: dict) -> dict:
         return params
     searches = entry.tiling.searches
     if "search" in params:
-        search = _validate.check_choice(params["search"], "search", _traced.SEARCHES)
+        search = _validate.check_choice(params["search"], "search", backend.SEARCHES)
         if search not in searches:
             raise ValueError(f"method {entry.name!r} builds its tiles with search in {searches}; got"
                              f" search={search!r}")
         return params
-    default = _traced.default_search()
+    default = backend.default_search()
     return {**params, "search": default} if default in searches else params
 
 

@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _traced, _validate, spatial
+from hgjax import _validate
+from hgjax.neighbours import backend, spatial
 from hgjax._method import Method
 from hgjax._registry import DEFAULT, METHODS, scoring, split
 from hgjax.select import soft_select, top_k
@@ -131,7 +132,7 @@ def score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     """
     entry = scoring(method)
     _ratio_free("score", params)
-    _traced.check(nb)
+    backend.check(nb)
     return _absent_zero(nb, entry.score(nb, **_matching(nb, entry, "score", split(entry, "score", params))))
 
 
@@ -178,7 +179,7 @@ def soft_score(nb: spatial.Neighbourhoods, method: str, **params) -> jax.Array:
     """
     entry = scoring(method)
     _ratio_free("soft_score", params)
-    _traced.check(nb)
+    backend.check(nb)
     return _absent_zero(nb, entry.soft_score(nb, **_matching(nb, entry, "soft_score",
                                                              split(entry, "soft_score", params))))
 

@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _tiling, _validate, select, spatial
+from hgjax import _method, _tiling, _validate, select
+from hgjax.neighbours import spatial
 from hgjax.scores.eigen import DEFAULT_K
 from hgjax.select import ascending_bits, keyed_top
 
@@ -447,7 +448,7 @@ def _distinct_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     The same rows in the same (lexicographic) order, -0.0 equal to 0.0: (x, y) packed into
     order-preserving uint64 keys, sorted, then z and the index inside the (rare) runs of equal
-    (x, y) (:func:`hgjax.spatial.lex_order`).
+    (x, y) (:func:`hgjax.neighbours.spatial.lex_order`).
     """
     bits = ascending_bits(q).astype(np.uint64)
     xy = bits[:, 0] << np.uint64(32) | bits[:, 1]

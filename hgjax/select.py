@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _validate, spatial
+from hgjax import _validate
+from hgjax.neighbours import spatial
 from hgjax.scores import _common
 
 __all__ = ["ExactSum", "key_value", "keyed_top", "kth_pair", "order_keys", "point_bits", "soft_select", "top_k", "top_pairs", "weighted_sample"]

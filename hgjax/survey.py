@@ -27,7 +27,8 @@ import time
 
 import numpy as np
 
-from hgjax import _progress, _registry, _tiling, _validate, engine, io, spatial
+from hgjax import _progress, _registry, _tiling, _validate, engine, io
+from hgjax.neighbours import spatial
 from hgjax._method import Method
 
 __all__ = ["MANIFEST", "ManifestError", "SurveyResult", "read_manifest", "resample_files", "reusable", "run_record",
@@ -314,7 +315,7 @@ class _Survey(_tiling.Cloud):
     """A survey of files tiled as one cloud, read lazily: a tile reads its core and halo from the files its box meets.
 
     The grid and ownership are :class:`_tiling.Cloud`'s. The client holds the files' records, each
-    occupied tile's point count and the owners of the sampled ids (:func:`hgjax.spatial.sample_ids`),
+    occupied tile's point count and the owners of the sampled ids (:func:`hgjax.neighbours.spatial.sample_ids`),
     taken by one census task per file; never the coordinates. :meth:`gather` reads, one chunk
     at a time, only the files whose exact bounds meet the tile's box, and of a COPC file only
     the octree nodes whose bounds meet it.

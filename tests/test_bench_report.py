@@ -6,7 +6,7 @@ import sys
 import numpy as np
 
 import hgjax
-from hgjax import _kdtree
+from hgjax.neighbours import kdtree
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -16,14 +16,14 @@ import _report  # noqa: E402
 
 def test_search_log_records_every_tree_and_query_and_replays_them():
     points = hgjax.eval.box_surface(3000, seed=0)
-    original = (_kdtree.Tree.__init__, _kdtree.Tree.query)
-    built = hgjax.spatial.SpatialIndex(points)  # a tree built before the log: recorded from its first query
+    original = (kdtree.Tree.__init__, kdtree.Tree.query)
+    built = hgjax.neighbours.spatial.SpatialIndex(points)  # a tree built before the log: recorded from its first query
     built.tree
     log = _report.SearchLog()
     with log:
         kept = hgjax.resample(points, 0.2, method="ea")
         built.tree.query(points[:5], 3)
-    assert (_kdtree.Tree.__init__, _kdtree.Tree.query) == original  # unpatched on exit
+    assert (kdtree.Tree.__init__, kdtree.Tree.query) == original  # unpatched on exit
     np.testing.assert_array_equal(kept, hgjax.resample(points, 0.2, method="ea"))  # the call's result untouched
     assert len(log.trees) == 2
     (tree_points, queries), (before, late) = log.trees

@@ -14,7 +14,8 @@ import pytest
 from jax.test_util import check_grads
 
 import hgjax
-from hgjax import _stream, spatial
+from hgjax import _stream
+from hgjax.neighbours import spatial
 
 from conftest import TOL
 from fixtures import box_surface, degenerate_clouds, grid, uniform_cloud

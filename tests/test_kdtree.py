@@ -1,4 +1,4 @@
-"""The host k-d tree engines (hgjax._kdtree): pykdtree where installed, cKDTree otherwise, the same
+"""The host k-d tree engines (hgjax.neighbours.kdtree): pykdtree where installed, cKDTree otherwise, the same
 neighbourhoods. Distances bitwise equal to cKDTree's for every query hgjax makes; every
 method keeps the same points with either engine, in one process and in tiles; without pykdtree
 SciPy answers."""
@@ -11,7 +11,7 @@ from fixtures import box_union, degenerate_clouds, grid, uniform_cloud
 from scipy.spatial import cKDTree
 
 import hgjax
-from hgjax import _kdtree, spatial
+from hgjax.neighbours import kdtree, spatial
 
 pytest.importorskip("pykdtree")
 
@@ -31,8 +31,8 @@ def _clouds():
 def engine(request, monkeypatch):
     """Each engine in turn (scipy: as where pykdtree is not installed)."""
     if request.param == "scipy":
-        monkeypatch.setattr(_kdtree, "_PyKDTree", None)
-    assert _kdtree.engine() == request.param
+        monkeypatch.setattr(kdtree, "_PyKDTree", None)
+    assert kdtree.engine() == request.param
     return request.param
 
 
@@ -45,7 +45,7 @@ def test_distances_equal_ckdtree_bitwise(name, k, bound, engine):
     local = spatial.local_frame(_clouds()[name])[0]
     if bound == "ball":  # about HKC's ball: a few times the nearest spacing
         bound = 2.5 * float(np.median(cKDTree(local).query(local, k=2)[0][:, 1]))
-    tree = _kdtree.Tree(local)
+    tree = kdtree.Tree(local)
     assert tree.engine == engine
     dist, idx = tree.query(local, k, bound)
     want = cKDTree(local).query(local, k=k, distance_upper_bound=bound)[0].reshape(len(local), k)
@@ -60,7 +60,7 @@ def test_distances_equal_ckdtree_bitwise(name, k, bound, engine):
 def test_chebyshev_cubes_answered_by_ckdtree(engine):
     """The cube (p = inf) query, which pykdtree lacks, is cKDTree's whatever the engine."""
     local = spatial.local_frame(_clouds()["rounded"])[0]
-    dist, idx = _kdtree.Tree(local).query(local, 16, 0.05, p=np.inf)
+    dist, idx = kdtree.Tree(local).query(local, 16, 0.05, p=np.inf)
     want = cKDTree(local, leafsize=16, balanced_tree=False).query(local, k=16, p=np.inf, distance_upper_bound=0.05)
     np.testing.assert_array_equal(dist, want[0])
     np.testing.assert_array_equal(idx, want[1])
@@ -71,7 +71,7 @@ def test_tree_pickles_as_its_points(engine):
     import pickle
 
     local = spatial.local_frame(_clouds()["smooth"])[0]
-    tree = _kdtree.Tree(local)
+    tree = kdtree.Tree(local)
     back = pickle.loads(pickle.dumps(tree))
     assert back.engine == engine
     for got, want in zip(back.query(local[:50], 8), tree.query(local[:50], 8)):
@@ -101,7 +101,7 @@ def test_every_method_keeps_the_same_points_with_either_engine(name, monkeypatch
         return out
 
     fast = run()
-    monkeypatch.setattr(_kdtree, "_PyKDTree", None)
+    monkeypatch.setattr(kdtree, "_PyKDTree", None)
     for m, want in run().items():
         for got, wanted in zip(fast[m], want):
             np.testing.assert_array_equal(np.asarray(got), np.asarray(wanted), err_msg=m)

@@ -17,7 +17,8 @@ import hgjax
 import naive
 from conftest import TOL
 from fixtures import box_union, degenerate_clouds, uniform_cloud
-from hgjax import _stream, spatial
+from hgjax import _stream
+from hgjax.neighbours import spatial
 from hgjax.scores import mss
 
 K = max(mss.SCALES)

@@ -14,7 +14,7 @@ import pytest
 import hgjax
 import hgjax.tiles
 from fixtures import box_union
-from hgjax import _graph, spatial
+from hgjax.neighbours import radius_graph, spatial
 
 
 def georeferenced(n=600, seed=0):
@@ -104,7 +104,7 @@ def test_the_graph_and_the_index_find_the_same_finest_spacing(duplicates):
     if duplicates:
         p = np.concatenate([p, p[::3]])
     local = spatial.local_frame(p)[0]
-    idx, first = _graph.graph(local)
+    idx, first = radius_graph.graph(local)
     want = spatial.index_spacing(spatial.SpatialIndex(local))
     assert spatial.pair_spacing(local, idx, first) == want
     assert spatial.index_spacing(spatial.SpatialIndex(local, dedupe=True)) == want

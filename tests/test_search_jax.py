@@ -1,4 +1,4 @@
-"""hgjax._search_jax: the traced search gives the host builder's neighbour sets, exactly.
+"""hgjax.neighbours.cells: the traced search gives the host builder's neighbour sets, exactly.
 
 Every cloud is padded to one size (``count`` marks its real rows), so one compiled search
 serves every cloud of a case: the padded path is the one under test everywhere.
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hgjax import _search_jax as search
-from hgjax import _traced_cube, spatial
+from hgjax.neighbours import balls, nearest, spatial
 
 from fixtures import box_surface, degenerate_clouds, lattice_shell, sphere, uniform_cloud
 
@@ -88,7 +88,7 @@ def test_knn_equals_the_host_on_every_cloud(x64, dtype, dedupe):
         if name == "georeferenced" and not x64:
             continue  # the search then runs on the float32 input: the host's float64 frame is finer
         q = np.asarray(p, dtype)
-        want = spatial.knn(q, K, dedupe=dedupe).idx
+        want = nearest.knn(q, K, dedupe=dedupe).idx
         with x64_mode(x64):
             found = fn(*padded(q, dtype))
         assert not bool(found.overflow), name
@@ -177,7 +177,7 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
     float64), the ball of sqrt(3) k / 2 f times it, shrunk below 256 points; the same bits."""
     factor = np.sqrt(3.0) * 3 / 2 * 1.6
     with x64_mode(True):
-        spacing = jax.jit(lambda p, c: _traced_cube.local_spacing(search.knn(p, 17, dedupe=True, slots=SLOTS,
+        spacing = jax.jit(lambda p, c: balls.local_spacing(search.knn(p, 17, dedupe=True, slots=SLOTS,
                                                                        count=c)))
         ball = traced_within(256, "l2", True, 256, True)  # a sparse point's ball holds up to 255
         for name in ("quantised_1mm", "duplicated", "mixed_density", "georeferenced"):
@@ -221,12 +221,12 @@ def test_vmap_over_a_padded_batch_equals_the_loop():
         for i, name in enumerate(names):
             np.testing.assert_array_equal(found.idx[i], fn(*batch[i]).idx, err_msg=name)
             np.testing.assert_array_equal(cut(found.idx[i], len(CLOUDS[name])),
-                                          spatial.knn(CLOUDS[name].astype(np.float32), K, dedupe=True).idx)
+                                          nearest.knn(CLOUDS[name].astype(np.float32), K, dedupe=True).idx)
         same = np.stack([uniform_cloud(300, seed=s) for s in (7, 8)])
         stacked = jax.jit(jax.vmap(lambda p: search.knn(p, 8)))(same)
         assert not np.asarray(stacked.overflow).any()
         for i in range(2):
-            np.testing.assert_array_equal(stacked.idx[i], spatial.knn(same[i], 8).idx)
+            np.testing.assert_array_equal(stacked.idx[i], nearest.knn(same[i], 8).idx)
 
 
 @pytest.mark.full
@@ -249,7 +249,7 @@ def test_gradients_flow_through_the_points_not_the_choice():
 @pytest.mark.full
 def test_blocks_are_read_whole_however_few_slots_and_a_small_edge_is_flagged_and_grown():
     p = CLOUDS["random"][:300]
-    want = spatial.knn(p, 8).idx
+    want = nearest.knn(p, 8).idx
     with x64_mode(True):
         fn = jax.jit(lambda p, e: search.knn(p, 8, slots=2, edge=e, spill=0))
         dense = fn(p, 0.4)  # blocks of about 200 points, read two at a time
@@ -267,7 +267,7 @@ def test_rows_missed_by_the_edge_are_searched_again_under_jit():
     """An edge too small for some rows: wider levels redo them (no overflow); with no spill
     they are reported."""
     p = CLOUDS["mixed_density"]
-    want = spatial.knn(p, K).idx
+    want = nearest.knn(p, K).idx
     with x64_mode(True):
         fn = jax.jit(lambda p, e: search.knn(p, K, slots=SLOTS, edge=e, spill=400))
         found = fn(p, 0.3)  # right for the dense sphere, too small for the sparse points around it
@@ -298,7 +298,7 @@ def test_a_sparse_2km_tile_needs_no_dense_grid():
     centres = rng.random((6, 2)) * 2000.0
     patches = [np.c_[c + rng.random((400, 2)) * 2.0, rng.normal(size=400) * 0.01] for c in centres]
     p = np.concatenate(patches) + np.array([700000.0, 5600000.0, 300.0])
-    want = spatial.knn(p, K).idx
+    want = nearest.knn(p, K).idx
     with x64_mode(True):
         found = search.grown(search.knn, p, K)
     assert float(found.edge) < 1.0

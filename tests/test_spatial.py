@@ -1,4 +1,4 @@
-"""hgjax.spatial: neighbourhoods against brute-force all-pairs distances."""
+"""hgjax.neighbours.spatial: neighbourhoods against brute-force all-pairs distances."""
 
 import warnings
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax.spatial import SpatialIndex
+from hgjax.neighbours.spatial import SpatialIndex
 
 from fixtures import grid, uniform_cloud
 from naive import knn_rows, resolution
@@ -107,16 +107,16 @@ def test_cube_rows_widen_when_a_later_query_batch_is_wider():
     # three query batches in spatial order: the first's cubes hold a few points, the later ones' about 70
     from scipy.spatial import cKDTree
     p = uniform_cloud(40_000, seed=2)
-    order = SpatialIndex(hgjax.spatial.local_frame(p)[0]).order
+    order = SpatialIndex(hgjax.neighbours.spatial.local_frame(p)[0]).order
     h = np.full(len(p), 0.06)
-    h[order[:hgjax.spatial.QUERY_ROWS]] = 0.01
+    h[order[:hgjax.neighbours.spatial.QUERY_ROWS]] = 0.01
     nb = hgjax.cube(p, h)
     tree = cKDTree(p)
     want = [set(tree.query_ball_point(x, hi, p=np.inf)) for x, hi in zip(p, h)]
     assert row_sets(nb.idx, len(p)) == want
-    first = max(len(want[i]) for i in order[:hgjax.spatial.QUERY_ROWS])
+    first = max(len(want[i]) for i in order[:hgjax.neighbours.spatial.QUERY_ROWS])
     width = max(len(w) for w in want)
-    assert hgjax.spatial.bucket(first) < nb.idx.shape[1] == hgjax.spatial.bucket(width)
+    assert hgjax.neighbours.spatial.bucket(first) < nb.idx.shape[1] == hgjax.neighbours.spatial.bucket(width)
     with pytest.raises(ValueError, match=rf"capacity={first} is too small.*holds {width} points"):
         hgjax.cube(p, h, capacity=first)  # the widest row is named, not the first one over
 
@@ -265,7 +265,7 @@ def test_spatial_order_breaks_shared_cells_by_coordinates():
 def test_spatial_order_of_a_large_cloud_is_the_lexicographic_order():
     # Above MORTON_SPLIT the codes are computed in two halves, in two threads; rounding to a
     # coarse grid makes many points share a code, so the coordinate tie-break matters too.
-    from hgjax import spatial
+    from hgjax.neighbours import spatial
     n = spatial.MORTON_SPLIT + 4321
     p = np.round(uniform_cloud(n, seed=5) * 40) / 40
     p[::7] = p[1::7][:len(p[::7])]  # exact duplicates: broken by index
@@ -276,7 +276,7 @@ def test_spatial_order_of_a_large_cloud_is_the_lexicographic_order():
 
 
 def test_knn_batches_queried_ahead_are_the_whole_query(monkeypatch):
-    from hgjax import spatial
+    from hgjax.neighbours import spatial
     monkeypatch.setattr(spatial, "QUERY_ROWS", 64)  # 1000 rows: 16 batches, each queried ahead
     index = SpatialIndex(np.round(uniform_cloud(1000, seed=6) * 10) / 10, dedupe=True)  # many distance ties
     rows = np.random.default_rng(7).permutation(index.n)[:900]
@@ -289,7 +289,7 @@ def test_knn_batches_queried_ahead_are_the_whole_query(monkeypatch):
 
 @pytest.mark.parametrize("jitter", [0.0, 0.01])  # a lattice (distance ties everywhere) and a noisy one
 def test_one_nearest_query_serves_spacing_and_ball_exactly(jitter):
-    from hgjax import spatial
+    from hgjax.neighbours import spatial
     g = grid((12, 12, 3))
     index = SpatialIndex(g + np.random.default_rng(0).normal(0, jitter, g.shape), dedupe=True)
     rows = np.arange(index.n)

@@ -11,7 +11,8 @@ import pytest
 
 import hgjax
 from fixtures import backend_compiles, box_union, grid
-from hgjax import _stream, _tiling, select, spatial, tiles
+from hgjax import _stream, _tiling, select, tiles
+from hgjax.neighbours import spatial
 from hgjax.scores import gfr, voxel
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}

@@ -205,12 +205,12 @@ def test_traced_cubes_with_a_fixed_resolution_and_factor(clouds, params):
 
 def test_the_traced_d_factor_ramp_is_the_hosts():
     """The irregularity between the lattice and the random regimes sets d_factor by a linear ramp, same bits."""
-    from hgjax import _traced_cube
+    from hgjax.neighbours import balls
     from hgjax.scores import voxel
     ramp = (voxel.IRREGULARITY_RANGE, (voxel.REGULAR_D_FACTOR, voxel.IRREGULAR_D_FACTOR))
     x = np.array([0.0, 0.25, 0.3, 0.3333, 0.41, 0.45, 0.6])
     with jax.enable_x64(True):
-        got = np.asarray(jax.jit(lambda v: _traced_cube.linear_ramp(v, ramp))(jnp.asarray(x)))
+        got = np.asarray(jax.jit(lambda v: balls.linear_ramp(v, ramp))(jnp.asarray(x)))
     np.testing.assert_array_equal(got, [voxel.default_d_factor(v) for v in x])
 
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _traced, engine, spatial, tiles
+from hgjax import engine, tiles
+from hgjax.neighbours import backend, nearest, spatial
 from fixtures import smooth_and_rounded
 
 pytestmark = pytest.mark.full
@@ -21,11 +22,11 @@ def test_the_traced_index_query_is_the_host_query(cloud):
     index = spatial.SpatialIndex(x, dedupe=True, gid=np.arange(x.shape[0]) * 3 + 5)
     rows = np.arange(0, index.n, 2)
     for k in (8, 17):
-        host, traced = index.knn(k, rows), _traced.index_knn(index, k, rows)
+        host, traced = index.knn(k, rows), nearest.index_knn(index, k, rows)
         np.testing.assert_array_equal(traced[0], host[0])
         np.testing.assert_array_equal(traced[1], host[1])
     small = spatial.SpatialIndex(x[:10])  # fewer points than k: padded with n, reach inf
-    for got, want in zip(_traced.index_knn(small, 16, np.arange(10)), small.knn(16, np.arange(10))):
+    for got, want in zip(nearest.index_knn(small, 16, np.arange(10)), small.knn(16, np.arange(10))):
         np.testing.assert_array_equal(got, want)
 
 
@@ -47,7 +48,7 @@ def test_a_method_whose_tiles_search_on_the_host_refuses_jax_tiles(cloud):
 
 
 def test_the_default_search_follows_the_backend(monkeypatch):
-    assert _traced.default_search() == ("host" if jax.default_backend() == "cpu" else "jax")
+    assert backend.default_search() == ("host" if jax.default_backend() == "cpu" else "jax")
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert engine.searched(hgjax.METHODS["ea"], {}) == {"search": "jax"}
     assert engine.searched(hgjax.METHODS["ea"], {"search": "host"}) == {"search": "host"}

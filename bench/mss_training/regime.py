@@ -42,7 +42,8 @@ sys.path.insert(0, str(HERE.parent))
 import train_edges  # noqa: E402
 
 import hgjax  # noqa: E402
-from hgjax import _stream, spatial  # noqa: E402
+from hgjax import _stream  # noqa: E402
+from hgjax.neighbours import spatial
 from hgjax.scores import lhf, mss  # noqa: E402
 
 HIDDEN = 16  # units per hidden layer of the residual expert h

@@ -176,7 +176,7 @@ def near_edges(points, edge, candidates):
     """(len(candidates),) bool: the ``candidates`` within two spacings (the cloud's intrinsic resolution)
     of an edge point."""
     d, _ = cKDTree(points[edge]).query(points[candidates])
-    spacing = hgjax.spatial.intrinsic_resolution(points)
+    spacing = hgjax.neighbours.spatial.intrinsic_resolution(points)
     return d <= 2.0 * spacing
 
 

@@ -13,7 +13,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from hgjax import _validate
-from hgjax.spatial import intrinsic_resolution
+from hgjax.neighbours.spatial import intrinsic_resolution
 
 __all__ = ["average_precision", "edge_metrics", "feature_variation"]
 

@@ -6,7 +6,7 @@ surface. Of the six recoveries it keeps the one with the most original points wi
 ``d_theta = 3 * resolution`` of the original cloud (REFERENCE.md, "Evaluation protocol").
 
 Everything here runs on the host (SciPy's Delaunay triangulation, trimesh's surface sampler,
-the k-d tree of :mod:`hgjax.spatial`); nothing is jittable.
+the k-d tree of :mod:`hgjax.neighbours.spatial`); nothing is jittable.
 
 Conventions for degenerate input, which never raise from inside SciPy:
 
@@ -29,7 +29,7 @@ import trimesh
 from scipy.spatial import Delaunay, QhullError
 
 from hgjax import _validate
-from hgjax.spatial import SpatialIndex, intrinsic_resolution
+from hgjax.neighbours.spatial import SpatialIndex, intrinsic_resolution
 
 __all__ = [
     "ALPHA_FACTORS",

@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 
 from hgjax import _validate
 from hgjax.eval.synthetic import DEFAULT_DELTA, GRID_DELTA, REGIMES, _check_noise, _distance_to_segments
-from hgjax.spatial import intrinsic_resolution
+from hgjax.neighbours.spatial import intrinsic_resolution
 
 __all__ = ["AMBIGUOUS_ANGLE", "DENSITY_RATIO", "FAMILIES", "MESH_REGIMES", "NOISE_KINDS", "SHARP_ANGLE", "MeshCloud",
            "mesh_cloud", "random_solid", "solid_cloud"]

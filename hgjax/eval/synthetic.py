@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hgjax import _validate
-from hgjax.spatial import intrinsic_resolution
+from hgjax.neighbours.spatial import intrinsic_resolution
 
 __all__ = [
     "DEFAULT_DELTA",

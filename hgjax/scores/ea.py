@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from hgjax import _method, _stream, _traced, _validate, spatial
+from hgjax import _method, _stream, _validate
+from hgjax.neighbours import backend, nearest, spatial
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K, eigenvalues
 
@@ -59,7 +60,7 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True, capacity:
         neighbourhoods, where k copies of a point make its covariance 0).
       capacity: columns of ``idx`` (>= k); default k.
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
-        jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
+        jit, vmap, grad; the same neighbour sets, :func:`hgjax.neighbours.nearest.build`).
       cell_slots, cell_edge: the traced search's candidates read per step (static) and first
         cell edge (traced, or None from the data): speed settings, never limits.
 
@@ -76,7 +77,7 @@ def neighbourhoods(points, *, k: int = DEFAULT_K, dedupe: bool = True, capacity:
       (100, 16)
     """
     k = _validate.check_int(k, "k", minimum=2)
-    return _traced.build_knn(points, k, dedupe=dedupe, capacity=capacity, search=search, cell_slots=cell_slots,
+    return nearest.build(points, k, dedupe=dedupe, capacity=capacity, search=search, cell_slots=cell_slots,
                              cell_edge=cell_edge)
 
 
@@ -124,51 +125,13 @@ def soft_score(nb):
     return _stream.map_neighbourhoods(variation, nb)
 
 
-def knn_params(n: int, k: int, params: dict) -> dict:
-    """Build parameters ``{"k", "dedupe"}`` of a k-nearest method for ``n`` points (and
-    ``"search": "jax"`` when its tiles build with the traced search).
-
-    Raises:
-      TypeError, ValueError: invalid ``dedupe`` or ``capacity`` (an integer >= k, as
-        :func:`hgjax.knn` takes it), or fewer than k points.
-    """
-    build = {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}
-    _validate.check_capacity_param(params, k)
-    _validate.check_min_points(n, k, f"k={k} nearest neighbours")
-    return with_search(build, params)
-
-
-def with_search(build: dict, params: dict) -> dict:
-    """``build`` with ``"search": "jax"`` when the run's tiles build with the traced search (``params``
-    as :func:`hgjax.engine.searched` validated them); the host search is recorded by no key, so a host
-    run's plan is what it always was."""
-    return {**build, "search": "jax"} if params.get("search") == "jax" else build
-
-
 def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     """Validated (build, score) parameters of EA for a tiled run of ``n`` points.
 
     Raises:
       TypeError, ValueError: invalid parameters, or fewer than k points.
     """
-    return knn_params(n, _validate.check_int(params.get("k", DEFAULT_K), "k", minimum=2), params), {}
-
-
-def tile_rows(index, rows, build: dict, dtype):
-    """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.spatial.knn_batches`,
-    or one batch of :func:`hgjax._traced.index_knn` with ``build["search"] == "jax"``)."""
-    del dtype  # no per-row arguments
-    if build.get("search") == "jax":
-        idx, reach = _traced.index_knn(index, build["k"], rows)
-        yield slice(0, rows.size), idx, (), reach
-        return
-    for part, idx, reach in spatial.knn_batches(index, build["k"], rows):
-        yield part, idx, (), reach
-
-
-def knn_reach(build: dict) -> tuple[int, int]:
-    """(k, 1): a k-nearest neighbourhood reaches its own k-nearest radius (:attr:`hgjax.Method.tiling`)."""
-    return build["k"], 1
+    return nearest.build_params(n, _validate.check_int(params.get("k", DEFAULT_K), "k", minimum=2), params), {}
 
 
 def tile_kernel(params: dict):
@@ -177,12 +140,9 @@ def tile_kernel(params: dict):
     return variation, False
 
 
-KNN_PARAMS = _method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "k", "search"),
-                            score=("chunk_size", "progress"))
-
 METHOD = _method.Method(
     "ea", "knn", largest=True, needs_key=False,
     summary="eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
-    citation=_method.DICTA, build=neighbourhoods, score=score, soft_score=soft_score, params=KNN_PARAMS,
-    tiling=_method.Tiling(params=tile_params, reach=knn_reach, rows=tile_rows, kernel=tile_kernel,
-                          searches=_traced.SEARCHES))
+    citation=_method.DICTA, build=neighbourhoods, score=score, soft_score=soft_score, params=nearest.PARAMS,
+    tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=tile_kernel,
+                          searches=backend.SEARCHES))

@@ -3,7 +3,7 @@ three-dimensional point clouds via graphs", IEEE TSP 66(3), 2018.
 
 The score is the response of a graph high-pass filter, score_i = ||(L P)_i||_2 with the
 graph Laplacian L = D - W (Chen et al., Sec. IV). The graph is built once on the host
-(:func:`hgjax._graph.graph`); the score on a fixed graph (:func:`high_pass`) is pure JAX and smooth in
+(:func:`hgjax.neighbours.radius_graph.graph`); the score on a fixed graph (:func:`high_pass`) is pure JAX and smooth in
 the points. Two graphs:
 
 * ``"reference"``, the rules of the authors' C++ implementation (REFERENCE.md, "GFR
@@ -55,7 +55,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _graph, _method, _stream, _tiling, _traced, _traced_graph, _validate, select, spatial
+from hgjax import _method, _stream, _tiling, _validate, select
+from hgjax.neighbours import backend, radius_graph, spatial
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K
 
@@ -102,9 +103,9 @@ def high_pass(points, idx, *, first=None, weights_dtype=None, chunk_size: int | 
     Args:
       points: (N, 3) float array.
       idx: (N, K) integer partners of each row's stored pairs, padded with N (as
-        :func:`hgjax._graph.graph` returns them).
+        :func:`hgjax.neighbours.radius_graph.graph` returns them).
       first: (N,) integer index of the first point at each point's location (as
-        :func:`hgjax._graph.graph` returns it); c_i = the number of points with first == i. None: every
+        :func:`hgjax.neighbours.radius_graph.graph` returns it); c_i = the number of points with first == i. None: every
         point is its own location (c = 1).
       weights_dtype: dtype of q and w (default: the points' dtype); float32 for the
         reference variant, as the authors' code keeps them.
@@ -237,24 +238,24 @@ def _weights_dtype(variant: str):
 
 
 def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float | None = None,
-                   max_nn: int = _graph.MAX_NN, capacity: int | None = None, search: str = "host",
+                   max_nn: int = radius_graph.MAX_NN, capacity: int | None = None, search: str = "host",
                    cell_slots: int | None = None, cell_edge=None) -> spatial.Neighbourhoods:
-    """The GFR graph as :class:`hgjax.Neighbourhoods`, :func:`hgjax._graph.graph` (host; jittable: ``search="jax"``).
+    """The GFR graph as :class:`hgjax.Neighbourhoods`, :func:`hgjax.neighbours.radius_graph.graph` (host; jittable: ``search="jax"``).
 
     Args:
       points: (N, 3) float32 or float64; never modified.
-      variant, radius_factor, max_nn: as :func:`hgjax._graph.graph`.
+      variant, radius_factor, max_nn: as :func:`hgjax.neighbours.radius_graph.graph`.
       capacity: fixed number of columns K (at least the fullest row); default the fullest
         row rounded up to a power of two. Static with ``search="jax"`` under ``jit`` (default
         there ``bucket(max_nn)``; a wider row is recorded on ``overflow``).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
-        jit, vmap, grad; the same graph, :mod:`hgjax._traced_graph`).
+        jit, vmap, grad; the same graph, :mod:`hgjax.neighbours.radius_graph`).
       cell_slots, cell_edge: the traced search's candidates read per step (static) and first
         cell edge (traced, or None from the data): speed settings, never limits.
 
     Returns:
       Neighbourhoods whose row i lists the partners j > i of its stored pairs, padded with N,
-      and ``first`` (see :func:`hgjax._graph.graph`); points in a local frame and the working dtype.
+      and ``first`` (see :func:`hgjax.neighbours.radius_graph.graph`); points in a local frame and the working dtype.
 
     Raises:
       TypeError, ValueError: invalid arguments, or a fixed capacity too small.
@@ -266,8 +267,8 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
       >>> nb.idx.shape[0], nb.scale is None
       (100, True)
     """
-    if _validate.check_choice(search, "search", _traced.SEARCHES) == "jax":
-        return _traced_graph.build(points, variant=variant, radius_factor=radius_factor, max_nn=max_nn,
+    if _validate.check_choice(search, "search", backend.SEARCHES) == "jax":
+        return radius_graph.build(points, variant=variant, radius_factor=radius_factor, max_nn=max_nn,
                                    capacity=capacity, cell_slots=cell_slots, cell_edge=cell_edge)
     pts = _validate.check_points(points)
     local = spatial.local_frame(pts)[0]
@@ -280,7 +281,7 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
         _validate.check_capacity(capacity, width, "GFR row")
         return capacity
 
-    idx, first = _graph.graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn, columns=columns)
+    idx, first = radius_graph.graph(local, variant=variant, radius_factor=radius_factor, max_nn=max_nn, columns=columns)
     dtype = spatial.working_dtype(pts.dtype, extent=spatial.frame_extent(local),
                                   spacing=lambda: spatial.pair_spacing(local, idx, first))  # warns where the cast loses detail
     return spatial.Neighbourhoods(local.astype(dtype), idx, first=first,
@@ -311,7 +312,7 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
       >>> s.shape, bool((s > 0).all())
       ((200,), True)
     """
-    variant = _validate.check_choice(variant, "variant", _graph.GFR_VARIANTS)
+    variant = _validate.check_choice(variant, "variant", radius_graph.GFR_VARIANTS)
     return high_pass(nb.points, nb.idx, first=nb.first, weights_dtype=_weights_dtype(variant), chunk_size=chunk_size,
                      progress=progress)
 
@@ -593,16 +594,16 @@ def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: 
 
 
 def graph_rows(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int):
-    """The stored partners of the ``rows`` (R,) of a deduplicated index, as :func:`hgjax._graph.location_rows` yields them."""
+    """The stored partners of the ``rows`` (R,) of a deduplicated index, as :func:`hgjax.neighbours.radius_graph.location_rows` yields them."""
     want = np.zeros(index.n, bool)
     want[rows] = True
-    return _graph.location_rows(index, r, max_nn, want)
+    return radius_graph.location_rows(index, r, max_nn, want)
 
 
 def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
     """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
 
-    One chunk of rows at a time (:func:`hgjax._graph.location_rows`): the partners and the sums of
+    One chunk of rows at a time (:func:`hgjax.neighbours.radius_graph.location_rows`): the partners and the sums of
     :func:`pair_sums` (q in ``dtype``); only the partners are kept, as
     (own, sym) per chunk, for :func:`graph_norms`. A chunk's sums are taken in a background
     thread, in the caller's JAX precision and on its default device, while the next chunk's
@@ -666,7 +667,7 @@ def soft_score(nb, *, variant: str = "invariant"):
       >>> hgjax.scores.gfr.soft_score(nb).shape
       (100,)
     """
-    variant = _validate.check_choice(variant, "variant", _graph.GFR_VARIANTS)
+    variant = _validate.check_choice(variant, "variant", radius_graph.GFR_VARIANTS)
     points, idx = jnp.asarray(nb.points), jnp.asarray(nb.idx)
     _validate.check_graph(points, idx, nb.first, _weights_dtype(variant))
     return _soft(points, idx, nb.first, weights_dtype=_weights_dtype(variant))
@@ -721,8 +722,8 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
       TypeError, ValueError: invalid parameters.
     """
     del n  # any number of points
-    variant, factor, max_nn = _graph.graph_params(params.get("variant", "invariant"), params.get("radius_factor"),
-                                                  params.get("max_nn", _graph.MAX_NN))
+    variant, factor, max_nn = radius_graph.graph_params(params.get("variant", "invariant"), params.get("radius_factor"),
+                                                  params.get("max_nn", radius_graph.MAX_NN))
     mode = _validate.check_choice(params.get("mode", "random"), "mode", MODES)
     _validate.check_capacity_param(params, 1)
     return {"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn}, {"mode": mode}
@@ -741,7 +742,7 @@ def check_key(key, params: dict):
 
 def resolve_build(build: dict, stats) -> dict:
     """``build`` with the squared radius ``r`` from the seeded sample's nearest distances ``stats()``."""
-    return {**build, "r": _graph.squared_radius(build["radius_factor"], stats())}
+    return {**build, "r": radius_graph.squared_radius(build["radius_factor"], stats())}
 
 
 def tiled_select(runner, parts, plan, key=None):

@@ -183,7 +183,7 @@ def tile_rows(index, rows, build: dict, dtype):
 
 def cube_reach(build: dict) -> tuple[int, int]:
     """(k, radii) of the cube's halo: its spacing estimate reads the k-nearest radius of each of the
-    point's k nearest neighbours (:func:`hgjax.spatial.local_spacing`), two radii, where the invariant
+    point's k nearest neighbours (:func:`hgjax.neighbours.spatial.local_spacing`), two radii, where the invariant
     cube is sized by it (no fixed ``resolution``); one otherwise."""
     adaptive = build["variant"] == "invariant" and build["resolution"] is None
     return voxel.LOCAL_K + 1, 2 if adaptive else 1

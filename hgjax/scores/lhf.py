@@ -59,8 +59,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _exact, _method, _stream, _traced, _validate, select, spatial, spectrum
-from hgjax.scores import _common, ea, eigen
+from hgjax import _exact, _method, _stream, _validate, select, spectrum
+from hgjax.neighbours import backend, nearest, spatial
+from hgjax.scores import _common, eigen
 
 __all__ = ["DEFAULT_LENGTHS", "combine", "gamma", "neighbourhoods", "score", "single", "soft_gamma", "soft_score"]
 
@@ -343,7 +344,7 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
         "reference", the paper's neighbourhoods).
       capacity: columns of ``idx`` (>= max(lengths)); default max(lengths).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
-        jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
+        jit, vmap, grad; the same neighbour sets, :func:`hgjax.neighbours.nearest.build`).
       cell_slots, cell_edge: the traced search's candidates read per step (static) and first
         cell edge (traced, or None from the data): speed settings, never limits.
 
@@ -364,7 +365,7 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
     traced = search == "jax" and _stream.is_traced(points)
     pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
     _validate.check_min_points(pts.shape[0], max(lengths), f"LHF lengths={lengths}")
-    nb = _traced.build_knn(pts, max(lengths), dedupe=params["dedupe"], capacity=capacity, search=search,
+    nb = nearest.build(pts, max(lengths), dedupe=params["dedupe"], capacity=capacity, search=search,
                            cell_slots=cell_slots, cell_edge=cell_edge)
     searched = {k: v for k, v in nb.params if k in ("search", "cell_slots", "cell_edge")}
     return dataclasses.replace(nb, params=spatial.record({**params, **searched}))
@@ -487,7 +488,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     solver = _validate.check_choice(params.get("solver", "gram"), "solver", SOLVERS)
     _validate.check_capacity_param(params, max(b["lengths"]))
     _validate.check_min_points(n, max(b["lengths"]), f"LHF lengths={b['lengths']}")
-    return (ea.with_search({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
+    return (nearest.with_search({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
             {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
 
 
@@ -527,5 +528,5 @@ METHOD = _method.Method(
                             score=("chunk_size", "lengths", "progress", "solver", "variant"),
                             soft_score=("lengths", "tau")),
     columns=2, combine=combine,
-    tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, rows=ea.tile_rows, kernel=_tile_kernel,
-                          select=tiled_select, searches=ea.METHOD.tiling.searches))
+    tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=_tile_kernel,
+                          select=tiled_select, searches=backend.SEARCHES))

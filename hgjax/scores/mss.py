@@ -23,7 +23,7 @@ and across scales the normals' agreement |n_8 . n_32|, |n_16 . n_32|, the radius
 r_8 / r_32, r_16 / r_32, and e0 at the finer scales ``FINE`` = (6, 12) (a sharp small-scale
 signal where the cloud is clean). One more input is the same for every point: the cloud's noise level
 (:func:`noise_of`, the root of the median e0 at ``NOISE_K`` neighbours over the seeded sample of
-:func:`hgjax.spatial.sample_ids`: a noise-aware choice of scale), so that the model can
+:func:`hgjax.neighbours.spatial.sample_ids`: a noise-aware choice of scale), so that the model can
 trust the fine scales on a clean cloud and the coarse ones on a noisy cloud. A tiled run
 resolves it once from the sample (:func:`resolve`, like HKC's ``d_factor``) and gives it to
 every tile. The model's inputs x (F + 1,) (:func:`inputs`) give the score
@@ -59,7 +59,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _exact, _method, _stream, _traced, _validate, spatial
+from hgjax import _exact, _method, _stream, _validate
+from hgjax.neighbours import backend, nearest, spatial
 from hgjax.scores import _common, _mss_weights, ea
 from hgjax.scores.eigen import jacobi
 
@@ -213,9 +214,9 @@ _noise_of = jax.jit(noise_of)  # eager callers (noise_level, resolve) run one pr
 
 
 def noise_level(points, idx, *, count=None, lo=None):
-    """The cloud's noise level (:func:`noise_of`) over the seeded sample of :func:`hgjax.spatial.sample_ids`.
+    """The cloud's noise level (:func:`noise_of`) over the seeded sample of :func:`hgjax.neighbours.spatial.sample_ids`.
 
-    The value the tiled path resolves once per cloud from :class:`hgjax.spatial.SampleStats`
+    The value the tiled path resolves once per cloud from :class:`hgjax.neighbours.spatial.SampleStats`
     (:func:`resolve`), measured here on whole-cloud neighbourhoods.
 
     Args:
@@ -364,7 +365,7 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, 
       dedupe: count exact duplicates once (default True).
       capacity: columns of ``idx`` (>= max(SCALES)); default max(SCALES).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
-        jit, vmap, grad; the same neighbour sets, :func:`hgjax._traced.build_knn`).
+        jit, vmap, grad; the same neighbour sets, :func:`hgjax.neighbours.nearest.build`).
       cell_slots, cell_edge: the traced search's candidates read per step (static) and first
         cell edge (traced, or None from the data): speed settings, never limits.
 
@@ -380,7 +381,7 @@ def neighbourhoods(points, *, dedupe: bool = True, capacity: int | None = None, 
       >>> mss.neighbourhoods(np.random.default_rng(0).random((100, 3))).idx.shape
       (100, 32)
     """
-    return _traced.build_knn(points, max(SCALES), dedupe=dedupe, capacity=capacity, search=search,
+    return nearest.build(points, max(SCALES), dedupe=dedupe, capacity=capacity, search=search,
                              cell_slots=cell_slots, cell_edge=cell_edge)
 
 
@@ -444,7 +445,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     Raises:
       TypeError, ValueError: invalid ``dedupe`` or ``noise``, or fewer than max(SCALES) points.
     """
-    build = ea.knn_params(n, max(SCALES), params)
+    build = nearest.build_params(n, max(SCALES), params)
     if params.get("noise") is not None:
         build["noise"] = _validate.check_nonnegative(params["noise"], "noise")
     return build, {}
@@ -459,8 +460,8 @@ def resolve(build: dict, stats) -> dict:
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(part, idx, (noise,), reach) per batch: :func:`hgjax.scores.ea.tile_rows` and the resolved noise level per row."""
-    for part, idx, _, reach in ea.tile_rows(index, rows, build, dtype):
+    """(part, idx, (noise,), reach) per batch: :func:`hgjax.neighbours.nearest.tile_rows` and the resolved noise level per row."""
+    for part, idx, _, reach in nearest.tile_rows(index, rows, build, dtype):
         yield part, idx, (np.full(idx.shape[0], build["noise"], dtype),), reach
 
 
@@ -478,5 +479,5 @@ METHOD = _method.Method(
     params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "search"),
                           score=("chunk_size", "noise", "progress"), soft_score=("noise",)),
     bytes_per_sample=4096,
-    tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, resolve=resolve, rows=tile_rows,
-                          kernel=_tile_kernel, searches=ea.METHOD.tiling.searches))
+    tiling=_method.Tiling(params=tile_params, reach=nearest.reach, resolve=resolve, rows=tile_rows,
+                          kernel=_tile_kernel, searches=backend.SEARCHES))

@@ -38,6 +38,7 @@ import heapq
 import numpy as np
 
 from hgjax import _method, _validate, select
+from hgjax.neighbours import backend, nearest
 from hgjax.scores import ea
 
 __all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
@@ -251,7 +252,7 @@ METHOD = _method.Method(
     "pca_ac", "knn", largest=True, needs_key=False,
     summary="PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
     citation=_method.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
-    params={**ea.KNN_PARAMS, "select": frozenset({"n_clusters"})}, select=_select,
-    tiling=_method.Tiling(params=tile_params, reach=ea.knn_reach, rows=ea.tile_rows, kernel=ea.tile_kernel,
-                          whole_selection=True, refused=_untiled, searches=ea.METHOD.tiling.searches),
+    params={**nearest.PARAMS, "select": frozenset({"n_clusters"})}, select=_select,
+    tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=ea.tile_kernel,
+                          whole_selection=True, refused=_untiled, searches=backend.SEARCHES),
     ranks_as=(ea.METHOD.name, "PCA-AC's Ward clusters are intervals of EA's surface variation, on the same neighbours"))

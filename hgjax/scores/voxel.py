@@ -21,7 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _stream, _traced, _traced_cube, _validate, spatial
+from hgjax import _stream, _validate
+from hgjax.neighbours import backend, balls, spatial
 from hgjax.scores import _common, eigen
 
 __all__ = ["band_energies", "default_d_factor", "frame", "local_signal", "low_high", "neighbourhoods", "oriented",
@@ -46,7 +47,7 @@ def default_d_factor(irregularity: float) -> float:
 
     Args:
       irregularity: std / mean of the nearest-neighbour distances
-        (:func:`hgjax.spatial.irregularity`).
+        (:func:`hgjax.neighbours.spatial.irregularity`).
 
     Returns:
       1.1 up to 0.25 (lattice-like sampling), 1.6 from 0.45 (random sampling), linear
@@ -352,7 +353,7 @@ def build_params(*, variant: str = "invariant", d_factor: float | None = None, k
 
 
 def needs_stats(params: dict) -> bool:
-    """Whether resolving ``params`` needs the cloud's :class:`hgjax.spatial.SampleStats`."""
+    """Whether resolving ``params`` needs the cloud's :class:`hgjax.neighbours.spatial.SampleStats`."""
     return params["d_factor"] is None or (params["variant"] == "reference" and params["resolution"] is None)
 
 
@@ -374,7 +375,7 @@ def resolve(params: dict, stats: spatial.SampleStats | None) -> dict:
 def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
     """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params`` (see :func:`resolve`), batch by batch.
 
-    Batches are :func:`hgjax.spatial.batches` of the rows; each is built as soon as the
+    Batches are :func:`hgjax.neighbours.spatial.batches` of the rows; each is built as soon as the
     previous one is consumed, reusing what the previous ones found (spacings of shared
     neighbours, the typical row width).
 
@@ -430,7 +431,7 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       distance to the nearest other point), duplicates kept;
     * ``variant="invariant"`` (default): d_i = f x the point's local spacing s_i =
       1 / sqrt(areal density) estimated from its 16 nearest distinct points
-      (:func:`hgjax.spatial.local_spacing`), exact duplicates counted once, and f from
+      (:func:`hgjax.neighbours.spatial.local_spacing`), exact duplicates counted once, and f from
       the cloud's sampling irregularity (:func:`default_d_factor`: 1.1 on lattice-like
       clouds, 1.6 on random samples). The spacing, unlike the nearest-neighbour distance,
       means the same on grids and on random samples, and where the density changes the
@@ -455,7 +456,7 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
         holds more) and 128 for "reference" (a wider cube stops the program, naming the
         capacity it needs).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search,
-        :func:`hgjax._traced_cube.cube`: jit, vmap; the host's neighbour sets and ``scale``,
+        :func:`hgjax.neighbours.balls.traced`: jit, vmap; the host's neighbour sets and ``scale``,
         every whole-cloud decision (d factor, resolution) traced too).
       cell_slots, cell_edge: the traced search's candidates read per step (static) and first
         cell edge (traced, or None from the data): speed settings, never limits.
@@ -473,7 +474,7 @@ def neighbourhoods(points, *, variant: str = "invariant", d_factor: float | None
       >>> nb.scale.shape, bool((nb.idx[:, 0] == np.arange(300)).all())
       ((300,), True)
     """
-    search = _validate.check_choice(search, "search", _traced.SEARCHES)
+    search = _validate.check_choice(search, "search", backend.SEARCHES)
     if search == "jax":
         return _traced_neighbourhoods(points, build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size,
                                                            resolution=resolution, dedupe=dedupe),
@@ -511,7 +512,7 @@ def _traced_neighbourhoods(points, params: dict, capacity, cell_slots, cell_edge
     d_factor = params["d_factor"]
     if d_factor is None and not invariant:
         d_factor = REFERENCE_D_FACTOR
-    return _traced_cube.cube(
+    return balls.traced(
         pts, metric="l2" if invariant else "linf", widen=np.sqrt(3.0) if invariant else 1.0,
         kernel_size=params["kernel_size"], d_factor=d_factor,
         ramp=(IRREGULARITY_RANGE, (REGULAR_D_FACTOR, IRREGULAR_D_FACTOR)), spacing=spacing, local_k=LOCAL_K,

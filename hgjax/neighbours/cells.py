@@ -1,6 +1,6 @@
 """Traced neighbour search: the host builder's neighbour sets, in pure JAX, with no capacity to outgrow.
 
-The host builder (:mod:`hgjax.spatial`) answers every query with SciPy's k-d tree, which JAX
+The host builder (:mod:`hgjax.neighbours.spatial`) answers every query with SciPy's k-d tree, which JAX
 cannot trace. This module answers the same queries with sorted cells read in fixed-size steps,
 so that a search runs under ``jax.jit``, ``jax.vmap`` (equal-N clouds, or a padded batch with a
 per-cloud ``count``) and inside ``jax.grad`` (the choice of neighbours is discrete: no gradient
@@ -35,12 +35,12 @@ pytorch3d's ``knn_points`` without its (N, N) work):
    after :data:`PASSES` passes, could be wrong; the result says so (:attr:`Found.overflow`)
    with the columns and the edge that would do (:attr:`Found.columns_needed`,
    :attr:`Found.edge_needed`). :func:`grown` re-runs eagerly until no overflow; the
-   neighbourhood builders stop a traced program that overflows (:func:`hgjax._traced.guard`).
+   neighbourhood builders stop a traced program that overflows (:func:`hgjax.neighbours.backend.guard`).
 
 Same answers as the host, bit for bit, by the exact arithmetic of :mod:`hgjax._exact`:
 
 * Under x64 (``jax.enable_x64``) the search computes exactly what the host computes: the float64
-  local frame of :func:`hgjax.spatial.local_frame` (the bounding-box centre subtracted in
+  local frame of :func:`hgjax.neighbours.spatial.local_frame` (the bounding-box centre subtracted in
   float64, whatever the input dtype), squared distances summed x, y, z in order and rooted as
   cKDTree does (``sqrt((dx*dx + dy*dy) + dz*dz)``), ties by (distance, global id), the point
   itself first. Same bits, hence the same sets and order.
@@ -51,8 +51,8 @@ Same answers as the host, bit for bit, by the exact arithmetic of :mod:`hgjax._e
   except where two distances that the host tells apart differ by less than about 2^-44
   relative, or where float64 rounding itself breaks an exact tie: not seen on any test cloud.
 
-HKC/HKF's per-point spacing (:func:`hgjax.spatial.local_spacing`) is
-:func:`hgjax._traced_cube.local_spacing` of a 17-nearest search, in the host's float64 operations and order (NumPy's pairwise mean); their
+HKC/HKF's per-point spacing (:func:`hgjax.neighbours.spatial.local_spacing`) is
+:func:`hgjax.neighbours.balls.local_spacing` of a 17-nearest search, in the host's float64 operations and order (NumPy's pairwise mean); their
 ball is :func:`within` with ``max_count``; GFR's capped radius graph is :func:`knn` with
 ``metric="l2sq"`` and ``radius``.
 
@@ -652,7 +652,7 @@ def _found(cloud: _Cloud, out, slots: int, columns_needed, empty_reach) -> Found
 def knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, count=None, gid=None,
         radius=None, metric: str = "l2", chunk: int | None = None, spill: int | None = None,
         frame: bool = True) -> Found:
-    """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.spatial.knn`, traced.
+    """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.neighbours.nearest.knn`, traced.
 
     Pure JAX: runs under ``jax.jit`` and ``jax.vmap``; no gradient flows through the choice.
 
@@ -694,9 +694,9 @@ def knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, 
 
     Examples:
       >>> import numpy as np, jax
-      >>> from hgjax import _search_jax
+      >>> from hgjax.neighbours import balls, cells, nearest
       >>> p = np.random.default_rng(0).random((200, 3)).astype(np.float32)
-      >>> found = jax.jit(lambda p: _search_jax.knn(p, 8))(p)
+      >>> found = jax.jit(lambda p: cells.knn(p, 8))(p)
       >>> found.idx.shape, bool(found.overflow), bool((found.idx[:, 0] == np.arange(200)).all())
       ((200, 8), False, True)
     """
@@ -728,7 +728,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
            gid=None, metric: str = "l2", max_count: int | None = None, chunk: int | None = None,
            spill: int | None = None, radius_lo=None) -> Found:
     """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
-    :meth:`hgjax.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
+    :meth:`hgjax.neighbours.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
     variant; ``"l2"``: the ball of their invariant variant), traced.
 
     Args:
@@ -757,9 +757,9 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax import _search_jax
+      >>> from hgjax.neighbours import cells
       >>> p = np.array([[0., 0, 0], [1, 0, 0], [5, 0, 0]], np.float32)
-      >>> found = _search_jax.within(p, 1.5, columns=4, metric="linf")
+      >>> found = cells.within(p, 1.5, columns=4, metric="linf")
       >>> (np.asarray(found.idx) < 3).sum(axis=1).tolist(), bool(found.overflow)
       ([2, 2, 1], False)
     """
@@ -839,9 +839,9 @@ def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Fo
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax import _search_jax
+      >>> from hgjax.neighbours import cells
       >>> p = np.random.default_rng(0).random((300, 3))
-      >>> found = _search_jax.grown(_search_jax.within, p, 0.2, columns=8)
+      >>> found = cells.grown(cells.within, p, 0.2, columns=8)
       >>> bool(found.overflow), found.idx.shape[1] >= int(found.columns_needed)
       (False, True)
     """

@@ -14,7 +14,7 @@ Morton-sorted float64 box surface, tree build included, / the cKDTree kNN16 floo
 
 Both compute a float64 distance as ``sqrt((dx*dx + dy*dy) + dz*dz)`` and both keep only points
 strictly nearer than the bound, so their distances are bitwise equal (tests/test_kdtree.py). Equal
-distances may come in another order: :class:`hgjax.spatial.SpatialIndex` orders them by global id
+distances may come in another order: :class:`hgjax.neighbours.spatial.SpatialIndex` orders them by global id
 whatever the engine. Missing neighbours are at distance inf with the index n (the tree's size).
 """
 

@@ -5,16 +5,16 @@ The cube of half-width k d_i / 2 around every point (or, turned into the point's
 the ball of radius sqrt(3) k d_i / 2 that holds it in every orientation), with the voxel
 spacing d_i decided as the host decides it (:func:`hgjax.scores.voxel.resolve`), all traced:
 
-* ``spacing="local"``: d_i = f x the point's local spacing (:func:`hgjax.spatial.local_spacing`
+* ``spacing="local"``: d_i = f x the point's local spacing (:func:`hgjax.neighbours.spatial.local_spacing`
   of its ``local_k`` nearest locations: :func:`local_spacing` of a
   (local_k + 1)-nearest search);
 * ``spacing="mean_other"``: d = f x the mean distance from the seeded sample
-  (:func:`hgjax.spatial.sample_ids`: N is static, so the sample is static NumPy) to each
+  (:func:`hgjax.neighbours.spatial.sample_ids`: N is static, so the sample is static NumPy) to each
   sampled point's nearest other point (1.0 when that mean is 0);
 * a number: d = f x that fixed spacing;
 
 and f either fixed or from the sample's irregularity (std / mean of the nearest distinct
-distances, :meth:`hgjax.spatial.SampleStats.irregularity`) through a linear ramp (``ramp``).
+distances, :meth:`hgjax.neighbours.spatial.SampleStats.irregularity`) through a linear ramp (``ramp``).
 
 Arithmetic (:mod:`hgjax._exact`): under x64 every float64 operation of the host is done in the
 host's order (NumPy's pairwise sums, no fused multiply-add, no reciprocal for a division), so
@@ -25,7 +25,7 @@ unless its distance lies within the pairs' precision of the radius (relative 2^-
 rounded to float32 instead missed 1 point of 1e6 on the box surface, 7e-9 inside it), and a
 ball shrunk by ``max_count`` has its ``scale`` from the float32 distance of its
 ``max_count``-th point (within an ulp of the host's). The order inside a row is the pairs'
-(:mod:`hgjax._search_jax`): the host's, except where two distances differ by less than the
+(:mod:`hgjax.neighbours.cells`): the host's, except where two distances differ by less than the
 pairs' precision or float64's rounding makes them equal (a 1200-point cloud rounded to a 5 cm
 grid: 5 rows of long balls listed two tied points in the other order; the same sets).
 
@@ -35,7 +35,7 @@ own default (a ball's: 1.1 x the 90th percentile of the radii; the rows it misse
 again at a wider edge): both set the speed only. What can overflow is a ball wider than its
 static columns (``capacity``): eagerly the columns are the host's (the fullest row rounded up),
 recorded on the result; under ``jit`` a wider ball stops the program, naming the columns it needs
-(:func:`hgjax._traced.guard`).
+(:func:`hgjax.neighbours.backend.guard`).
 
 Degenerate clouds: fewer than ``local_k + 1`` locations lower the spacing's k to the number
 of other locations, as the host does (under ``jit`` the count is traced, and a ``lax.switch``
@@ -53,10 +53,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from hgjax import _exact, _search_jax, _stream, _traced, _validate, spatial
-from hgjax._search_jax import _pair_keys
+from hgjax import _exact, _stream, _validate
+from hgjax.neighbours import backend, cells, spatial
+from hgjax.neighbours.cells import _pair_keys
+from hgjax.neighbours.container import Neighbourhoods
 
-__all__ = ["COLUMNS", "cube", "linear_ramp", "local_spacing"]
+__all__ = ["COLUMNS", "cube", "linear_ramp", "local_spacing", "traced"]
 
 COLUMNS = 128
 """Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
@@ -64,7 +66,40 @@ FIRST_COLUMNS = 32  # columns of an eager build's first round (grown to the full
 EDGE_QUANTILE = 90  # percent: a ball's default cell edge covers this share of the radii (the rest spill)
 
 
-def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp, spacing, local_k: int,
+def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
+    """Axis-aligned cube neighbourhoods (Chebyshev distance < half_width), the ROI of HKC/HKF.
+
+    Args:
+      points: (N, 3) float32 or float64.
+      half_width: half the cube side, > 0: a scalar or one per point (N,).
+      dedupe: count exact duplicates once.
+      capacity: columns of ``idx``. Default: the fullest cube's count rounded up to a power
+        of two (at least 8), so nothing is ever truncated.
+
+    Returns:
+      Neighbourhoods with ``idx`` (N, K) int32 in the caller's order, padded with N, each
+      row by increasing Chebyshev distance (the point itself first).
+
+    Raises:
+      ValueError: for invalid input, or when a cube holds more than a fixed ``capacity``
+        (the message names the capacity needed).
+
+    Examples:
+      >>> import numpy as np, hgjax
+      >>> nb = hgjax.cube(np.array([[0., 0, 0], [1, 0, 0], [5, 0, 0]]), 1.5)
+      >>> (nb.idx < 3).sum(axis=1).tolist()
+      [2, 2, 1]
+    """
+    pts = _validate.check_points(points)
+    half = _validate.check_positive_array(half_width, "half_width", pts.shape[0])
+    cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
+    index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=dedupe)
+    half_sorted = np.broadcast_to(half, (pts.shape[0],))[index.order]
+    parts = (index.cube(half_sorted[part], part)[0] for part in spatial.batches(index.n))
+    return spatial.assemble(pts, index, spatial.caller_rows(index, parts, cap, what="cube"))
+
+
+def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp, spacing, local_k: int,
          max_count: int | None, dedupe: bool, capacity: int | None, cell_slots: int | None, cell_edge,
          params: dict) -> spatial.Neighbourhoods:
     """Cube (``metric="linf"``) or ball (``"l2"``) neighbourhoods and their voxel spacing, traced.
@@ -84,7 +119,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
       capacity: columns K of ``idx`` (static) or None: eagerly the host's (the fullest row
         rounded up to a power of two, at least 8), under ``jit`` ``max_count`` or :data:`COLUMNS`.
       cell_slots: candidates the traced searches read per step (static; default
-        :data:`hgjax._traced.CELL_SLOTS`): speed only.
+        :data:`hgjax.neighbours.backend.CELL_SLOTS`): speed only.
       cell_edge: their first cell edge (traced), or None for one from the data: speed only.
       params: build parameters recorded on the result (``search`` added; eagerly also the
         ``capacity`` it ended with, to pass inside ``jit`` for a batch of one shape).
@@ -95,19 +130,19 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
 
     Raises:
       ValueError: a fixed ``capacity`` smaller than the fullest row (as the host); under
-        ``jit`` when the compiled program runs (:func:`hgjax._traced.guard`).
+        ``jit`` when the compiled program runs (:func:`hgjax.neighbours.backend.guard`).
     """
     p = jnp.asarray(points)
     n = p.shape[0]
-    slots = _traced.CELL_SLOTS if cell_slots is None else cell_slots
+    slots = backend.CELL_SLOTS if cell_slots is None else cell_slots
     statics = dict(metric=metric, widen=widen, kernel_size=kernel_size, d_factor=d_factor, ramp=ramp, spacing=spacing,
                    local_k=local_k, max_count=max_count, dedupe=dedupe, slots=slots)
     if _stream.is_traced(p):
         columns = capacity if capacity is not None else (max_count or COLUMNS)
         idx, scale, overflow, _ = _balls(p, cell_edge, columns=columns, spacing_k=None, **statics)
-        local, lo = _traced.local_frame(p)
+        local, lo = backend.local_frame(p)
         return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record({**params, "search": "jax"}),
-                                      overflow=_traced.guard(overflow), points_lo=lo)
+                                      overflow=backend.guard(overflow), points_lo=lo)
     # Eagerly the same program, jitted once per setting: the spacing's k from the host's count of locations
     # (no switch over every k), the columns grown to what the fullest row reports.
     locations = len(np.unique(np.asarray(p), axis=0)) if dedupe else n  # as the search sees the points
@@ -126,7 +161,7 @@ def cube(points, *, metric: str, widen: float, kernel_size: int, d_factor, ramp,
     _validate.check_capacity(capacity, width, "cube")
     cols = spatial.bucket(width) if capacity is None else capacity
     idx = idx[:, :cols] if idx.shape[1] >= cols else jnp.pad(idx, ((0, 0), (0, cols - idx.shape[1])), constant_values=n)
-    local, lo = _traced.host_frame(points)
+    local, lo = backend.host_frame(points)
     record = {**params, "search": "jax", "capacity": cols}
     return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record(record),
                                   overflow=jnp.zeros((), jnp.int32), points_lo=lo)
@@ -202,21 +237,21 @@ class _Searches:
         return found
 
     def knn(self, k: int, dedupe: bool):
-        return self._run(_search_jax.knn, k, dedupe=dedupe)
+        return self._run(cells.knn, k, dedupe=dedupe)
 
     def within(self, radius, radius_lo, columns: int, metric: str, dedupe: bool, max_count):
         # A default edge from most rows' radius, not the largest (a sparse point's ball would make every
         # block hold most of the cloud): the few rows it misses are searched again at a wider edge.
         n = radius.shape[0]
         typical = jnp.sort(lax.stop_gradient(radius))[(n - 1) * EDGE_QUANTILE // 100]
-        return self._run(_search_jax.within, radius, columns=columns, metric=metric, dedupe=dedupe,
-                         max_count=max_count, radius_lo=radius_lo, default_edge=_search_jax.EDGE_MARGIN * typical)
+        return self._run(cells.within, radius, columns=columns, metric=metric, dedupe=dedupe,
+                         max_count=max_count, radius_lo=radius_lo, default_edge=cells.EDGE_MARGIN * typical)
 
 
 # ----------------------------------------------------------------------------- the host's statistics
 
-def local_spacing(found: _search_jax.Found):
-    """HKC/HKF's per-point sample spacing, :func:`hgjax.spatial.local_spacing`, from a traced kNN.
+def local_spacing(found: cells.Found):
+    """HKC/HKF's per-point sample spacing, :func:`hgjax.neighbours.spatial.local_spacing`, from a traced kNN.
 
     s_i = sqrt(pi / k x mean over the k + 1 points j of row i of r_j^2), r_j the distance of
     point j's (k + 1)-th point (itself first), 1 where s_i = 0; with the same float64
@@ -224,7 +259,7 @@ def local_spacing(found: _search_jax.Found):
     spacing is the host's to the last bit.
 
     Args:
-      found: :func:`hgjax._search_jax.knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
+      found: :func:`hgjax.neighbours.cells.knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
         ``LOCAL_K + 1`` = 17); the cloud must hold at least k + 1 distinct locations (the
         host then lowers k; this does not).
 
@@ -235,9 +270,9 @@ def local_spacing(found: _search_jax.Found):
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax import _search_jax, _traced_cube
+      >>> from hgjax.neighbours import balls, cells
       >>> p = np.c_[np.mgrid[0:8, 0:8].reshape(2, -1).T, np.zeros(64)].astype(np.float32)
-      >>> s, _ = _traced_cube.local_spacing(_search_jax.knn(p, 17, dedupe=True))
+      >>> s, _ = balls.local_spacing(cells.knn(p, 17, dedupe=True))
       >>> round(float(s[27]), 3)  # inside an 8 x 8 grid of spacing 1
       0.991
     """
@@ -259,7 +294,7 @@ def _sq_pairs(p, j):
 
 
 def _local_spacing(p, near, local_k: int, dedupe: bool, spacing_k: int | None, x64: bool):
-    """(spacing, lo) (N,): :func:`hgjax.spatial.local_spacing` of every point, k lowered to the other locations
+    """(spacing, lo) (N,): :func:`hgjax.neighbours.spatial.local_spacing` of every point, k lowered to the other locations
     (``spacing_k`` when known, else from the traced count of locations)."""
     n = p.shape[0]
     if spacing_k is not None or not dedupe:
@@ -306,7 +341,7 @@ def _sq_pairs_of(p, rows, j):
 
 
 def _mean_other(p, other, x64: bool):
-    """The sample's mean nearest-other distance, 1.0 where it is 0 (:meth:`hgjax.spatial.SampleStats.resolution`)."""
+    """The sample's mean nearest-other distance, 1.0 where it is 0 (:meth:`hgjax.neighbours.spatial.SampleStats.resolution`)."""
     d, lo = _sample_column(p, other, x64)
     s = d.shape[0]
     if x64:

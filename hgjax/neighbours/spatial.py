@@ -1,10 +1,10 @@
 """Host-side spatial queries with a k-d tree, and the :class:`Neighbourhoods` they fill.
 
-The tree itself (:class:`hgjax._kdtree.Tree`: pykdtree where installed, SciPy's cKDTree
+The tree itself (:class:`hgjax.neighbours.kdtree.Tree`: pykdtree where installed, SciPy's cKDTree
 otherwise, the same distances) is queried only here. Everything here runs on the
 host and is not jittable; the kernels in :mod:`hgjax.scores` consume its padded index arrays
 under ``jax.jit``. The container itself (:class:`Neighbourhoods`, :func:`stack_neighbourhoods`,
-:func:`record`) lives in :mod:`hgjax._neighbourhoods`, re-exported here.
+:func:`record`) lives in :mod:`hgjax.neighbours.container`, re-exported here.
 
 Conventions (shared with every kernel):
 
@@ -19,7 +19,7 @@ Conventions (shared with every kernel):
   before any cast to the working dtype, so georeferenced clouds (UTM offsets of 1e5-1e7)
   keep their precision in float32. Every score is translation-invariant. The frame and the
   rules of that cast (:func:`working_dtype`, :class:`PrecisionWarning`) live in
-  :mod:`hgjax._precision`, re-exported here; this module measures the spacing they judge
+  :mod:`hgjax.neighbours.precision`, re-exported here; this module measures the spacing they judge
   (:func:`index_spacing`, :func:`pair_spacing`).
 * With ``dedupe=True`` exact duplicates are one point for the queries: each copy gets the
   neighbourhood of its first occurrence, whose row lists no other copy. Exact duplicates
@@ -36,9 +36,10 @@ import os
 
 import numpy as np
 
-from hgjax import _kdtree, _validate
-from hgjax._neighbourhoods import Neighbourhoods, record, stack_neighbourhoods
-from hgjax._precision import (  # noqa: F401  (re-exported: the callers' spatial.frame_origin, ...)
+from hgjax import _validate
+from hgjax.neighbours import kdtree
+from hgjax.neighbours.container import Neighbourhoods, record, stack_neighbourhoods
+from hgjax.neighbours.precision import (  # noqa: F401  (re-exported: the callers' spatial.frame_origin, ...)
     PRECISION_SHARE,
     PrecisionWarning,
     axis_bounds,
@@ -55,9 +56,7 @@ __all__ = [
     "Neighbourhoods",
     "PrecisionWarning",
     "SpatialIndex",
-    "cube",
     "intrinsic_resolution",
-    "knn",
     "local_frame",
     "split_frame",
     "spatial_order",
@@ -194,7 +193,7 @@ class SpatialIndex:
         # The tree builds in a background thread (the build releases the GIL) while the maps
         # below and the caller's preparations run; :attr:`tree` waits for it.
         pool = concurrent.futures.ThreadPoolExecutor(1)
-        self._tree = pool.submit(_kdtree.Tree, sorted_points)
+        self._tree = pool.submit(kdtree.Tree, sorted_points)
         pool.shutdown(wait=False)
         self.order = order[first]  # sorted row -> caller index of its first copy
         self.row = np.empty(self.n_caller, dtype=np.int64)  # caller index -> sorted row
@@ -206,7 +205,7 @@ class SpatialIndex:
         self.gid_span = int(gid.max(initial=-1)) + 1 if gid.min(initial=0) >= 0 else 2**62
 
     @property
-    def tree(self) -> _kdtree.Tree:
+    def tree(self) -> kdtree.Tree:
         """The k-d tree over :attr:`points` (waits for its build)."""
         if isinstance(self._tree, concurrent.futures.Future):
             self._tree = self._tree.result()
@@ -502,74 +501,6 @@ def assemble(points: np.ndarray, index: SpatialIndex, idx: np.ndarray, scale_sor
     hi, lo = split_frame(local, dtype)
     scale = None if scale_sorted is None else index.to_caller(np.asarray(scale_sorted)).astype(dtype)
     return Neighbourhoods(hi, idx, scale, params=record(params or {}), points_lo=lo)
-
-
-def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
-    """k-nearest neighbourhoods, the point itself first.
-
-    Args:
-      points: (N, 3) float32 or float64.
-      k: neighbourhood size, counting the point itself (1 <= k <= N).
-      dedupe: count exact duplicates once (each copy gets its location's neighbourhood).
-      capacity: columns of ``idx`` (default k); must be >= k.
-
-    Returns:
-      Neighbourhoods with ``idx`` (N, K) int32 in the caller's order; ``idx[:, 0]`` is the
-      point itself (with ``dedupe``, the first copy of its location), then neighbours by
-      increasing distance. Rows are padded with N only when there are fewer than k distinct
-      locations (``dedupe``) or K > k.
-
-    Raises:
-      TypeError, ValueError: for invalid points, k or capacity.
-
-    Examples:
-      >>> import numpy as np, hgjax
-      >>> nb = hgjax.knn(np.eye(3), 2)
-      >>> nb.idx[:, 0].tolist()
-      [0, 1, 2]
-    """
-    pts = _validate.check_points(points)
-    k = _validate.check_int(k, "k", minimum=1)
-    _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
-    cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
-    dedupe = _validate.check_bool(dedupe, "dedupe")
-    index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
-    parts = (idx for _, idx, _ in knn_batches(index, k, np.arange(index.n)))
-    idx = caller_rows(index, parts, cap, what="k-nearest neighbourhood")
-    return assemble(pts, index, idx, params={"k": k, "dedupe": dedupe})
-
-
-def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
-    """Axis-aligned cube neighbourhoods (Chebyshev distance < half_width), the ROI of HKC/HKF.
-
-    Args:
-      points: (N, 3) float32 or float64.
-      half_width: half the cube side, > 0: a scalar or one per point (N,).
-      dedupe: count exact duplicates once.
-      capacity: columns of ``idx``. Default: the fullest cube's count rounded up to a power
-        of two (at least 8), so nothing is ever truncated.
-
-    Returns:
-      Neighbourhoods with ``idx`` (N, K) int32 in the caller's order, padded with N, each
-      row by increasing Chebyshev distance (the point itself first).
-
-    Raises:
-      ValueError: for invalid input, or when a cube holds more than a fixed ``capacity``
-        (the message names the capacity needed).
-
-    Examples:
-      >>> import numpy as np, hgjax
-      >>> nb = hgjax.cube(np.array([[0., 0, 0], [1, 0, 0], [5, 0, 0]]), 1.5)
-      >>> (nb.idx < 3).sum(axis=1).tolist()
-      [2, 2, 1]
-    """
-    pts = _validate.check_points(points)
-    half = _validate.check_positive_array(half_width, "half_width", pts.shape[0])
-    cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
-    index = SpatialIndex(local_frame(pts)[0], dedupe=dedupe)
-    half_sorted = np.broadcast_to(half, (pts.shape[0],))[index.order]
-    parts = (index.cube(half_sorted[part], part)[0] for part in batches(index.n))
-    return assemble(pts, index, caller_rows(index, parts, cap, what="cube"))
 
 
 def intrinsic_resolution(points, *, robust: bool = False) -> float:

@@ -3,7 +3,7 @@
 :class:`Neighbourhoods` is a frozen, registered JAX pytree (its method and build parameters
 static, :func:`record`); :func:`stack_neighbourhoods` pads the neighbourhoods of clouds of any
 N and K into one batch for ``jax.vmap``. The builders that fill it live in
-:mod:`hgjax.spatial` (the host's k-d tree, which re-exports these names),
+:mod:`hgjax.neighbours.spatial` (the host's k-d tree, which re-exports these names),
 :mod:`hgjax.pipeline` (per method) and the traced search. This module builds on nothing of
 hgjax but :mod:`hgjax._validate`.
 """

@@ -8,9 +8,9 @@ squared). Without JAX's x64 mode float64 input is computed in float32
 (:func:`working_dtype`), and a :class:`PrecisionWarning` says so where the cast's half-ulp
 rounding at the frame's extent (:func:`float32_rounding`, :func:`frame_extent`) exceeds 2^-10
 of the cloud's finest spacing (:func:`finest_spacing`, measured by
-:func:`hgjax.spatial.index_spacing` or :func:`hgjax.spatial.pair_spacing`). This module sits
+:func:`hgjax.neighbours.spatial.index_spacing` or :func:`hgjax.neighbours.spatial.pair_spacing`). This module sits
 beside :mod:`hgjax._validate`: it builds on nothing else of hgjax, and
-:mod:`hgjax.spatial` re-exports its public names.
+:mod:`hgjax.neighbours.spatial` re-exports its public names.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class PrecisionWarning(UserWarning):
     coordinate| m, ``np.spacing(np.float32(m)) / 2`` (:func:`float32_rounding`). The warning
     fires when that rounding exceeds 2^-10 (about 1e-3) of the cloud's finest spacing: the
     smallest positive distance from a point of the seeded sample
-    (:func:`hgjax.spatial.sample_ids`) to its nearest distinct point (:func:`finest_spacing`).
+    (:func:`hgjax.neighbours.spatial.sample_ids`) to its nearest distinct point (:func:`finest_spacing`).
     The float64 clouds of :func:`hgjax.eval.box_union_cloud` (extent 6, 2e4 to 1e6 points:
     rounding 1e-4 to 3e-4 of that spacing) do not warn; millimetre detail at an extent of 1e7,
     or a dense cluster beside a far outlier, does (:func:`working_dtype`).
@@ -104,7 +104,7 @@ def frame_extent(local: np.ndarray) -> float:
 
 def finest_spacing(distinct: np.ndarray) -> float:
     """The smallest positive finite nearest-distinct distance of ``distinct`` (S,)
-    (:attr:`hgjax.spatial.SampleStats.distinct`); inf when there is none (a single location)."""
+    (:attr:`hgjax.neighbours.spatial.SampleStats.distinct`); inf when there is none (a single location)."""
     d = np.asarray(distinct, dtype=np.float64)
     d = d[np.isfinite(d) & (d > 0)]
     return float(d.min()) if d.size else np.inf

@@ -1,0 +1,15 @@
+"""Neighbourhoods: which points each point's score reads, found on the host or traced in JAX.
+
+One module per piece, each kind holding both of its backends (``search="host"``: a k-d tree on
+NumPy; ``search="jax"``: a cell search traced in JAX, the same neighbours under ``jit``, ``vmap``
+and ``grad``):
+
+* :mod:`~hgjax.neighbours.container`: the :class:`hgjax.Neighbourhoods` pytree every score reads;
+* :mod:`~hgjax.neighbours.precision`: the local float frame and the working dtype;
+* :mod:`~hgjax.neighbours.kdtree` and :mod:`~hgjax.neighbours.spatial`: the host's tree and its
+  spatial index (every host query, Morton order, sampled spacing);
+* :mod:`~hgjax.neighbours.cells`: the traced search over sorted cells (k nearest, within a radius);
+* :mod:`~hgjax.neighbours.backend`: which search runs, and the overflow guard of the traced one;
+* the kinds: k nearest (:mod:`~hgjax.neighbours.backend`), cubes and balls
+  (:mod:`~hgjax.neighbours.balls`), the radius graph (:mod:`~hgjax.neighbours.radius_graph`).
+"""

@@ -1,0 +1,104 @@
+"""Neighbourhoods from the traced search (``search="jax"``): :mod:`hgjax.neighbours.cells` made into a :class:`hgjax.Neighbourhoods`.
+
+The same pytree as the host builders (:func:`hgjax.neighbours.nearest.knn`), built in pure JAX: under
+``jax.jit`` (static N, k and columns), ``jax.vmap`` and inside ``jax.grad`` (the choice of
+neighbours is discrete, so no gradient flows through it; the points returned are a smooth
+function of the input). The k-nearest search has no capacity: it reads every candidate a
+query's cells hold, so nothing is ever truncated and nothing needs sizing. What can still
+overflow (a ball or a graph row wider than its static columns) stops the program:
+:func:`guard` raises eagerly, and under ``jit`` the compiled program raises when it runs,
+naming the ``capacity`` needed, instead of returning a truncated result.
+
+The points are moved to the host's local frame (the bounding-box centre subtracted) with
+the centre carried exactly (TwoSum), so the float32 coordinates equal the host's float64
+subtraction rounded once, up to a double rounding at an exact midpoint; under x64 the
+subtraction is the host's own.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hgjax import _exact, _stream, _validate
+from hgjax.neighbours import cells, spatial
+
+__all__ = ["CELL_SLOTS", "SEARCHES", "check", "default_search", "guard", "host_frame", "local_frame"]
+
+CELL_SLOTS = cells.SLOTS
+"""Candidates a query of the traced search reads per step (static; a speed setting, never a limit)."""
+SEARCHES = ("host", "jax")
+"""The neighbour searches: SciPy's k-d tree on the host, or the traced search."""
+
+
+def local_frame(points) -> tuple[jax.Array, jax.Array | None]:
+    """(hi, lo): (N, 3) ``points`` minus the centre of their bounding box, traced, as the host's
+    :func:`hgjax.neighbours.spatial.split_frame` of its float64 local frame.
+
+    float64 under x64: the frame itself, lo None. In float32, the centre (lo + hi) / 2 is
+    carried as an exact pair (s + e) / 2 and subtracted in two steps; hi is the frame rounded
+    once and lo what it rounds off (:attr:`hgjax.Neighbourhoods.points_lo`).
+    """
+    p = jnp.asarray(points)
+    if p.dtype == jnp.float64:
+        lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
+        return p - (lo + hi) / 2, None
+    p = p.astype(jnp.float32)
+    lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
+    s, e = _exact.two_sum(lo, hi)  # lo + hi == s + e exactly
+    a, err = _exact.two_sum(p, -s / 2)  # p - s / 2 == a + err exactly
+    return _exact.fast_two_sum(a, err - e / 2)
+
+
+def host_frame(points) -> tuple[jax.Array, jax.Array | None]:
+    """(hi, lo) of concrete ``points``: the host's local frame (:func:`hgjax.neighbours.spatial.local_frame`) split
+    in its working dtype (:func:`hgjax.neighbours.spatial.split_frame`; float64 input keeps its bits until then)."""
+    host = np.asarray(points)
+    hi, lo = spatial.split_frame(spatial.local_frame(host)[0], spatial.working_dtype(host.dtype))
+    return jnp.asarray(hi), None if lo is None else jnp.asarray(lo)
+
+
+def _raise_overflow(overflow) -> None:
+    """Raise for an overflow report (0, the columns needed, or -1 for a row its cells never covered), saying what to do."""
+    worst = np.asarray(overflow)
+    if not (worst != 0).any():
+        return
+    needed = int(worst.max())
+    how = (f"capacity={needed} (or capacity=None outside jit, which sizes it)" if needed > 0 else
+           "points whose coordinates are finite (a row's neighbours were not found within the search's passes)")
+    raise ValueError(f"the traced neighbour search overflowed: some neighbourhoods would be truncated; rebuild them"
+                     f" with {how}")
+
+
+def guard(overflow):
+    """``overflow`` (an int32 report: 0, the columns needed, or -1), checked: a non-zero report raises.
+
+    Eagerly it raises ValueError at once. Traced (under ``jit``, ``vmap``, ``grad``) the same
+    ValueError is raised where the compiled program runs (:func:`hgjax._validate.fail_where`),
+    so the caller's call fails (as a ``jax.errors.JaxRuntimeError`` carrying the message)
+    instead of returning a truncated neighbourhood.
+    """
+    if _stream.is_traced(overflow):
+        _validate.fail_where(overflow != 0, _raise_overflow, overflow)
+    else:
+        _raise_overflow(overflow)
+    return overflow
+
+
+def check(nb: spatial.Neighbourhoods) -> None:
+    """Raise ValueError when neighbourhoods of the traced search overflowed (never score a truncated one)."""
+    overflow = getattr(nb, "overflow", None)  # anything but Neighbourhoods is refused by the caller's checks
+    if overflow is not None:
+        guard(overflow)
+
+
+def default_search() -> str:
+    """The search a run uses when none is named: ``"jax"`` on a GPU/TPU backend, ``"host"`` on CPU.
+
+    On a CPU SciPy's k-d tree is faster than the traced search (``bench/results/device_search.md``);
+    on an accelerator the traced search runs where the scores run (``device_search_gpu.md``).
+    """
+    return "host" if jax.default_backend() == "cpu" else "jax"
+
+
