@@ -31,8 +31,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import hgjax  # noqa: E402
-from hgjax.neighbours import radius_graph, spatial  # noqa: E402
-from hgjax.scores import ea, lhf, voxel  # noqa: E402
+from hgjax.neighbours import balls, radius_graph, spatial  # noqa: E402
+from hgjax.scores import ea, lhf  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -52,10 +52,10 @@ SWEEPS = {
 }
 # How each default is picked (written into the report).
 RULES = {
-    "hkc": "d = f x local spacing, f = `voxel.default_d_factor(irregularity)`: {regular} up to irregularity "
+    "hkc": "d = f x local spacing, f = `balls.default_d_factor(irregularity)`: {regular} up to irregularity "
            "{lo}, {irregular} from {hi}, linear in between (irregularity = CV of nearest-neighbour distances, "
            "`hgjax.neighbours.spatial.SampleStats.irregularity`).",
-    "hkf": "shares HKC's neighbourhoods and d rule (`voxel.neighbourhoods`).",
+    "hkf": "shares HKC's neighbourhoods and d rule (`balls.build`).",
     "lhf": "lengths = {lhf} (`lhf.DEFAULT_LENGTHS`, one constant for every cloud): the only pair of the sweep "
            "within 0.05 of the best pair in all three regimes (the grid and random regimes favour long pairs, "
            "the real clouds (6, 12); no irregularity rule separates them, since pced_abc_7033, the one "
@@ -69,8 +69,8 @@ RULES = {
 
 
 def rule_text(method):
-    lo, hi = voxel.IRREGULARITY_RANGE
-    return RULES[method].format(regular=voxel.REGULAR_D_FACTOR, irregular=voxel.IRREGULAR_D_FACTOR, lo=lo, hi=hi,
+    lo, hi = balls.IRREGULARITY_RANGE
+    return RULES[method].format(regular=balls.REGULAR_D_FACTOR, irregular=balls.IRREGULAR_D_FACTOR, lo=lo, hi=hi,
                                 lhf=lhf.DEFAULT_LENGTHS, gfr=radius_graph.RADIUS_FACTOR, ea=ea.DEFAULT_K)
 
 

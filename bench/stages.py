@@ -53,7 +53,7 @@ STAGES = [
     ("spatial_order (Morton codes and sort)", "hgjax.neighbours.spatial", "spatial_order", 3),
     ("device_points (the tile's points to the device)", "hgjax._stream", "device_points", 2),
     ("rows: LHF/EA k-nearest batches (generator steps)", "hgjax.scores.ea", "tile_rows", 2),
-    ("rows: HKC/HKF cube batches (generator steps)", "hgjax.scores.voxel", "row_batches", 2),
+    ("rows: HKC/HKF cube batches (generator steps)", "hgjax.scores.cubic_kernel", "row_batches", 2),
     ("knn: exact kNN17 + tie ranking (LHF/EA; HKC/HKF: kNN18 of spacings)", "hgjax.neighbours.spatial.SpatialIndex", "knn", 3),
     ("tree queries (nearest: LHF/EA kNN17, in the background thread; HKC/HKF batch kNN~64)",
      "hgjax.neighbours.spatial.SpatialIndex", "nearest", 3),
@@ -149,14 +149,14 @@ def _kernel_split(p, method: str, repeats: int) -> dict:
     import numpy as np
 
     from hgjax import _stream
-    from hgjax.neighbours import spatial
-    from hgjax.scores import _common, hkc, hkf, voxel
+    from hgjax.neighbours import balls, spatial
+    from hgjax.scores import _common, cubic_kernel, hkc, hkf
 
     index = spatial.SpatialIndex(spatial.local_frame(p)[0], dedupe=True)
-    params = voxel.resolve(voxel.build_params(), spatial.sample_stats(index))
+    params = balls.resolve(balls.build_params(), spatial.sample_stats(index))
     c = _stream.chunk_rows()
     rows = np.arange(index.n // 2, index.n // 2 + c)
-    parts = list(voxel.row_batches(index, rows, params))
+    parts = list(balls.row_batches(index, rows, params))
     width = max(max(int((p[1] < index.n).sum(axis=1).max()), 1) for p in parts)
     idx = np.concatenate([np.pad(p[1], ((0, 0), (0, max(width - p[1].shape[1], 0))), constant_values=index.n)[:, :width]
                           for p in parts])
@@ -170,10 +170,10 @@ def _kernel_split(p, method: str, repeats: int) -> dict:
         return o
 
     def frame_only(o, v, d):
-        return voxel.oriented(o, v, d)
+        return cubic_kernel.oriented(o, v, d)
 
     def counts(o, v, d):
-        return voxel.kernel_signal(o, v, d, 3, "invariant")
+        return cubic_kernel.kernel_signal(o, v, d, 3, "invariant")
 
     def cov_only(o, v, d):
         return _common.centred_entries(o / d, v)[1]

@@ -94,8 +94,8 @@ def test_the_pipeline_is_exported():
                  "resample", "soft_weights", "soft_resample", "knn", "cube", "intrinsic_resolution",
                  "working_dtype", "PrecisionWarning", "local_frame"):
         assert name in hgjax.__all__, name
-    assert not hasattr(hgjax, "soft")  # hgjax.soft is gone: its pieces live in the method modules
-    assert set(hgjax.scores.__all__) == {"ea", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac", "voxel"}
+    assert not hasattr(hgjax, "soft")  # the soft pieces live in the method modules
+    assert set(hgjax.scores.__all__) == {"cubic_kernel", "ea", "gfr", "hkc", "hkf", "lhf", "mss", "pca_ac"}
 
 
 def _modules():

@@ -16,7 +16,7 @@ from scipy.stats import spearmanr
 
 import hgjax
 from hgjax import spectrum
-from hgjax.scores import _common, ea, hkc, hkf, lhf, voxel
+from hgjax.scores import _common, ea, hkc, hkf, lhf, cubic_kernel
 
 
 import naive
@@ -209,7 +209,7 @@ def _rotate_in_eigenspaces(v, lam, rng, tol=1e-9):
 def test_invariant_scores_do_not_depend_on_the_basis_inside_degenerate_eigenspaces():
     rng = np.random.default_rng(8)
     # HKF: the kernel's 25-dimensional high band.
-    lam, v, t = voxel.reference_spectrum(3)
+    lam, v, t = cubic_kernel.reference_spectrum(3)
     s = rng.integers(0, 3, size=27).astype(np.float64)
     s[13] += 1
     base = spectrum.band_energies(jnp.asarray(v), t, jnp.asarray(s))
@@ -219,7 +219,7 @@ def test_invariant_scores_do_not_depend_on_the_basis_inside_degenerate_eigenspac
         rot = spectrum.band_energies(jnp.asarray(vr), t, jnp.asarray(s))
         np.testing.assert_allclose(rot[2:], base[2:], rtol=1e-12)  # L2 band energies: invariant
         l1_changed |= abs(float(rot[0] / rot[1] - base[0] / base[1])) > 1e-6
-        sigma = hkf.sigma(jnp.asarray(voxel.integer_offsets(3)), jnp.asarray(s > 0), 1.0)
+        sigma = hkf.sigma(jnp.asarray(cubic_kernel.integer_offsets(3)), jnp.asarray(s > 0), 1.0)
         h, l = float(rot[2]), float(rot[3])
         if (s > 1).any():
             continue  # the neighbourhood above encodes occupancy only
@@ -310,13 +310,13 @@ def test_voxel_frame_derivative_is_perturbation_theory_and_finite_where_degenera
     def entries(m):
         return tuple(jnp.asarray(m[i, j]) for i, j in _common.PAIRS)
 
-    v, dv = jax.jit(lambda e, d: jax.jvp(voxel.frame, (e,), (d,)))(entries(cov), entries(dcov))
+    v, dv = jax.jit(lambda e, d: jax.jvp(cubic_kernel.frame, (e,), (d,)))(entries(cov), entries(dcov))
     eps = 1e-6
-    plus, minus = (np.asarray(voxel.frame(entries(cov + s * eps * dcov))) for s in (1, -1))
+    plus, minus = (np.asarray(cubic_kernel.frame(entries(cov + s * eps * dcov))) for s in (1, -1))
     np.testing.assert_allclose(np.asarray(dv), (plus - minus) / (2 * eps), atol=1e-6)
     np.testing.assert_allclose(np.asarray(v).T @ np.asarray(v), np.eye(3), atol=1e-12)
     for flat in (np.diag([0.0, 1.0, 1.0]), np.eye(3), np.zeros((3, 3))):  # equal eigenvalues: no derivative across
-        _, dv = jax.jvp(voxel.frame, (entries(flat),), (entries(dcov),))
+        _, dv = jax.jvp(cubic_kernel.frame, (entries(flat),), (entries(dcov),))
         assert np.isfinite(np.asarray(dv)).all()
 
 
@@ -389,20 +389,20 @@ def test_hkc_reference_d_factor_and_hkf_invariant_is_beta_over_one_plus_beta():
 def test_kernel_band_energies_turn_with_axis_permutations_not_sign_flips():
     """The paper's low band (row-centred along (1, 1, 1)) is invariant under permutations of the
     kernel's axes but not under sign flips; the invariant energies are its average over the 8 flips."""
-    c = voxel.integer_offsets(3)
+    c = cubic_kernel.integer_offsets(3)
     where = {tuple(x): j for j, x in enumerate(c)}
     rng = np.random.default_rng(23)
     changed = False
     for _ in range(5):
         s = rng.integers(0, 4, size=27).astype(np.float64)
-        ref = lambda m: np.asarray(voxel.band_energies(jnp.asarray(s[[where[tuple(x @ m)] for x in c]]), 3,  # noqa: E731
+        ref = lambda m: np.asarray(cubic_kernel.band_energies(jnp.asarray(s[[where[tuple(x @ m)] for x in c]]), 3,  # noqa: E731
                                                        "reference"))
         base = ref(np.eye(3))
         for perm in ([1, 2, 0], [1, 0, 2], [2, 1, 0]):
             np.testing.assert_allclose(ref(np.eye(3)[perm]), base, rtol=1e-12)
         flips = np.array([ref(np.diag(f)) for f in itertools.product((1.0, -1.0), repeat=3)])
         changed |= np.ptp(flips[:, 1]) > 1e-3  # a flip changes the low band (unless C^T s lies on an axis)
-        np.testing.assert_allclose(np.asarray(voxel.band_energies(jnp.asarray(s), 3, "invariant")),
+        np.testing.assert_allclose(np.asarray(cubic_kernel.band_energies(jnp.asarray(s), 3, "invariant")),
                                    flips.mean(axis=0), rtol=1e-12)
     assert changed
 

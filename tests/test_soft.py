@@ -15,7 +15,7 @@ from jax.test_util import check_grads
 
 import fixtures
 import hgjax
-from hgjax.scores import hkc, lhf, voxel
+from hgjax.scores import hkc, lhf, cubic_kernel
 
 METHODS = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method))
 TAU_METHODS = ("hkc", "hkf", "lhf")  # soft scores with a tau
@@ -262,10 +262,10 @@ def test_soft_counts_converge_to_hard_counts():
     nb = lattice_neighbourhoods(0)
     offsets = jnp.asarray(np.where(nb.mask[..., None], np.r_[nb.points, np.zeros((1, 3))][nb.idx] - nb.points[:, None], 0))
     valid = jnp.asarray(nb.mask)
-    hard = jax.vmap(lambda o, v: voxel.local_signal(o, v, 1.0, 3))(offsets, valid)
+    hard = jax.vmap(lambda o, v: cubic_kernel.local_signal(o, v, 1.0, 3))(offsets, valid)
     errors = []
     for tau in (0.3, 0.1, 0.03, 0.01):
-        soft = jax.vmap(lambda o, v: voxel.soft_local_signal(o, v, 1.0, tau, 3))(offsets, valid)
+        soft = jax.vmap(lambda o, v: cubic_kernel.soft_local_signal(o, v, 1.0, tau, 3))(offsets, valid)
         errors.append(float(jnp.max(jnp.abs(soft - hard))))
     assert errors == sorted(errors, reverse=True)
     assert errors[-1] < 1e-12 and errors[0] > 1e-3

@@ -12,8 +12,8 @@ import pytest
 import hgjax
 from fixtures import backend_compiles, box_union, grid
 from hgjax import _stream, _tiling, select, tiles
-from hgjax.neighbours import spatial
-from hgjax.scores import gfr, voxel
+from hgjax.neighbours import balls, spatial
+from hgjax.scores import gfr
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
 VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
@@ -296,15 +296,15 @@ def test_cube_tiles_of_any_size_give_the_one_process_indices_and_scores(sparse_c
     assert np.asarray(scores).tobytes() == np.asarray(want_scores).tobytes()
 
 
-@pytest.mark.parametrize("n", [2, 10, voxel.LOCAL_K, voxel.LOCAL_K + 1, 40])
+@pytest.mark.parametrize("n", [2, 10, balls.LOCAL_K, balls.LOCAL_K + 1, 40])
 def test_cube_reach_is_unbounded_where_the_index_holds_too_few_locations_for_the_spacing(n):
     """A tile's spacing estimate reads LOCAL_K neighbours; with fewer locations in its index it read fewer
     than the whole cloud would, so no halo short of the whole cloud holds what it needs."""
     index = spatial.SpatialIndex(np.random.default_rng(n).random((n, 3)), dedupe=True)
-    build = voxel.resolve(voxel.build_params(d_factor=1.6), None)
-    reach = np.concatenate([r for _, _, _, r in voxel.row_batches(index, np.arange(n), build)])
+    build = balls.resolve(balls.build_params(d_factor=1.6), None)
+    reach = np.concatenate([r for _, _, _, r in balls.row_batches(index, np.arange(n), build)])
     assert reach.shape == (n,)
-    assert np.isinf(reach).all() if n <= voxel.LOCAL_K else np.isfinite(reach).all()
+    assert np.isinf(reach).all() if n <= balls.LOCAL_K else np.isfinite(reach).all()
 
 
 @pytest.mark.full

@@ -13,7 +13,7 @@ from fixtures import degenerate_clouds, smooth_and_rounded
 pytestmark = pytest.mark.full
 
 KNN = ["ea", "lhf", "mss"]
-CUBE = ["hkc", "hkf"]  # voxel.neighbourhoods: the invariant ball or the reference cube, and the voxel spacing
+CUBE = ["hkc", "hkf"]  # balls.build: the invariant ball or the reference cube, and the voxel spacing
 
 
 @pytest.fixture(scope="module")
@@ -206,12 +206,11 @@ def test_traced_cubes_with_a_fixed_resolution_and_factor(clouds, params):
 def test_the_traced_d_factor_ramp_is_the_hosts():
     """The irregularity between the lattice and the random regimes sets d_factor by a linear ramp, same bits."""
     from hgjax.neighbours import balls
-    from hgjax.scores import voxel
-    ramp = (voxel.IRREGULARITY_RANGE, (voxel.REGULAR_D_FACTOR, voxel.IRREGULAR_D_FACTOR))
+    ramp = (balls.IRREGULARITY_RANGE, (balls.REGULAR_D_FACTOR, balls.IRREGULAR_D_FACTOR))
     x = np.array([0.0, 0.25, 0.3, 0.3333, 0.41, 0.45, 0.6])
     with jax.enable_x64(True):
         got = np.asarray(jax.jit(lambda v: balls.linear_ramp(v, ramp))(jnp.asarray(x)))
-    np.testing.assert_array_equal(got, [voxel.default_d_factor(v) for v in x])
+    np.testing.assert_array_equal(got, [balls.default_d_factor(v) for v in x])
 
 
 def test_cube_resample_equals_the_host(clouds, cube_builds):

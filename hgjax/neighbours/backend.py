@@ -1,18 +1,18 @@
-"""Neighbourhoods from the traced search (``search="jax"``): :mod:`hgjax.neighbours.cells` made into a :class:`hgjax.Neighbourhoods`.
+"""Which neighbour search runs (``search="host"`` or ``"jax"``), and the traced search's overflow guard.
 
-The same pytree as the host builders (:func:`hgjax.neighbours.nearest.knn`), built in pure JAX: under
-``jax.jit`` (static N, k and columns), ``jax.vmap`` and inside ``jax.grad`` (the choice of
-neighbours is discrete, so no gradient flows through it; the points returned are a smooth
+The traced search returns the same :class:`hgjax.Neighbourhoods` as the host builders, in pure
+JAX: under ``jax.jit`` (static N, k and columns), ``jax.vmap`` and inside ``jax.grad`` (the choice
+of neighbours is discrete, so no gradient flows through it; the points returned are a smooth
 function of the input). The k-nearest search has no capacity: it reads every candidate a
 query's cells hold, so nothing is ever truncated and nothing needs sizing. What can still
 overflow (a ball or a graph row wider than its static columns) stops the program:
 :func:`guard` raises eagerly, and under ``jit`` the compiled program raises when it runs,
 naming the ``capacity`` needed, instead of returning a truncated result.
 
-The points are moved to the host's local frame (the bounding-box centre subtracted) with
-the centre carried exactly (TwoSum), so the float32 coordinates equal the host's float64
-subtraction rounded once, up to a double rounding at an exact midpoint; under x64 the
-subtraction is the host's own.
+The traced builds move the points to the host's local frame (:func:`local_frame`: the
+bounding-box centre subtracted) with the centre carried exactly (TwoSum), so the float32
+coordinates equal the host's float64 subtraction rounded once, up to a double rounding at an
+exact midpoint; under x64 the subtraction is the host's own.
 """
 
 from __future__ import annotations

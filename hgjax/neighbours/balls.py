@@ -1,9 +1,15 @@
-"""Cube and ball neighbourhoods by the traced search (``search="jax"``): the host's
-:func:`hgjax.scores.voxel.neighbourhoods`, built in pure JAX.
+"""Cube and ball neighbourhoods: the region of interest of HKC and HKF (paper Fig. 2), by either search.
+
+:func:`build` is the one dispatch on ``search``: the host's build (:func:`row_batches` on a
+:class:`hgjax.neighbours.spatial.SpatialIndex`) or the traced search's (:func:`traced`, pure JAX
+under ``jax.jit``, ``jax.vmap`` and ``jax.grad``). :func:`cube` is the plain axis-aligned cube query
+of a fixed half-width (:func:`hgjax.cube`). Every whole-cloud decision (:func:`resolve`: the d
+factor from the sampling irregularity, the reference resolution) is made here, on the host or
+traced.
 
 The cube of half-width k d_i / 2 around every point (or, turned into the point's local frame,
 the ball of radius sqrt(3) k d_i / 2 that holds it in every orientation), with the voxel
-spacing d_i decided as the host decides it (:func:`hgjax.scores.voxel.resolve`), all traced:
+spacing d_i decided as the host decides it (:func:`hgjax.neighbours.balls.resolve`), all traced:
 
 * ``spacing="local"``: d_i = f x the point's local spacing (:func:`hgjax.neighbours.spatial.local_spacing`
   of its ``local_k`` nearest locations: :func:`local_spacing` of a
@@ -58,12 +64,203 @@ from hgjax.neighbours import backend, cells, spatial
 from hgjax.neighbours.cells import _pair_keys
 from hgjax.neighbours.container import Neighbourhoods
 
-__all__ = ["COLUMNS", "cube", "linear_ramp", "local_spacing", "traced"]
+__all__ = ["COLUMNS", "build", "build_params", "cube", "default_d_factor", "linear_ramp", "local_spacing", "resolve", "row_batches",
+           "traced"]
 
 COLUMNS = 128
 """Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
 FIRST_COLUMNS = 32  # columns of an eager build's first round (grown to the fullest row's bucket)
 EDGE_QUANTILE = 90  # percent: a ball's default cell edge covers this share of the radii (the rest spill)
+
+
+REFERENCE_D_FACTOR = 1.3  # d = 1.3 x resolution (REFERENCE.md)
+# The default variant's d = f x local spacing, f from the sampling irregularity c (the
+# coefficient of variation of nearest-neighbour distances): REGULAR_D_FACTOR for lattices
+# (c <= 0.25: grids up to noise p = 0.2 spacings), IRREGULAR_D_FACTOR for random samples
+# (c >= 0.45), linear in between. Measured on the edge benchmark in both regimes
+# (bench/results/edge_defaults.md).
+REGULAR_D_FACTOR, IRREGULAR_D_FACTOR = 1.1, 1.6
+IRREGULARITY_RANGE = (0.25, 0.45)
+LOCAL_K = 16  # neighbours from which the default variant's local spacing is estimated
+MAX_COUNT = 256  # the default variant's cube shrinks to hold fewer points than this
+
+
+def default_d_factor(irregularity: float) -> float:
+    """The default variant's d factor for a cloud of this sampling irregularity.
+
+    Args:
+      irregularity: std / mean of the nearest-neighbour distances
+        (:func:`hgjax.neighbours.spatial.irregularity`).
+
+    Returns:
+      1.1 up to 0.25 (lattice-like sampling), 1.6 from 0.45 (random sampling), linear
+      in between.
+
+    Examples:
+      >>> from hgjax.neighbours import balls
+      >>> balls.default_d_factor(0.0), balls.default_d_factor(0.52)
+      (1.1, 1.6)
+    """
+    lo, hi = IRREGULARITY_RANGE
+    t = min(max((irregularity - lo) / (hi - lo), 0.0), 1.0)
+    return REGULAR_D_FACTOR + t * (IRREGULAR_D_FACTOR - REGULAR_D_FACTOR)
+
+def build_params(*, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
+                 resolution: float | None = None, dedupe: bool | None = None) -> dict:
+    """Validated build parameters of HKC/HKF; ``d_factor`` and a reference ``resolution`` may still be None.
+
+    Raises:
+      TypeError, ValueError: invalid arguments.
+    """
+    variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
+    return {
+        "variant": variant,
+        "d_factor": None if d_factor is None else _validate.check_positive(d_factor, "d_factor"),
+        "kernel_size": _validate.check_kernel_size(kernel_size),
+        "resolution": None if resolution is None else _validate.check_positive(resolution, "resolution"),
+        "dedupe": variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe"),
+    }
+
+def needs_stats(params: dict) -> bool:
+    """Whether resolving ``params`` needs the cloud's :class:`hgjax.neighbours.spatial.SampleStats`."""
+    return params["d_factor"] is None or (params["variant"] == "reference" and params["resolution"] is None)
+
+def resolve(params: dict, stats: spatial.SampleStats | None) -> dict:
+    """Build parameters with every whole-cloud decision made: d_factor, and the reference resolution.
+
+    The invariant variant's d factor comes from the sample's irregularity
+    (:func:`default_d_factor`); the reference variant's resolution is the sample's mean
+    nearest-other distance (1.0 when the cloud has a single location) and its factor 1.3.
+    """
+    out = dict(params)
+    if out["d_factor"] is None:
+        out["d_factor"] = REFERENCE_D_FACTOR if out["variant"] == "reference" else default_d_factor(stats.irregularity())
+    if out["variant"] == "reference" and out["resolution"] is None:
+        out["resolution"] = stats.resolution(robust=False) or 1.0
+    return out
+
+def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
+    """Cube neighbourhoods of sorted ``rows`` (R,) with resolved ``params`` (see :func:`resolve`), batch by batch.
+
+    Batches are :func:`hgjax.neighbours.spatial.batches` of the rows; each is built as soon as the
+    previous one is consumed, reusing what the previous ones found (spacings of shared
+    neighbours, the typical row width).
+
+    Yields:
+      (part, idx, scale, reach) per batch: part a slice of ``rows``; idx (r, W) int32
+      sorted-frame indices by increasing distance (Chebyshev for "reference", Euclidean for
+      "invariant"), padded with n, W the batch's fullest row; scale (r,) float64 voxel
+      spacing d; reach (r,) the distance per axis within which every point the row used
+      lies (cube or ball, and spacing estimate), inf where ``index`` holds LOCAL_K locations
+      or fewer (no radius short of the whole cloud holds the estimate's neighbours).
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    k = params["kernel_size"]
+    invariant = params["variant"] == "invariant"
+    # The invariant variant turns its cube into the point's local frame, so it queries the
+    # ball that holds the cube in every orientation (radius sqrt(3) x the half-width).
+    widen = np.sqrt(3.0) if invariant else 1.0
+    factor = widen * k / 2 * params["d_factor"]
+    max_count = MAX_COUNT if invariant else None
+    norm = 2 if invariant else np.inf
+    adaptive = params["resolution"] is None
+    rk = np.full(index.n, np.nan) if adaptive else None
+    start = 64 if adaptive else 32
+    for part in spatial.batches(rows.size):
+        if adaptive:
+            # One query per batch serves the spacing (its first LOCAL_K + 1 columns) and the
+            # ball (a prefix of each row; rows whose ball is longer are queried again).
+            nearest = index.nearest(rows[part], min(max(start, LOCAL_K + 2), index.n))
+            res, reach = spatial.local_spacing(index, rows[part], LOCAL_K, query=nearest, rk=rk)
+            if index.n <= LOCAL_K:  # the estimate read fewer neighbours than the whole cloud may hold
+                reach = np.full(reach.shape, np.inf)
+        else:
+            nearest, res, reach = None, params["resolution"], 0.0
+        half = np.broadcast_to(factor * res, rows[part].shape)
+        reach = np.maximum(reach, half)
+        idx, half = index.cube(half, rows[part], capacity=start, max_count=max_count, norm=norm,
+                               query=nearest if invariant else None)
+        # Rows are in spatial order, so the next batch is alike: start it at this one's 95th
+        # percentile count instead of doubling up from 32 again.
+        start = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
+        yield part, idx, 2 / k * half / widen, reach
+
+def build(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
+                   resolution: float | None = None, dedupe: bool | None = None,
+                   capacity: int | None = None, search: str = "host", cell_slots: int | None = None,
+                   cell_edge=None) -> Neighbourhoods:
+    """Cube neighbourhoods of HKC/HKF and the voxel spacing d of each point (host; jittable with ``search="jax"``).
+
+    The ROI of point i is the axis-aligned cube of half-width k d_i / 2 (Fig. 2), with
+
+    * ``variant="reference"``: d_i = 1.3 x the intrinsic resolution (REFERENCE.md: mean
+      distance to the nearest other point), duplicates kept;
+    * ``variant="invariant"`` (default): d_i = f x the point's local spacing s_i =
+      1 / sqrt(areal density) estimated from its 16 nearest distinct points
+      (:func:`hgjax.neighbours.spatial.local_spacing`), exact duplicates counted once, and f from
+      the cloud's sampling irregularity (:func:`default_d_factor`: 1.1 on lattice-like
+      clouds, 1.6 on random samples). The spacing, unlike the nearest-neighbour distance,
+      means the same on grids and on random samples, and where the density changes the
+      kernel follows it. Where a cube would still hold 256 points or more (a sparse point next
+      to a much denser region), it shrinks to the Chebyshev distance of the point's 256th
+      nearest point: every cube holds all its points (no truncation) and at most 255, so
+      mixed densities never raise a capacity error. Exact duplicates and far outliers
+      change nothing.
+
+    Args:
+      points: (N, 3) float32 or float64, N >= 2.
+      variant: ``"invariant"`` or ``"reference"``.
+      d_factor: d = d_factor x resolution (default: :func:`default_d_factor` for
+        "invariant", 1.3 for "reference").
+      kernel_size: odd k of the k x k x k kernel.
+      resolution: a fixed resolution (spacing) for every point instead of the computed one.
+      dedupe: count exact duplicates once (default: True for "invariant", False for
+        "reference").
+      capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic. With
+        ``search="jax"`` under ``jit`` it sets a static shape: pass the one an eager build
+        recorded (``nb.params``); without it, 256 columns for "invariant" (a cube never
+        holds more) and 128 for "reference" (a wider cube stops the program, naming the
+        capacity it needs).
+      search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search,
+        :func:`traced`: jit, vmap; the host's neighbour sets and ``scale``,
+        every whole-cloud decision (d factor, resolution) traced too).
+      cell_slots, cell_edge: the traced search's candidates read per step (static) and first
+        cell edge (traced, or None from the data): speed settings, never limits.
+
+    Returns:
+      :class:`hgjax.Neighbourhoods` with ``scale`` = (N,) voxel spacing d_i.
+
+    Raises:
+      TypeError, ValueError: invalid arguments, N < 2, or a fixed capacity too small.
+
+    Examples:
+      >>> import numpy as np
+      >>> from hgjax.neighbours import balls
+      >>> nb = balls.build(np.random.default_rng(0).random((300, 3)))
+      >>> nb.scale.shape, bool((nb.idx[:, 0] == np.arange(300)).all())
+      ((300,), True)
+    """
+    search = _validate.check_choice(search, "search", backend.SEARCHES)
+    if search == "jax":
+        return _traced_build(points, build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size,
+                                                           resolution=resolution, dedupe=dedupe),
+                                      capacity, cell_slots, cell_edge)
+    pts = _validate.check_points(points)
+    params = build_params(variant=variant, d_factor=d_factor, kernel_size=kernel_size, resolution=resolution,
+                          dedupe=dedupe)
+    _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
+    cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
+    index = spatial.SpatialIndex(spatial.local_frame(pts)[0], dedupe=params["dedupe"])
+    resolved = resolve(params, spatial.sample_stats(index) if needs_stats(params) else None)
+    scales = []
+
+    def rows():
+        for _, idx, scale, _ in row_batches(index, np.arange(index.n), resolved):
+            scales.append(scale)
+            yield idx
+
+    idx = spatial.caller_rows(index, rows(), cap, what="cube")
+    return spatial.assemble(pts, index, idx, np.concatenate(scales), params=params)
 
 
 def cube(points, half_width, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -111,7 +308,7 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
       kernel_size: k (static).
       d_factor: d = d_factor x spacing: a float, or None for ``ramp`` of the irregularity.
       ramp: ((x0, x1), (y0, y1)): the factor y0 up to irregularity x0, y1 from x1, linear
-        in between (:func:`hgjax.scores.voxel.default_d_factor`).
+        in between (:func:`hgjax.neighbours.balls.default_d_factor`).
       spacing: ``"local"``, ``"mean_other"`` or a fixed float (see the module docstring).
       local_k: neighbours of the local spacing (static).
       max_count: a row that holds this many points or more shrinks (static; None: never).
@@ -165,6 +362,29 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
     record = {**params, "search": "jax", "capacity": cols}
     return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record(record),
                                   overflow=jnp.zeros((), jnp.int32), points_lo=lo)
+
+
+def _traced_build(points, params: dict, capacity, cell_slots, cell_edge) -> Neighbourhoods:
+    """:func:`neighbourhoods` by the traced search: the cube (or ball) with every decision of :func:`resolve` traced."""
+    traced = _stream.is_traced(points)
+    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
+    cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
+    slots = None if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
+    invariant = params["variant"] == "invariant"
+    if params["resolution"] is not None:
+        spacing = params["resolution"]
+    else:
+        spacing = "local" if invariant else "mean_other"
+    d_factor = params["d_factor"]
+    if d_factor is None and not invariant:
+        d_factor = REFERENCE_D_FACTOR
+    return traced(
+        pts, metric="l2" if invariant else "linf", widen=np.sqrt(3.0) if invariant else 1.0,
+        kernel_size=params["kernel_size"], d_factor=d_factor,
+        ramp=(IRREGULARITY_RANGE, (REGULAR_D_FACTOR, IRREGULAR_D_FACTOR)), spacing=spacing, local_k=LOCAL_K,
+        max_count=MAX_COUNT if invariant else None, dedupe=params["dedupe"], capacity=cap, cell_slots=slots,
+        cell_edge=cell_edge, params=params)
 
 
 @functools.lru_cache(maxsize=None)
@@ -381,7 +601,7 @@ def _ramped(p, distinct, ramp, x64: bool):
 
 def linear_ramp(x, ramp):
     """``ramp`` = ((x0, x1), (y0, y1)) at x: y0 up to x0, y1 from x1, linear in between, traced, in the
-    float64 operations of :func:`hgjax.scores.voxel.default_d_factor` (its bits under x64)."""
+    float64 operations of :func:`hgjax.neighbours.balls.default_d_factor` (its bits under x64)."""
     (x0, x1), (y0, y1) = ramp
     x = jnp.asarray(x)
     t = jnp.clip(_exact.div(x - x0, jnp.asarray(x1 - x0, x.dtype)), 0.0, 1.0)

@@ -1,6 +1,6 @@
 """Hypergraph kernel convolution (HKC), paper Sec. III-A, Algorithm 1, Eqs. (10)-(11).
 
-For each point, the voxel counts s_i of a cubic kernel (see :mod:`hgjax.scores.voxel`) are
+For each point, the voxel counts s_i of a cubic kernel (see :mod:`hgjax.scores.cubic_kernel`) are
 filtered by the Haar-like high-pass G_hat = 1 - lam in the kernel's hypergraph spectrum:
 s_oi = V diag(1 - lam) V^T s_i (Eq. (10)), and the local smoothness is
 
@@ -9,14 +9,14 @@ s_oi = V diag(1 - lam) V^T s_i (Eq. (10)), and the local smoothness is
 Lower beta means sharper; resampling keeps the smallest. Because 1 - lam is constant on
 each eigenspace, beta does not depend on the eigensolver's basis: it is computed through the
 exact low-band projector (R / lambda_max). The variants
-(:func:`hgjax.scores.voxel.neighbourhoods`):
+(:func:`hgjax.neighbours.balls.build`):
 
 * ``"reference"``: the axis-aligned cube of the paper, d = 1.3 x the global resolution.
 * ``"invariant"`` (default): d from the local spacing; the cube is turned into the point's
-  local frame (:func:`hgjax.scores.voxel.oriented`, the eigenvectors of the covariance of a
+  local frame (:func:`hgjax.scores.cubic_kernel.oriented`, the eigenvectors of the covariance of a
   Euclidean ball that holds the cube in every orientation), and the band energies are
   averaged over the 8 sign choices of the frame's axes
-  (:func:`hgjax.scores.voxel.band_energies`), so beta does not change when the cloud is
+  (:func:`hgjax.scores.cubic_kernel.band_energies`), so beta does not change when the cloud is
   rotated, wherever the frame is well defined (distinct covariance eigenvalues).
 
 beta is +inf where the low band is exactly zero (signals symmetric about the centre, e.g.
@@ -33,7 +33,8 @@ import functools
 import jax.numpy as jnp
 
 from hgjax import _method, _stream, _validate
-from hgjax.scores import _common, voxel
+from hgjax.neighbours import balls
+from hgjax.scores import _common, cubic_kernel
 
 __all__ = ["beta", "score", "soft_beta", "soft_score"]
 
@@ -57,7 +58,7 @@ def beta(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant")
       >>> round(float(hgjax.scores.hkc.beta(offsets, jnp.ones(3, bool), 1.0, variant="reference")), 4)
       8.9443
     """
-    high2, low2 = voxel.band_energies(voxel.kernel_signal(offsets, valid, d, kernel_size, variant), kernel_size, variant)
+    high2, low2 = cubic_kernel.band_energies(cubic_kernel.kernel_signal(offsets, valid, d, kernel_size, variant), kernel_size, variant)
     return _common.safe_div(_common.safe_sqrt(high2), _common.safe_sqrt(low2), jnp.inf)
 
 
@@ -65,7 +66,7 @@ def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3, variant: str = "i
     """Smooth bounded HKC score of one cube neighbourhood: beta / (1 + beta) of soft counts.
 
     ||high|| / (||high|| + ||low||) (Eqs. (10)-(11)) of
-    :func:`hgjax.scores.voxel.soft_local_signal`, with guarded square roots (0 when the
+    :func:`hgjax.scores.cubic_kernel.soft_local_signal`, with guarded square roots (0 when the
     signal is 0). As tau -> 0 it tends to beta / (1 + beta) of the hard counts.
 
     Args:
@@ -83,8 +84,8 @@ def soft_beta(offsets, valid, d, tau, *, kernel_size: int = 3, variant: str = "i
       >>> round(float(hgjax.scores.hkc.soft_beta(offsets, jnp.ones(3, bool), 1.0, 1e-3)), 6)
       1.0
     """
-    s = voxel.kernel_signal(offsets, valid, d, kernel_size, variant, tau)
-    return _common.band_ratio(*voxel.band_energies(s, kernel_size, variant))
+    s = cubic_kernel.kernel_signal(offsets, valid, d, kernel_size, variant, tau)
+    return _common.band_ratio(*cubic_kernel.band_energies(s, kernel_size, variant))
 
 
 @functools.lru_cache(maxsize=None)
@@ -102,7 +103,7 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
     """HKC beta (Eq. (11)) of every neighbourhood; lower is sharper.
 
     Args:
-      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`
+      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.neighbours.balls.build`
         (its ``scale`` is the voxel spacing d per point).
       variant: the one the neighbourhoods were built for (static).
       kernel_size: odd k, the one the neighbourhoods were built for (static).
@@ -131,7 +132,7 @@ def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3)
     Called eagerly it streams fixed-size chunks through one compiled kernel, as :func:`score`.
 
     Args:
-      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`.
+      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.neighbours.balls.build`.
       tau: softness of the voxel membership, relative to d (traced).
       variant: the one the neighbourhoods were built for (static).
       kernel_size: odd k (static).
@@ -163,7 +164,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     Raises:
       TypeError, ValueError: invalid parameters, or fewer than 2 points.
     """
-    build = voxel.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
+    build = balls.build_params(**{k: params[k] for k in ("variant", "d_factor", "kernel_size", "resolution",
                                                           "dedupe") if k in params})
     _validate.check_capacity_param(params, 1)
     _validate.check_min_points(n, 2, "HKC/HKF")
@@ -172,12 +173,12 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
 
 def resolve_build(build: dict, stats) -> dict:
     """``build`` with the cube's spacing decided from the seeded sample's nearest distances ``stats()``."""
-    return voxel.resolve(build, stats()) if voxel.needs_stats(build) else build
+    return balls.resolve(build, stats()) if balls.needs_stats(build) else build
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(part, idx, (d,), reach) per batch: the cube neighbourhoods of ``rows`` (:func:`hgjax.scores.voxel.row_batches`)."""
-    for part, idx, scale, reach in voxel.row_batches(index, rows, build):
+    """(part, idx, (d,), reach) per batch: the cube neighbourhoods of ``rows`` (:func:`hgjax.neighbours.balls.row_batches`)."""
+    for part, idx, scale, reach in balls.row_batches(index, rows, build):
         yield part, idx, (scale.astype(dtype),), reach
 
 
@@ -186,7 +187,7 @@ def cube_reach(build: dict) -> tuple[int, int]:
     point's k nearest neighbours (:func:`hgjax.neighbours.spatial.local_spacing`), two radii, where the invariant
     cube is sized by it (no fixed ``resolution``); one otherwise."""
     adaptive = build["variant"] == "invariant" and build["resolution"] is None
-    return voxel.LOCAL_K + 1, 2 if adaptive else 1
+    return balls.LOCAL_K + 1, 2 if adaptive else 1
 
 
 def _tile_kernel(params: dict):
@@ -201,7 +202,7 @@ CUBE_PARAMS = _method.stages(build=("capacity", "cell_slots", "cell_edge", "d_fa
 METHOD = _method.Method(
     "hkc", "cube", largest=False, needs_key=False,
     summary="hypergraph kernel convolution: keep the smallest high/low band ratio beta",
-    citation=f"{_method.PAPER}, Alg. 1, Eq. (11)", build=voxel.neighbourhoods, score=score,
+    citation=f"{_method.PAPER}, Alg. 1, Eq. (11)", build=balls.build, score=score,
     soft_score=soft_score, params=CUBE_PARAMS,
     tiling=_method.Tiling(params=tile_params, reach=cube_reach, resolve=resolve_build, rows=tile_rows,
                           kernel=_tile_kernel))

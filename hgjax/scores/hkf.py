@@ -1,6 +1,6 @@
 """Hypergraph kernel filtering (HKF), paper Sec. III-B, Algorithm 2, Eq. (12).
 
-Same kernel and local signal s_i as HKC (:mod:`hgjax.scores.voxel`). With the band
+Same kernel and local signal s_i as HKC (:mod:`hgjax.scores.cubic_kernel`). With the band
 threshold t = argmax(diff(lam)) + 1 (t = N_k - 2 for a cubic kernel) the local smoothness is
 the share of high-frequency energy:
 
@@ -12,7 +12,7 @@ the share of high-frequency energy:
   ||P_low s_i||), the L1 norm of the two band energies (L2 norms of the projections onto
   each band), which no choice of basis can change, with HKC's invariant kernel (turned
   into the local frame, energies averaged over the frame's axis signs:
-  :func:`hgjax.scores.voxel.band_energies`). This equals beta / (1 + beta) with HKC's
+  :func:`hgjax.scores.cubic_kernel.band_energies`). This equals beta / (1 + beta) with HKC's
   beta, so it ranks points exactly like HKC, and its smooth twin is HKC's: the registry's
   HKF soft score is :func:`hgjax.scores.hkc.soft_score`.
 
@@ -27,7 +27,8 @@ import functools
 import jax.numpy as jnp
 
 from hgjax import _method, _stream, _validate
-from hgjax.scores import _common, hkc, voxel
+from hgjax.neighbours import balls
+from hgjax.scores import _common, cubic_kernel, hkc
 
 __all__ = ["score", "sigma"]
 
@@ -52,12 +53,12 @@ def sigma(offsets, valid, d, *, kernel_size: int = 3, variant: str = "invariant"
       0.8144
     """
     if variant == "reference":
-        s = voxel.local_signal(offsets, valid, d, kernel_size)
-        _, v, t = voxel.reference_spectrum(kernel_size)
+        s = cubic_kernel.local_signal(offsets, valid, d, kernel_size)
+        _, v, t = cubic_kernel.reference_spectrum(kernel_size)
         s_hat = jnp.abs(_common.matmul(jnp.asarray(v, s.dtype).T, s))
         return _common.safe_div(jnp.sum(s_hat[:t]), jnp.sum(s_hat), 0.0)
-    s = voxel.kernel_signal(offsets, valid, d, kernel_size, variant)
-    return _common.band_ratio(*voxel.band_energies(s, kernel_size, variant))
+    s = cubic_kernel.kernel_signal(offsets, valid, d, kernel_size, variant)
+    return _common.band_ratio(*cubic_kernel.band_energies(s, kernel_size, variant))
 
 
 @functools.lru_cache(maxsize=None)
@@ -70,7 +71,7 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
     """HKF sigma (Eq. (12)) of every neighbourhood; lower is sharper.
 
     Args:
-      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.scores.voxel.neighbourhoods`.
+      nb: :class:`hgjax.Neighbourhoods` from :func:`hgjax.neighbours.balls.build`.
       variant: ``"invariant"`` (default, basis-free band energies) or ``"reference"`` (the
         paper's L1 ratio in NumPy's eigenbasis); static.
       kernel_size: odd k (static).
@@ -101,7 +102,7 @@ def _tile_kernel(params: dict):
 METHOD = _method.Method(
     "hkf", "cube", largest=False, needs_key=False,
     summary="hypergraph kernel filtering: keep the smallest high-band share sigma",
-    citation=f"{_method.PAPER}, Alg. 2, Eq. (12)", build=voxel.neighbourhoods, score=score,
+    citation=f"{_method.PAPER}, Alg. 2, Eq. (12)", build=balls.build, score=score,
     soft_score=hkc.soft_score, params=hkc.CUBE_PARAMS,
     tiling=dataclasses.replace(hkc.METHOD.tiling, kernel=_tile_kernel),
     ranks_as=(hkc.METHOD.name, "HKF's sigma = beta / (1 + beta) grows with HKC's beta, on the same cubes"))
