@@ -15,15 +15,14 @@ from jax.test_util import check_grads
 
 import hgjax
 from hgjax import _stream
-from hgjax.neighbours import spatial
 
 from conftest import TOL
 from fixtures import box_surface, degenerate_clouds, grid, uniform_cloud
-from hgjax import _graph as graph_module
+from hgjax.neighbours import radius_graph, spatial
 from hgjax.scores import gfr as gfr_module
 from naive import gfr_naive, gfr_pairs
 
-graph, high_pass = graph_module.graph, gfr_module.high_pass
+graph, high_pass = radius_graph.graph, gfr_module.high_pass
 
 
 def pairs_of(g):
@@ -130,7 +129,7 @@ def exact_location_graph(index, r, max_nn):
 
 
 @pytest.mark.full
-@pytest.mark.parametrize("max_nn", [graph_module.MAX_NN, 69])
+@pytest.mark.parametrize("max_nn", [radius_graph.MAX_NN, 69])
 def test_dense_balls_are_asked_once(max_nn):
     """A plane lattice holds about 316 points in a ball of 10 spacings: every row asks one bounded query
     (max_nn + 9 columns), which decides its cut unless a tie with its max_nn-th pair runs past the query,
@@ -139,7 +138,7 @@ def test_dense_balls_are_asked_once(max_nn):
     radius graph."""
     pts = np.column_stack([grid((60, 60)), np.zeros(3600)])
     index = spatial.SpatialIndex(pts, dedupe=True)
-    r = graph_module.squared_radius(graph_module.RADIUS_FACTOR, spatial.sample_stats(index))
+    r = radius_graph.squared_radius(radius_graph.RADIUS_FACTOR, spatial.sample_stats(index))
     asked = []
 
     class Counted:
@@ -151,10 +150,10 @@ def test_dense_balls_are_asked_once(max_nn):
             return self.tree.query(x, k, *args, **kw)
 
     index._tree = Counted(index.tree)
-    rows = list(graph_module.location_rows(index, r, max_nn, np.ones(index.n, bool)))
+    rows = list(radius_graph.location_rows(index, r, max_nn, np.ones(index.n, bool)))
     assert asked[0] == (max_nn + 9, index.n)
     again = sum(n for _, n in asked[1:])
-    assert again == 0 if max_nn == graph_module.MAX_NN else 0.5 * index.n < again < index.n
+    assert again == 0 if max_nn == radius_graph.MAX_NN else 0.5 * index.n < again < index.n
     got = {(int(a), int(b)) for own, sym in rows for a, row in zip(own, sym) for b in row[row < index.n]}
     stored, inside = exact_location_graph(index, r, max_nn)
     assert inside.sum(axis=1).max() > 300
@@ -169,16 +168,16 @@ def test_any_rows_in_small_batches_get_their_partners_in_the_whole_graph(monkeyp
     rng = np.random.default_rng(5)
     pts = np.column_stack([grid((40, 40)) + rng.normal(0, 0.2, (1600, 2)), rng.normal(0, 0.05, 1600)])
     index = spatial.SpatialIndex(pts, dedupe=True)
-    r = graph_module.squared_radius(graph_module.RADIUS_FACTOR, spatial.sample_stats(index))
+    r = radius_graph.squared_radius(radius_graph.RADIUS_FACTOR, spatial.sample_stats(index))
 
     def partners(want):
         return {int(a): sorted(row[row < index.n].tolist()) for own, sym in
-                graph_module.location_rows(index, r, max_nn, want) for a, row in zip(own, sym)}
+                radius_graph.location_rows(index, r, max_nn, want) for a, row in zip(own, sym)}
 
     stored, inside = exact_location_graph(index, r, max_nn)
     assert (inside.sum(axis=1) > max_nn).all()  # every row capped
     assert (stored.sum(axis=1) > max_nn).mean() > 0.3  # many also kept by rows they do not keep
-    monkeypatch.setattr(graph_module, "PAIR_BUDGET", 40 * (max_nn + 9))  # batches of about 40 rows
+    monkeypatch.setattr(radius_graph, "PAIR_BUDGET", 40 * (max_nn + 9))  # batches of about 40 rows
     for want in (rng.random(index.n) < 0.3, (index.points[:, :2] < 12).all(axis=1), np.zeros(index.n, bool)):
         got = partners(want)
         assert sorted(got) == np.flatnonzero(want).tolist()
@@ -213,8 +212,8 @@ def test_a_float64_context_reaches_the_pair_sums_thread():
 @pytest.mark.parametrize("max_nn", [100, 4])
 def test_invariant_matches_naive(name, max_nn):
     p = clouds()[name]
-    assert pairs_of(graph(p, max_nn=max_nn)) == gfr_pairs(p, max_nn, graph_module.RADIUS_FACTOR)[0]
-    want = gfr_naive(p, max_nn, graph_module.RADIUS_FACTOR)
+    assert pairs_of(graph(p, max_nn=max_nn)) == gfr_pairs(p, max_nn, radius_graph.RADIUS_FACTOR)[0]
+    want = gfr_naive(p, max_nn, radius_graph.RADIUS_FACTOR)
     assert (want > 0).mean() > 0.9
     np.testing.assert_allclose(scores(p, max_nn=max_nn), want, rtol=1e-10, atol=1e-10 * want.max())
 
@@ -362,7 +361,7 @@ def test_duplicates_cost_the_distinct_locations_and_match_naive():
     assert copies.sum() == 127 and not (np.asarray(nb.idx)[copies] < len(p)).any()  # later copies: empty rows
     # One stored pair per location pair (the radius moves a little: copies weigh in the median).
     assert (nb.idx < len(p)).sum() <= 1.05 * (clean.idx < len(base)).sum()
-    want = gfr_naive(p, 100, graph_module.RADIUS_FACTOR)  # every copy linked to every copy
+    want = gfr_naive(p, 100, radius_graph.RADIUS_FACTOR)  # every copy linked to every copy
     for got in (_public(p), np.asarray(jax.jit(lambda nb: hgjax.score(nb, "gfr"))(nb))):
         np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * want.max())
     soft = np.asarray(hgjax.soft_score(nb, "gfr"))

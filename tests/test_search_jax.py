@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hgjax import _search_jax as search
+from hgjax.neighbours import cells as search
 from hgjax.neighbours import balls, nearest, spatial
 
 from fixtures import box_surface, degenerate_clouds, lattice_shell, sphere, uniform_cloud

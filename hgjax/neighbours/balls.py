@@ -366,8 +366,7 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
 
 def _traced_build(points, params: dict, capacity, cell_slots, cell_edge) -> Neighbourhoods:
     """:func:`neighbourhoods` by the traced search: the cube (or ball) with every decision of :func:`resolve` traced."""
-    traced = _stream.is_traced(points)
-    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    pts = _validate.check_traced_points(points) if _stream.is_traced(points) else _validate.check_points(points)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     slots = None if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)

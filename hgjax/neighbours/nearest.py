@@ -78,8 +78,7 @@ def build(points, k: int, *, dedupe: bool, capacity: int | None, search: str = "
     search = _validate.check_choice(search, "search", backend.SEARCHES)
     if search == "host":
         return knn(points, k, dedupe=dedupe, capacity=capacity)
-    traced = _stream.is_traced(points)
-    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    pts = _validate.check_traced_points(points) if _stream.is_traced(points) else _validate.check_points(points)
     k = _validate.check_int(k, "k", minimum=1)
     _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
