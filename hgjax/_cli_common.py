@@ -266,8 +266,9 @@ def _progress(args) -> bool:
     return args.progress and not args.quiet
 
 
-def _file(where: str, points: int | None = None) -> None:
-    """The input that the stages to come work on, for the progress (:meth:`hgjax._progress.Progress.file`)."""
+def _file(where: str | None = None, points: int | None = None) -> None:
+    """The input that the stages to come work on, or its number of points, for the progress
+    (:meth:`hgjax._progress.Progress.file`)."""
     from hgjax import _progress
 
     if _progress.current() is not None:
@@ -341,6 +342,7 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
     extra = {} if voxel_size is None else {"voxel_size": voxel_size}
     if progress and "progress" in entry.resample_params:
         extra["progress"] = True
+    _file(points=len(points))
     _begin(_first_stage(entry, params), len(points))
     idx, scores = hgjax.tiles.resample(points, ratio, method=entry.name, key=key, return_scores=True,
                                        on_stage=lambda name, seconds: _seconds(args, name, seconds), **params,

@@ -149,7 +149,7 @@ class _Rows:
         self.progress.rows_sent(self.stage, rows)
 
     def close(self) -> None:
-        pass
+        """The stream sent its last rows (the stage's count stays until its task or stage ends)."""
 
 
 class Progress:
@@ -182,10 +182,12 @@ class Progress:
             self.stage = None
             self._clear()
 
-    def file(self, where: str, points: int | None = None) -> None:
-        """The input the stages to come work on (``3/10 big.ply``), and its number of points."""
+    def file(self, where: str | None = None, points: int | None = None) -> None:
+        """The input the stages to come work on (``3/10 big.ply``) and its number of points, each kept where
+        not given."""
         with self.lock:
-            self.where, self.points = where, points
+            self.where = self.where if where is None else where
+            self.points = self.points if points is None else points
 
     def begin(self, name: str, total: float | None = None, unit: str = "points") -> None:
         """Begin stage ``name`` (its label: :data:`LABELS`), ``total`` units to do or None (unknown)."""

@@ -89,7 +89,8 @@ def test_resample_scan_carries_colour(tmp_path, capsys):
 @pytest.mark.full
 def test_score_computed_once_and_written_for_the_kept_points(tmp_path, capsys, runs):
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", tmp_path / "k.ply", "--method", "gfr",
-                            "-p", "mode=top", "--ratio", 0.1, "--dtype", "float64")  # the suite runs with x64
+                            "-p", "mode=top", "--ratio", 0.1, "--dtype", "float64",  # the suite runs with x64
+                            "--no-progress")
     assert code == 0, err
     assert runs == [("gfr", 0.1, {"mode": "top"})]
     points = io.read_points(LAMPPOST).points
@@ -105,7 +106,7 @@ def test_lhf_writes_its_two_lengths_combined_at_the_ratio(capsys, tmp_path, runs
     """LHF's score is ratio-free; the value it is ranked by (and written) combines its two
     lengths at the kept count of --ratio (Eqs. (15)-(16))."""
     code, _, err = run_here(capsys, command, LAMPPOST, "-o", tmp_path / "k.ply", "--method", "lhf",
-                            "--ratio", 0.3, "--dtype", "float64")
+                            "--ratio", 0.3, "--dtype", "float64", "--no-progress")
     assert code == 0, err
     assert runs == [("lhf", 0.3, {})]
     points = io.read_points(LAMPPOST).points
