@@ -104,6 +104,8 @@ examples:
   hgjax resample tiles/ -o kept/ --format laz --keep-going --skip-existing   resume a batch
   hgjax resample survey/*.laz -o kept/ --tile 500 --workers 2   one survey in tiles, on 2 Dask workers
   hgjax resample scan.ply -o grid.ply --method voxel --voxel-size 0.05
+  hgjax resample scans/ -o kept/ -v 2> run.log   progress lines and each stage's seconds in run.log
+  hgjax resample scans/ -o kept/ -q              only warnings and errors
 """ + MORE,
     "score": """\
 examples:

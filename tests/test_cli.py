@@ -533,3 +533,16 @@ def test_every_method_resamples_to_ply_with_its_score(tmp_path, capsys, method):
     kept = io.read_points(out)
     assert len(kept) == 60
     assert ("score" in kept.attributes) == isinstance(hgjax.METHODS[method], hgjax.Method)
+
+
+@pytest.mark.parametrize("command", ["resample", "score", "compare", "demo"])
+def test_each_command_help_holds_its_own_examples_not_the_global_epilog(capsys, command):
+    from hgjax import cli
+
+    code, text, _ = run_here(capsys, command, "--help")
+    assert code == 0
+    examples = text.split("examples:\n", 1)[1].splitlines()
+    assert examples[0].strip().startswith(f"hgjax {command}")
+    assert "130  interrupted" not in text and "Inputs: PLY" not in text
+    assert text.rstrip().endswith(cli.MORE.strip())
+    assert "-q, --quiet" in text and "--no-progress" in text and "-v, --verbose" in text
