@@ -27,7 +27,7 @@ import time
 import jax
 import numpy as np
 
-from hgjax import _registry, _tiling, _validate, pipeline, select
+from hgjax import _registry, _stream, _tiling, _validate, pipeline, select
 from hgjax.neighbours import backend
 from hgjax._method import Method, Sampler
 
@@ -94,13 +94,15 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return_scores = _validate.check_bool(return_scores, "return_scores")
     refused, tile = checked_tile(entry, params, tile, client)
     _registry.check_known(entry, params)
-    params = searched(entry, params)
+    one_tile = tile is None and client is None and not isinstance(points, _tiling.Source)
+    params = searched(entry, params, one_tile)
     _validate.check_stream(params)  # the kernel stream's chunk_size and progress, before any work
     if isinstance(entry, Sampler):
         return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
-    if refused is not None and not entry.tiling.whole_selection:
+    if (refused is not None and not entry.tiling.whole_selection) or params.get("search") not in (
+            None, *entry.tiling.searches):
         idx, scores = _whole(points, ratio, entry, key, params, clock)
         return Run(idx, scores if return_scores else None)
     params = dict(params)
@@ -127,21 +129,23 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return Run(idx, _tiling.gathered(runner, parts, plan) if return_scores else None, plan, selection, threshold)
 
 
-def searched(entry: Method | Sampler, params: dict) -> dict:
+def searched(entry: Method | Sampler, params: dict, one_tile: bool = False) -> dict:
     """``params`` with the run's neighbour search: the one named, else the backend's default
     (:func:`hgjax.neighbours.backend.default_search`) where the method's tiles can build with it.
+    A run on one tile (``one_tile``) takes any search: one its tiles cannot build with builds the
+    whole cloud's neighbourhoods at once.
 
     Raises:
-      ValueError: a ``search`` the method's tiles cannot build with.
+      ValueError: a ``search`` the method's tiles cannot build with, for a tiled run.
     """
     if isinstance(entry, Sampler):
         return params
     searches = entry.tiling.searches
     if "search" in params:
         search = _validate.check_choice(params["search"], "search", backend.SEARCHES)
-        if search not in searches:
+        if search not in searches and not one_tile:
             raise ValueError(f"method {entry.name!r} builds its tiles with search in {searches}; got"
-                             f" search={search!r}")
+                             f" search={search!r} (tile=None runs it on the whole cloud)")
         return params
     default = backend.default_search()
     return {**params, "search": default} if default in searches else params
@@ -177,7 +181,8 @@ def _sample(entry: Sampler, points, ratio, tile, client, key, params: dict) -> n
 
 
 def _whole(points, ratio, entry: Method, key, params: dict, clock: Clock) -> tuple[np.ndarray, np.ndarray]:
-    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference)."""
+    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference, or a search
+    its tiles cannot build with)."""
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
     nb = clock("neighbourhoods", pipeline.neighbourhoods(pts, entry.name, **params))
@@ -186,7 +191,7 @@ def _whole(points, ratio, entry: Method, key, params: dict, clock: Clock) -> tup
 
 
 def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None, return_scores: bool = False, on_stage=None,
-             **params):
+             traced: bool | None = None, **params):
     """Indices of the ceil(ratio * N) points that a method keeps.
 
     The one-tile case of :func:`hgjax.tiles.resample` (same signature, without ``tile`` and
@@ -206,12 +211,16 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
         scores) and ``"keep"`` for a scoring method; ``"neighbourhoods"``, ``"score"`` and
         ``"keep"`` for one run on the whole cloud at once (GFR's reference)
         (:data:`hgjax.engine.STAGES`).
+      traced: run the whole resample as one pure-JAX program, its neighbour search included
+        (``search="jax"``), which a caller's ``jax.jit``, ``jax.vmap`` or ``jax.grad`` traces
+        (``ratio`` and shape parameters static); it returns a JAX int32 array, equal to the
+        host's. Every scoring method whose selection keeps its top scores runs so (GFR with
+        ``mode="top"``). Default: when ``points`` are a JAX tracer. Otherwise the resample runs
+        on the host's engine with either neighbour search and returns NumPy.
       **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
-        ``chunk_size``, ``progress``), and ``search="jax"`` for the methods that take it
-        (:data:`hgjax.METHODS`' build parameters: the k-nearest ones, HKC and HKF, and GFR with
-        ``mode="top"``, a selection that keeps the top scores): the whole resample in
-        pure JAX, neighbourhoods included, so it runs inside a caller's ``jax.jit`` (``ratio``
-        and shape parameters static) and returns a JAX int32 array, equal to the host's.
+        ``chunk_size``, ``progress``), and ``search``: the neighbour search, ``"host"`` (a k-d
+        tree) or ``"jax"`` (the traced search; the GPU/TPU default where the tiles build with
+        it), the same neighbourhoods either way.
 
     Returns:
       (M,) int64 unique indices into ``points``, M = ceil(ratio N), from the highest to the
@@ -230,8 +239,14 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
       >>> idx.shape, len(set(idx.tolist()))
       ((400,), 400)
     """
-    if params.get("search", "host") != "host":
+    if _stream.is_traced(points) if traced is None else _validate.check_bool(traced, "traced"):
+        if params.setdefault("search", "jax") != "jax":
+            raise ValueError("traced=True runs the whole resample in JAX, its neighbour search too: pass search='jax'"
+                             f" or no search; got search={params['search']!r}")
         return _pure(points, ratio, _registry.scoring(method), return_scores, params)
+    if _stream.is_traced(points):
+        raise TypeError("points are traced (inside jax.jit, vmap or grad): resample them with traced=True (the"
+                        " default for traced points)")
     done = run(points, ratio, method=method, key=key, return_scores=return_scores, on_stage=on_stage, params=params)
     return (done.idx, done.scores) if return_scores else done.idx
 
@@ -250,8 +265,8 @@ def _pure(points, ratio, entry: Method, return_scores, params: dict):
     if entry.select is not None and not keeps_top(entry, params):
         how = ("" if entry.keeps_top is None else
                "; pass " + ", ".join(f"{k}={v!r}" for k, v in entry.keeps_top.items()) + " to keep its top scores")
-        raise ValueError(f"method {entry.name!r} selects on the host with these parameters, which search='jax' cannot"
-                         f" run inside one program{how}")
+        raise ValueError(f"method {entry.name!r} selects on the host with these parameters, which a traced resample"
+                         f" (traced=True, or points traced by jax.jit) cannot run inside one program{how}")
     return_scores = _validate.check_bool(return_scores, "return_scores")
     nb = pipeline.neighbourhoods(points, entry.name, **params)
     scores = pipeline.score(nb, entry.name, **params)

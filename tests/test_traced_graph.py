@@ -144,7 +144,7 @@ def test_jitted_top_resample_equals_the_host(clouds, built):
 
 def test_the_random_selection_is_refused_by_the_traced_resample(clouds):
     with pytest.raises(ValueError, match="selects on the host.*mode=.top."):
-        hgjax.resample(clouds["smooth"], 0.2, method="gfr", search="jax", key=jax.random.key(0))
+        jax.jit(lambda q: hgjax.resample(q, 0.2, method="gfr", key=jax.random.key(0)))(clouds["smooth"])
 
 
 def test_a_row_wider_than_its_columns_under_jit_stops_the_program(clouds, built):
