@@ -203,7 +203,7 @@ def _load(path: str, args):
     from hgjax import METHODS, Method, io
 
     start = time.perf_counter()
-    _begin("read")
+    _begin("read", os.path.getsize(path), "bytes")
     data = io.read_points(path, samples=args.samples, seed=args.seed)
     _stage(args, f"read {path}", start)
     if args.command not in ("resample", "score") or not isinstance(METHODS[args.method], Method):
@@ -275,12 +275,12 @@ def _file(where: str | None = None, points: int | None = None) -> None:
         _progress.current().file(where, points)
 
 
-def _begin(name: str, total: int | None = None) -> None:
-    """Stage ``name`` begins, for the progress (:meth:`hgjax._progress.Progress.begin`)."""
+def _begin(name: str, total: int | None = None, unit: str = "points") -> None:
+    """Stage ``name`` of ``total`` ``unit`` begins, for the progress (:meth:`hgjax._progress.Progress.begin`)."""
     from hgjax import _progress
 
     if _progress.current() is not None:
-        _progress.current().begin(name, total)
+        _progress.current().begin(name, total, unit)
 
 
 def _stage(args, name: str, start: float) -> None:
