@@ -239,14 +239,16 @@ class Progress:
 
     def rows(self, total: int) -> _Rows:
         """The counter of a kernel stream of ``total`` rows: the current task's progress within a pass, else
-        the stage's own count (its total then the stream's)."""
+        the stage's own count, the streams of a stage one after another (a method's second kernel on a few
+        rows adds them to the total)."""
         with self.lock:
             stage = self.stage
             if stage is None:
-                self.begin("tiles", total)
+                self.begin("score", total)
                 stage = self.stage
             if stage.tasks is None:
-                stage.total, stage.done = total, 0
+                stage.done += stage.partial
+                stage.total = max(stage.total or 0, stage.done + total)
             stage.partial = 0
             return _Rows(self, stage)
 

@@ -160,3 +160,11 @@ def test_tiles_still_running_on_workers_keep_their_stage_until_they_end():
     assert run.stage.label == "neighbours/score" and run.stage.finished == 1
     run.task_done(counted, 2000)
     assert run.stage.label == "keep"
+
+
+def test_the_kernel_streams_of_one_stage_count_one_after_another():
+    run = _progress.Progress("hgjax resample", show=True, terminal=False)
+    run.begin("tiles", 1000)
+    run.rows(1000).update(1000)
+    run.rows(50).update(10)  # a method's second kernel, on a few rows
+    assert (run.stage.count(), run.stage.total) == (1010, 1050)
