@@ -22,7 +22,10 @@ inputs failed, the others were written); 2 invalid arguments or input, detected 
 computation (bad option, ratio, count, seed or parameter, unreadable input, an attribute
 the output format cannot hold, unwritable output, too many samples for the memory); 130
 interrupted (Ctrl-C), 143 terminated (SIGTERM), with no partial file left. Messages go to
-stderr, tables to stdout; user errors never print a Python traceback.
+stderr, tables to stdout; user errors never print a Python traceback. A run's progress goes to
+stderr too (:mod:`hgjax._progress`): its labelled stages with the points done, rate and time
+left, as plain lines where stderr is not a terminal; ``-q`` leaves only warnings and errors,
+``--no-progress`` the summaries, ``-v`` adds each stage's seconds.
 
 This module holds the parser, the run's JAX settings and the dispatch (:func:`main`); the
 commands live in modules of their own, none of which imports NumPy or JAX at module level:
