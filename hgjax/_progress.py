@@ -2,7 +2,7 @@
 
 The command line installs one :class:`Progress` for its run (:func:`installed`). The library reports
 to the one installed (:func:`current`): a pass over tiles or files as each task ends
-(:class:`hgjax._tiling.Ticker`) and the rows of a kernel stream as they are sent
+(:class:`hgjax._tiling.Ticker`) and the rows of a kernel stream as they are computed
 (:mod:`hgjax._stream`). The command line begins its own stages (read, write) and the first of the
 engine's (:meth:`Progress.begin`); each stage's end (the engine's ``on_stage``, :meth:`Progress.ended`)
 begins the next one.
@@ -10,7 +10,7 @@ begins the next one.
 Where stderr is not a terminal, plain lines: nothing in a run's first :data:`DELAY` seconds nor for a
 stage shorter than :data:`STAGE_DELAY`, then one line every :data:`PERIOD` seconds of a stage
 (``hgjax resample: big.ply: neighbours/score 410k/1M points (41%), 52.3k points/s, ETA 11 s``) and
-one as it ends (``hgjax resample: big.ply: neighbours/score 1M points in 21.3 s``). On a terminal
+one as it ends (``hgjax resample: big.ply: neighbours/score 1M points in 21 s (47.6k points/s)``). On a terminal
 the same text, with a bar, is one status line redrawn in place, and each stage it showed is left
 as its line when the stage ends. The time left is given once :data:`MIN_SHARE` of a stage is done
 (after the first count: a first tile of a few points, or the compilation of a kernel, says

@@ -21,6 +21,7 @@ the batch layout: results do not depend on the chunk size. It runs two ways:
 
 from __future__ import annotations
 
+import collections
 import functools
 import sys
 from typing import Callable
@@ -135,8 +136,8 @@ def map_neighbourhoods(fn: Callable, nb, *, row_args=(), args=(), chunk_size: in
       row_args: per-row arrays (N, ...), mapped with the rows.
       args: arrays broadcast to every row (traced: new values do not recompile).
       chunk_size: rows per streamed chunk (concrete path only; never changes results).
-      progress: report the rows sent: to the command line's run (:func:`hgjax._progress.current`), else
-        as a tqdm bar on stderr for a long stream.
+      progress: report the rows computed: to the command line's run (:func:`hgjax._progress.current`),
+        else as a tqdm bar on stderr for a long stream.
       narrow: the rows list their neighbours first and padding after, and ``fn`` gives the
         same result whatever the number of padding columns (e.g. exact counts). The
         streamed path then runs each row in the kernel as narrow as its neighbours
@@ -229,6 +230,7 @@ class Stream:
         self.chunk = chunk_rows(chunk_size, total)
         self.pending, self.outputs, self.rows = None, [], 0
         self.bar = _counter(total, progress, self.chunk)
+        self.uncounted = collections.deque()  # (outputs, rows) of the chunks sent that the bar has not counted
 
     def push(self, own, idx, row_args=()) -> None:
         """Queue the rows ``own`` (R,) with neighbours ``idx`` (R, K) and ``row_args`` (R, ...) each;
@@ -246,9 +248,11 @@ class Stream:
         """``fn``'s outputs of every pushed row, in push order, as NumPy arrays (R, ...)."""
         if self.pending[0].shape[0] or not self.outputs:
             self._send(self.pending)
+        out = jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:self.rows], *self.outputs)
         if self.bar is not None:
+            self._count(wait=True)
             self.bar.close()
-        return jax.tree.map(lambda *xs: np.concatenate([np.asarray(x) for x in xs])[:self.rows], *self.outputs)
+        return out
 
     def _send(self, part) -> None:
         own, idx, row_args = part
@@ -261,7 +265,14 @@ class Stream:
         self.outputs.append(kernel(*self.ext, fill(own), fill(idx, self.n), tuple(fill(a) for a in row_args), self.args))
         self.rows += r
         if self.bar is not None:
-            self.bar.update(r)
+            self.uncounted.append((self.outputs[-1], r))
+            self._count(wait=False)
+
+    def _count(self, wait: bool) -> None:
+        """Count in the bar the rows of the chunks computed, in order (every one sent when ``wait``): the
+        device can run behind the host, which sends chunks as fast as it builds them."""
+        while self.uncounted and (wait or all(x.is_ready() for x in jax.tree.leaves(self.uncounted[0][0]))):
+            self.bar.update(self.uncounted.popleft()[1])
 
 
 def point_rows(n: int) -> int:
