@@ -1,5 +1,5 @@
 """Real-data robustness of every default score: duplicates, far outliers, mixed densities,
-georeferenced offsets (issues: fidelity section 4, real scans section 2)."""
+georeferenced offsets."""
 
 import warnings
 

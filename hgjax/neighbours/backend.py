@@ -9,7 +9,7 @@ overflow (a ball or a graph row wider than its static columns) stops the program
 :func:`guard` raises eagerly, and under ``jit`` the compiled program raises when it runs,
 naming the ``capacity`` needed, instead of returning a truncated result.
 
-The traced builds move the points to the host's local frame (:func:`local_frame`: the
+The traced builds move the points to the host's local frame (:func:`traced_frame`: the
 bounding-box centre subtracted) with the centre carried exactly (TwoSum), so the float32
 coordinates equal the host's float64 subtraction rounded once, up to a double rounding at an
 exact midpoint; under x64 the subtraction is the host's own.
@@ -24,7 +24,7 @@ import numpy as np
 from hgjax import _exact, _stream, _validate
 from hgjax.neighbours import cells, spatial
 
-__all__ = ["CELL_SLOTS", "SEARCHES", "check", "default_search", "guard", "host_frame", "local_frame"]
+__all__ = ["CELL_SLOTS", "SEARCHES", "check", "default_search", "guard", "host_frame", "traced_frame"]
 
 CELL_SLOTS = cells.SLOTS
 """Candidates a query of the traced search reads per step (static; a speed setting, never a limit)."""
@@ -32,7 +32,7 @@ SEARCHES = ("host", "jax")
 """The neighbour searches: SciPy's k-d tree on the host, or the traced search."""
 
 
-def local_frame(points) -> tuple[jax.Array, jax.Array | None]:
+def traced_frame(points) -> tuple[jax.Array, jax.Array | None]:
     """(hi, lo): (N, 3) ``points`` minus the centre of their bounding box, traced, as the host's
     :func:`hgjax.neighbours.spatial.split_frame` of its float64 local frame.
 

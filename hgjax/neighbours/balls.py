@@ -337,7 +337,7 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
     if _stream.is_traced(p):
         columns = capacity if capacity is not None else (max_count or COLUMNS)
         idx, scale, overflow, _ = _balls(p, cell_edge, columns=columns, spacing_k=None, **statics)
-        local, lo = backend.local_frame(p)
+        local, lo = backend.traced_frame(p)
         return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record({**params, "search": "jax"}),
                                       overflow=backend.guard(overflow), points_lo=lo)
     # Eagerly the same program, jitted once per setting: the spacing's k from the host's count of locations

@@ -84,6 +84,7 @@ import numpy as np
 from jax import lax
 
 from hgjax import _exact
+from hgjax.neighbours import spatial
 
 __all__ = ["Found", "grown", "knn", "within"]
 
@@ -811,11 +812,6 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
 
 # ----------------------------------------------------------------------------- eager regrowth
 
-def bucket(width: int) -> int:
-    """The next power of two of ``width``, at least 8 (few distinct capacities, few compilations)."""
-    return max(8, 1 << max(0, int(width) - 1).bit_length())
-
-
 def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Found:
     """Run ``query`` (:func:`knn` or :func:`within`) eagerly until it does not overflow (host loop, not jittable).
 
@@ -857,7 +853,7 @@ def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Fo
         if not bool(found.overflow):
             return found
         if "columns" in static and int(found.columns_needed) > static["columns"]:
-            static["columns"] = bucket(int(found.columns_needed))
+            static["columns"] = spatial.bucket(int(found.columns_needed))
         edge = found.edge
         if bool(found.uncovered):
             need = float(found.edge_needed)

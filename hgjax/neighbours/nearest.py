@@ -110,7 +110,7 @@ def traced(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: in
     p = jnp.asarray(points)
     n = p.shape[0]
     if _stream.is_traced(p):
-        local, lo = backend.local_frame(p)
+        local, lo = backend.traced_frame(p)
         found = cells.knn(p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
     else:
         local, lo = backend.host_frame(points)
@@ -142,7 +142,7 @@ def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np
         raise ValueError(f"search='jax' breaks ties by int32 global ids; this cloud's go up to {index.gid_span - 1}:"
                          " use search='host'")
     n, k_eff = index.n, min(k, index.n)
-    rows_in = cells.bucket(n)  # the tile padded to a power of two: one program per size class
+    rows_in = spatial.bucket(n)  # the tile padded to a power of two: one program per size class
     with jax.enable_x64(True):
         found = cells.grown(cells.knn, np.pad(index.points, ((0, rows_in - n), (0, 0))), k_eff,
                                   gid=np.pad(index.gid[:n], (0, rows_in - n)).astype(np.int32), count=n,

@@ -590,7 +590,7 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
         idx, first, width = _assemble(lists, variant=variant, columns=columns)
         wide = jnp.maximum(jnp.where(report["ball"] > ball, report["ball"], 0), jnp.where(width > columns, width, 0))
         overflow = backend.guard(jnp.where(report["uncovered"], -1, wide).astype(jnp.int32))
-        local, lo = backend.local_frame(pts)
+        local, lo = backend.traced_frame(pts)
         record = {**params, "capacity": columns}
         return spatial.Neighbourhoods(local, idx, first=first, params=spatial.record(record), overflow=overflow,
                                       points_lo=lo)
@@ -759,7 +759,7 @@ def _reference_lists(points, edge_near, edge_main, slots: int, ball_columns: int
         lo, hi = p.min(axis=0, keepdims=True), p.max(axis=0, keepdims=True)
         p32 = (p - (lo + hi) / 2).astype(jnp.float32)
     else:
-        p32 = backend.local_frame(points)[0].astype(jnp.float32)
+        p32 = backend.traced_frame(points)[0].astype(jnp.float32)
     k = min(3, n)
     near = cells.knn(p32, k, slots=slots, edge=edge_near)
     if k > 1:
