@@ -1,13 +1,17 @@
 """The two kinds of registry entry, scoring methods and samplers, and how a method tiles.
 
 Each method module declares its own entry (``METHOD`` in :mod:`hgjax.scores.hkc` and its
-siblings, ``SAMPLERS`` in :mod:`hgjax.samplers`), naming the parameters of each stage and
-its tiling capability explicitly; :data:`hgjax.METHODS` (:mod:`hgjax._registry`) collects them.
+siblings, ``SAMPLERS`` in :mod:`hgjax.samplers`) with its stages' functions and its tiling
+capability; each stage's parameters are its function's keyword-only parameters
+(:func:`keywords`), so the two never disagree. :data:`hgjax.METHODS` (:mod:`hgjax._registry`)
+collects them.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+import inspect
 from typing import Callable
 
 STAGES = ("build", "score", "soft_score", "select")
@@ -15,9 +19,13 @@ PAPER = "Deng, Zhang, Ding, IEEE TIP 31, 2022"
 DICTA = "Bazazian, Casas, Ruiz-Hidalgo, DICTA 2015"
 
 
-def stages(**names) -> dict:
-    """{stage: frozenset of keyword parameters} for every stage of :data:`STAGES` (missing ones empty)."""
-    return {stage: frozenset(names.get(stage, ())) for stage in STAGES}
+@functools.cache
+def keywords(fn: Callable | None) -> frozenset:
+    """The keyword-only parameters of ``fn`` but ``key`` (passed apart, by :func:`hgjax.resample`); empty for None."""
+    if fn is None:
+        return frozenset()
+    return frozenset(name for name, p in inspect.signature(fn).parameters.items()
+                     if p.kind is inspect.Parameter.KEYWORD_ONLY and name != "key")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,8 +99,6 @@ class Method:
       score: ``score(nb, **params) -> (N,)``, or (N, ``columns``), pure JAX; never depends on
         the ratio.
       soft_score: differentiable twin of ``score``, of the same shape.
-      params: for each stage (``"build"``, ``"score"``, ``"soft_score"``, ``"select"``), the
-        keyword parameters it accepts, as declared by the method's module.
       tiling: how it runs in tiles (:class:`Tiling`).
       bytes_per_sample: peak memory per point of a mesh sampled and resampled, rounded up (the
         command line refuses ``--samples`` beyond the memory available): ~190 bytes to sample
@@ -133,7 +139,6 @@ class Method:
     build: Callable
     score: Callable
     soft_score: Callable
-    params: dict
     tiling: Tiling
     bytes_per_sample: int = 2048
     columns: int | None = None
@@ -142,6 +147,13 @@ class Method:
     check_key: Callable | None = None
     ranks_as: tuple | None = None
     keeps_top: dict | None = None
+
+    @property
+    def params(self) -> dict:
+        """{stage: frozenset of the keyword parameters it accepts} for each of :data:`STAGES`: the keyword-only
+        parameters of ``build``, ``score``, ``soft_score`` and ``select`` (:func:`keywords`)."""
+        return {"build": keywords(self.build), "score": keywords(self.score), "soft_score": keywords(self.soft_score),
+                "select": keywords(self.select)}
 
     @property
     def accepted(self) -> frozenset:
@@ -169,7 +181,6 @@ class Sampler:
       citation: where the method comes from.
       sample: ``sample(points, ratio, *, key, **params) -> (M,) indices`` (host; ``key``
         passed only when ``needs_key``).
-      params: the keyword parameters ``sample`` accepts (``key`` aside).
       bytes_per_sample: as :attr:`Method.bytes_per_sample`.
       untiled: ``untiled(params) -> (qualifier, reason) | None``: why it needs the whole cloud
         at once (:attr:`Tiling.refused`); None when it always tiles.
@@ -190,11 +201,15 @@ class Sampler:
     summary: str
     citation: str
     sample: Callable
-    params: frozenset
     bytes_per_sample: int = 2048
     untiled: Callable | None = None
     tiled: Callable | None = None
     lazy: bool = False
+
+    @property
+    def params(self) -> frozenset:
+        """The keyword parameters ``sample`` accepts, ``key`` aside (:func:`keywords`)."""
+        return keywords(self.sample)
 
     @property
     def accepted(self) -> frozenset:

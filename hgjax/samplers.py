@@ -652,12 +652,11 @@ def _tiled_uniform(points, ratio, tile, client, *, key=None) -> np.ndarray:
 
 SAMPLERS = (
     _method.Sampler("uniform", needs_key=True, summary="uniformly random subset (needs key)",
-                      citation="random down-sampling", sample=uniform_sample, params=frozenset(),
+                      citation="random down-sampling", sample=uniform_sample,
                       tiled=_tiled_uniform, lazy=True),
     _method.Sampler("voxel", needs_key=False, summary="one point per voxel of a grid sized to reach the count",
-                      citation="voxel-grid down-sampling", sample=voxel_sample, params=frozenset({"voxel_size"}),
+                      citation="voxel-grid down-sampling", sample=voxel_sample,
                       tiled=_tiled_voxel),
     _method.Sampler("fps", needs_key=False, summary="farthest point sampling from point 0",
-                      citation="Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997", sample=farthest_point_sample,
-                      params=frozenset({"backend", "start"}), untiled=_fps_untiled),
+                      citation="Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997", sample=farthest_point_sample, untiled=_fps_untiled),
 )

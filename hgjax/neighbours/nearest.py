@@ -15,11 +15,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _stream, _validate
+from hgjax import _stream, _validate
 from hgjax.neighbours import backend, cells, spatial
 from hgjax.neighbours.container import Neighbourhoods, record
 
-__all__ = ["PARAMS", "build", "build_params", "index_knn", "knn", "reach", "tile_rows", "traced", "with_search"]
+__all__ = ["build", "build_params", "index_knn", "knn", "reach", "tile_rows", "traced", "with_search"]
+
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
     """k-nearest neighbourhoods, the point itself first.
@@ -86,6 +87,7 @@ def build(points, k: int, *, dedupe: bool, capacity: int | None, search: str = "
     slots = backend.CELL_SLOTS if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
     return traced(pts, k, dedupe=dedupe, capacity=cap, cell_slots=slots, cell_edge=cell_edge,
                params={"k": k, "dedupe": dedupe})
+
 
 def traced(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int = backend.CELL_SLOTS, cell_edge=None,
         params: dict) -> Neighbourhoods:
@@ -165,11 +167,13 @@ def build_params(n: int, k: int, params: dict) -> dict:
     _validate.check_min_points(n, k, f"k={k} nearest neighbours")
     return with_search(build, params)
 
+
 def with_search(build: dict, params: dict) -> dict:
     """``build`` with ``"search": "jax"`` when the run's tiles build with the traced search (``params``
     as :func:`hgjax.engine.searched` validated them); the host search is recorded by no key, so a host
     run's plan is what it always was."""
     return {**build, "search": "jax"} if params.get("search") == "jax" else build
+
 
 def tile_rows(index, rows, build: dict, dtype):
     """(part, idx, (), reach) per batch: the k-nearest neighbourhoods of ``rows`` (:func:`hgjax.neighbours.spatial.knn_batches`,
@@ -182,9 +186,7 @@ def tile_rows(index, rows, build: dict, dtype):
     for part, idx, reach in spatial.knn_batches(index, build["k"], rows):
         yield part, idx, (), reach
 
+
 def reach(build: dict) -> tuple[int, int]:
     """(k, 1): a k-nearest neighbourhood reaches its own k-nearest radius (:attr:`hgjax.Method.tiling`)."""
     return build["k"], 1
-
-PARAMS = _method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "k", "search"),
-                            score=("chunk_size", "progress"))

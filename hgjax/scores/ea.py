@@ -143,6 +143,6 @@ def tile_kernel(params: dict):
 METHOD = _method.Method(
     "ea", "knn", largest=True, needs_key=False,
     summary="eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
-    citation=_method.DICTA, build=neighbourhoods, score=score, soft_score=soft_score, params=nearest.PARAMS,
+    citation=_method.DICTA, build=neighbourhoods, score=score, soft_score=soft_score,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=tile_kernel,
                           searches=backend.SEARCHES))

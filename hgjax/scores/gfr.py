@@ -868,9 +868,6 @@ METHOD = _method.Method(
     summary='graph filtering baseline: sample by the graph high-pass ||(L P)_i|| (needs key, or mode="top")',
     citation="Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "max_nn", "radius_factor", "search",
-                                 "variant"),
-                            score=("chunk_size", "progress", "variant"), soft_score=("variant",), select=("mode",)),
     select=_select, check_key=check_key, keeps_top={"mode": "top"}, bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=_reach, resolve=resolve_build, halo=_first_halo,
                           scores=tiled_scores, select=tiled_select, refused=_untiled))

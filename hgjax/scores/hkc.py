@@ -194,15 +194,10 @@ def _tile_kernel(params: dict):
     return _kernel(params["kernel_size"], params["variant"]), True
 
 
-CUBE_PARAMS = _method.stages(build=("capacity", "cell_slots", "cell_edge", "d_factor", "dedupe", "kernel_size",
-                                    "resolution", "search", "variant"),
-                               score=("chunk_size", "kernel_size", "progress", "variant"),
-                               soft_score=("kernel_size", "tau", "variant"))
-
 METHOD = _method.Method(
     "hkc", "cube", largest=False, needs_key=False,
     summary="hypergraph kernel convolution: keep the smallest high/low band ratio beta",
     citation=f"{_method.PAPER}, Alg. 1, Eq. (11)", build=balls.build, score=score,
-    soft_score=soft_score, params=CUBE_PARAMS,
+    soft_score=soft_score,
     tiling=_method.Tiling(params=tile_params, reach=cube_reach, resolve=resolve_build, rows=tile_rows,
                           kernel=_tile_kernel))

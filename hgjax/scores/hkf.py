@@ -103,6 +103,6 @@ METHOD = _method.Method(
     "hkf", "cube", largest=False, needs_key=False,
     summary="hypergraph kernel filtering: keep the smallest high-band share sigma",
     citation=f"{_method.PAPER}, Alg. 2, Eq. (12)", build=balls.build, score=score,
-    soft_score=hkc.soft_score, params=hkc.CUBE_PARAMS,
+    soft_score=hkc.soft_score,
     tiling=dataclasses.replace(hkc.METHOD.tiling, kernel=_tile_kernel),
     ranks_as=(hkc.METHOD.name, "HKF's sigma = beta / (1 + beta) grows with HKC's beta, on the same cubes"))

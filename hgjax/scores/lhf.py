@@ -524,9 +524,6 @@ METHOD = _method.Method(
     summary="local hypergraph filtering: keep the largest two-length sharpness gamma",
     citation=f"{_method.PAPER}, Alg. 3, Eqs. (14)-(16)", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "lengths", "search", "variant"),
-                            score=("chunk_size", "lengths", "progress", "solver", "variant"),
-                            soft_score=("lengths", "tau")),
     columns=2, combine=combine,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=_tile_kernel,
                           select=tiled_select, searches=backend.SEARCHES))

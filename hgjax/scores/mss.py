@@ -476,8 +476,6 @@ METHOD = _method.Method(
     summary="multi-scale sharpness: a small perceptron over surface variation, eigenvalue ratios and the normal graph high-pass at 6 to 32 neighbours and the cloud's noise level, trained on synthetic shapes",
     citation="Pauly, Keiser, Gross, Eurographics 2003; Hackel, Wegner, Schindler, CVPR 2016", build=neighbourhoods, score=score,
     soft_score=soft_score,
-    params=_method.stages(build=("capacity", "cell_slots", "cell_edge", "dedupe", "search"),
-                          score=("chunk_size", "noise", "progress"), soft_score=("noise",)),
     bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, resolve=resolve, rows=tile_rows,
                           kernel=_tile_kernel, searches=backend.SEARCHES))

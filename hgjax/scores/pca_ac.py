@@ -252,7 +252,7 @@ METHOD = _method.Method(
     "pca_ac", "knn", largest=True, needs_key=False,
     summary="PCA + agglomerative clustering baseline: Ward clusters of the surface variation, sharpest first",
     citation=_method.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
-    params={**nearest.PARAMS, "select": frozenset({"n_clusters"})}, select=_select,
+    select=_select,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=ea.tile_kernel,
                           whole_selection=True, refused=_untiled, searches=backend.SEARCHES),
     ranks_as=(ea.METHOD.name, "PCA-AC's Ward clusters are intervals of EA's surface variation, on the same neighbours"))
