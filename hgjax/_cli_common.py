@@ -312,30 +312,19 @@ def _tell(args, line: str) -> None:
         _say(line)
 
 
-def _first_stage(entry, params: dict) -> str:
-    """The engine's first stage for ``entry`` with ``params`` (:data:`hgjax.engine.STAGES`): a sampler's, a
-    method's on the whole cloud at once (one that cannot run in tiles), or the plan of its tiles."""
-    from hgjax import Sampler, engine
-
-    if isinstance(entry, Sampler):
-        return engine.STAGES["sampler"][0]
-    whole = entry.refused(params) is not None and not entry.tiling.whole_selection
-    return engine.STAGES["whole cloud" if whole else "tiles"][0]
-
-
 def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size=None):
     """(kept indices in keep-priority order, scores of every point or None for samplers, seconds).
 
     :func:`hgjax.tiles.resample` in one tile, which is :func:`hgjax.resample` (the engine's run),
     reporting each stage's seconds with ``--verbose`` (its ``on_stage``); a ``search`` in
-    ``params`` (``--search``) is the search of the engine's tiles, as the backend's default is
-    (:func:`hgjax.engine.searched`), where :func:`hgjax.resample` would run ``search="jax"`` as
-    one pure-JAX program. The points are moved to their local frame in float64 first, so that no
+    ``params`` (``--search``) is the engine's neighbour search, as the backend's default is
+    (:func:`hgjax.engine.searched`). The points are moved to their local frame in float64 first, so that no
     method, the samplers included, ever casts georeferenced coordinates to float32.
     """
     import numpy as np
 
     import hgjax
+    from hgjax import engine
 
     start = time.perf_counter()
     points = hgjax.local_frame(points)[0]
@@ -343,7 +332,7 @@ def _compute(entry, points, ratio, params, key, progress: bool, args, voxel_size
     if progress and "progress" in entry.resample_params:
         extra["progress"] = True
     _file(points=len(points))
-    _begin(_first_stage(entry, params), len(points))
+    _begin(engine.first_stage(entry, params), len(points))
     idx, scores = hgjax.tiles.resample(points, ratio, method=entry.name, key=key, return_scores=True,
                                        on_stage=lambda name, seconds: _seconds(args, name, seconds), **params,
                                        **extra)

@@ -31,7 +31,7 @@ from hgjax import _registry, _stream, _tiling, _validate, pipeline, select
 from hgjax.neighbours import backend
 from hgjax._method import Method, Sampler
 
-__all__ = ["STAGES", "Run", "checked_tile", "planned", "resample", "run"]
+__all__ = ["STAGES", "Run", "checked_tile", "first_stage", "planned", "resample", "run"]
 
 STAGES = {"sampler": ("sample",), "whole cloud": ("neighbourhoods", "score", "keep"), "tiles": ("plan", "tiles", "keep")}
 """The stages ``on_stage`` reports, by path: a sampler; a method on the whole cloud at once; tiles."""
@@ -101,8 +101,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
         return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
-    if (refused is not None and not entry.tiling.whole_selection) or params.get("search") not in (
-            None, *entry.tiling.searches):
+    if whole_cloud(entry, params):
         idx, scores = _whole(points, ratio, entry, key, params, clock)
         return Run(idx, scores if return_scores else None)
     params = dict(params)
@@ -149,6 +148,22 @@ def searched(entry: Method | Sampler, params: dict, one_tile: bool = False) -> d
         return params
     default = backend.default_search()
     return {**params, "search": default} if default in searches else params
+
+
+def whole_cloud(entry: Method, params: dict) -> bool:
+    """Whether a run of ``entry`` with ``params`` (searched, :func:`searched`) builds the whole cloud's
+    neighbourhoods at once: a method that cannot run in tiles with these parameters and does not
+    select on the whole cloud anyway, or a search its tiles cannot build with."""
+    refused = entry.refused(params) is not None and not entry.tiling.whole_selection
+    return refused or params.get("search") not in (None, *entry.tiling.searches)
+
+
+def first_stage(entry: Method | Sampler, params: dict) -> str:
+    """The first stage (:data:`STAGES`) of a one-tile run of ``entry`` with ``params``: a sampler's, the
+    whole cloud's, or the plan of its tiles."""
+    if isinstance(entry, Sampler):
+        return STAGES["sampler"][0]
+    return STAGES["whole cloud" if whole_cloud(entry, searched(entry, params, True)) else "tiles"][0]
 
 
 def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> tuple[tuple[str, str] | None, float | None]:

@@ -134,8 +134,13 @@ def test_parameters_come_from_the_registry(capsys, tmp_path, monkeypatch):
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--method", "lhf", "-p", "lengths=(6,12)")
     assert code == 0, err
     entry = hgjax.METHODS["lhf"]
-    narrowed = {stage: names - {"lengths"} for stage, names in entry.params.items()}
-    monkeypatch.setitem(hgjax.METHODS, "lhf", dataclasses.replace(entry, params=narrowed))
+
+    def without_lengths(points_or_nb, *, variant="invariant"):
+        raise AssertionError("never called: the parameters are refused first")
+
+    narrowed = dataclasses.replace(entry, build=without_lengths, score=without_lengths, soft_score=without_lengths)
+    assert "lengths" not in narrowed.accepted
+    monkeypatch.setitem(hgjax.METHODS, "lhf", narrowed)
     code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--method", "lhf", "-p", "lengths=(6,12)")
     assert code == 2 and "method 'lhf' does not take lengths" in err
 
