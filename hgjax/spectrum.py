@@ -88,7 +88,7 @@ def host_eigh(r: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``numpy.linalg.eigh`` of symmetric matrices (..., n, n) through a host callback.
 
     jaxlib 0.10's CPU LAPACK eigh can hang when two batched calls share one XLA program
-    (bench/results/eigh_deadlock.md); NumPy's, called from the host, cannot. Works under jit and
+    (bench/results/archive/eigh_deadlock.md); NumPy's, called from the host, cannot. Works under jit and
     vmap (one batched call per vmapped block); not differentiable, which the eigh-based
     scores (LHF reference, the proof solver) do not need.
 

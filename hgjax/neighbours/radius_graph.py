@@ -481,7 +481,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
         in its smaller index's row among that row's ``max_nn`` nearest partners of higher
         index (module docstring).
       radius_factor: the invariant radius in resolutions (default ``RADIUS_FACTOR`` = 10,
-        chosen on the edge benchmark, bench/results/gfr_radius.md). Only for ``"invariant"``.
+        chosen on the edge benchmark, bench/results/archive/gfr_radius.md). Only for ``"invariant"``.
       max_nn: the most partners a point ranks (reference: 100).
       columns: ``columns(width) -> K``, the columns of ``idx`` for the largest row count
         ``width`` (at least ``width``; it may raise), so that the rows are written once at
