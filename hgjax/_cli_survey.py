@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
 import time
 
@@ -53,8 +54,10 @@ def _dask_client(args):
         return
     if _progress(args):
         _say(f"hgjax resample: starting a local Dask cluster of {args.workers} worker processes")
-    with distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                                  dashboard_address=":0", host="127.0.0.1") as cluster:
+    with contextlib.ExitStack() as stack:
+        with _interrupts_held():
+            cluster = stack.enter_context(distributed.LocalCluster(
+                n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0", host="127.0.0.1"))
         with distributed.Client(cluster) as client:
             yield client
 
@@ -65,6 +68,18 @@ def _dask_client(args):
             await asyncio.gather(*(worker.close(timeout=WORKER_CLOSE_SECONDS) for worker in workers))
 
         cluster.sync(close_workers)
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """SIGINT blocked while the local cluster starts: its worker processes inherit the mask, so a Ctrl-C
+    reaches this process alone (which closes the cluster), never a worker mid-start; a Ctrl-C meanwhile
+    is delivered here once the cluster has started."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _resample_survey(args, params: dict) -> None:

@@ -439,7 +439,7 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path):
     points = hgjax.eval.box_union_cloud(seed=0, n_points=20000).points
     for i in range(200):
         io.write_points(scans / f"s{i:03d}.npy", points)
-    args = ["resample", scans, "-o", tmp_path / "out", "--method", "lhf"]
+    args = ["resample", scans, "-o", tmp_path / "out", "--method", "lhf", "--no-progress"]
     # As from a terminal: a runner that starts tests in the background passes SIGINT on as
     # ignored, and a process started that way rightly keeps ignoring it.
     as_from_a_terminal = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler);"
