@@ -92,7 +92,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     clock = Clock(on_stage)
     entry = _registry.entry(method)
     return_scores = _validate.check_bool(return_scores, "return_scores")
-    refused, tile = checked_tile(entry, params, tile, client)
+    tile = checked_tile(entry, params, tile, client)
     _registry.check_known(entry, params)
     one_tile = tile is None and client is None and not isinstance(points, _tiling.Source)
     params = searched(entry, params, one_tile)
@@ -166,8 +166,8 @@ def first_stage(entry: Method | Sampler, params: dict) -> str:
     return STAGES["whole cloud" if whole_cloud(entry, searched(entry, params, True)) else "tiles"][0]
 
 
-def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> tuple[tuple[str, str] | None, float | None]:
-    """(why ``entry`` with ``params`` needs the whole cloud or None, the validated ``tile``).
+def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> float | None:
+    """The validated ``tile``, once ``entry`` with ``params`` is known to run in tiles where a tile or client is given.
 
     Raises:
       ValueError: a ``tile`` or ``client`` for a method that needs the whole cloud; an invalid ``tile``.
@@ -176,7 +176,7 @@ def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> tuple[t
     if refused is not None and (tile is not None or client is not None):
         raise ValueError(f"method {entry.name!r}{refused[0]} cannot run in tiles (tile={tile!r}): {refused[1]};"
                          " pass tile=None")
-    return refused, None if tile is None else _validate.check_positive(tile, "tile")
+    return None if tile is None else _validate.check_positive(tile, "tile")
 
 
 def planned(points, ratio, entry: Method, tile, params: dict, client) -> tuple[_tiling.Plan, _tiling.Here]:

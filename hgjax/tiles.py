@@ -52,7 +52,7 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
     if not isinstance(entry, Method):
         raise ValueError(f"method {method!r} has no tiled plan; expected one of"
                          f" {sorted(m for m, e in _registry.METHODS.items() if isinstance(e, Method))}")
-    _, tile = engine.checked_tile(entry, params, tile, client)
+    tile = engine.checked_tile(entry, params, tile, client)
     plan_, runner = engine.planned(points, ratio, entry, tile, params, client)
     return plan_, runner.cloud
 
