@@ -727,7 +727,7 @@ def knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, 
 
 def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = SLOTS, edge=None, count=None,
            gid=None, metric: str = "l2", max_count: int | None = None, chunk: int | None = None,
-           spill: int | None = None, radius_lo=None) -> Found:
+           spill: int | None = None, radius_lo=None, frame: bool = True) -> Found:
     """Every point closer than ``radius`` (strictly), by (distance, global id): the host's
     :meth:`hgjax.neighbours.spatial.SpatialIndex.cube` (``metric="linf"``: the cube of HKC/HKF's reference
     variant; ``"l2"``: the ball of their invariant variant), traced.
@@ -738,7 +738,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
         float dtype (float64 under x64). With ``dedupe`` every copy uses its location's first
         copy's radius (the host queries each location once).
       columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
-      dedupe, edge, count, gid, chunk, spill: as :func:`knn`.
+      dedupe, edge, count, gid, chunk, spill, frame: as :func:`knn`.
       slots: as :func:`knn`; a ball reads at least twice its columns (with ``max_count``, the
         larger of the two) per step, so that a step is not mostly the running selection. The default edge is the
         largest radius times 1.1 (traced).
@@ -805,7 +805,8 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
                     dist=jnp.where(take, _in_units(s["hi"][:, :columns], metric), jnp.inf),
                     reach=used, limit=_as_distance(used, metric), ok=ok, width=held)
 
-    out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, _chunk(chunk, n), _spill(spill, n))
+    out, cloud = _run(points, count, gid, jnp.asarray(edge, dtype), dedupe, rows, _chunk(chunk, n), _spill(spill, n),
+                      frame)
     columns_needed = jnp.max(jnp.where(cloud.real, out["width"], 0)).astype(jnp.int32)
     return _found(cloud, out, slots, columns_needed, 0)
 
