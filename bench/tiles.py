@@ -35,7 +35,7 @@ time (compile included) and peak RSS (the mapped file's resident pages included)
 (d) ``--survey N`` (default 0: none): the box surface of N points scaled to a 100 m box, cut
 into 4 LAZ files by its x and y medians (:func:`write_survey`), resampled as one survey,
 ``hgjax.survey.resample_files(paths, out, 0.2, method=m, tile=edge)`` (tiles of about N / 8
-points), in one process and on a LocalCluster of each ``--dask`` worker count (1 thread each),
+points), in one process and on a LocalCluster of each ``--dask`` worker count (``--threads`` each),
 timed in turn in one fresh process per method (a warm-up of each, then ``--repeats`` rounds;
 medians); the outputs of every run are checked equal to one process's.
 
@@ -150,12 +150,15 @@ def mem_worker(cloud: str, n: int, method: str, edge: str, clouds: str) -> dict:
     return {"wall": time.perf_counter() - t, "peak_mb": _report.peak_mb()}
 
 
-def dask_worker(cloud: str, n: int, method: str, workers: int, repeats: int, edge: float, clouds: str) -> dict:
-    """Tiles as Dask tasks on a LocalCluster of ``workers`` processes (1 thread each), against one process.
+def dask_worker(cloud: str, n: int, method: str, workers: int, threads: int, repeats: int, edge: float,
+                clouds: str) -> dict:
+    """Tiles as Dask tasks on a LocalCluster of ``workers`` processes of ``threads`` threads, beside one process.
 
-    Medians of ``repeats`` calls after a warm-up (each worker compiles its kernels once); the
-    indices are checked against one process; per-worker peak RSS from the workers; scheduler
-    overhead per task = (workers x wall - summed task compute time) / tasks of the last call.
+    One process (the same tiles, no client) and the cluster in turn, ``repeats`` rounds after a
+    warm-up of each (each worker compiles its kernels once); medians and the median of the
+    per-round ratios; the indices are checked against one process; per-worker peak RSS from the
+    workers; scheduler overhead per task = (workers x threads x wall - summed task compute time)
+    / tasks of the last call.
     """
     import numpy as np
     from distributed import Client, LocalCluster, get_task_stream
@@ -164,13 +167,17 @@ def dask_worker(cloud: str, n: int, method: str, workers: int, repeats: int, edg
 
     pts = _points(cloud, n, clouds)
     want = np.asarray(_one(pts, method))
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+    with LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True, dashboard_address=None,
                       host="127.0.0.1") as cluster, Client(cluster) as client:
         run = lambda: hgjax.tiles.resample(pts, RATIO, method=method, tile=edge, client=client,  # noqa: E731
                                            key=__import__("jax").random.key(0))
         same = bool((np.asarray(run()) == want).all())
-        times = []
+        _tiled(pts, method, edge)
+        here, times = [], []
         for _ in range(repeats):
+            t = time.perf_counter()
+            _tiled(pts, method, edge)
+            here.append(time.perf_counter() - t)
             with get_task_stream(client) as stream:
                 t = time.perf_counter()
                 got = np.asarray(run())
@@ -179,8 +186,9 @@ def dask_worker(cloud: str, n: int, method: str, workers: int, repeats: int, edg
         busy = sum(stop - start for task in stream.data for action, start, stop in
                    ((s["action"], s["start"], s["stop"]) for s in task["startstops"]) if action == "compute")
         peaks = client.run(lambda: __import__("resource").getrusage(__import__("resource").RUSAGE_SELF).ru_maxrss)
-    return {"wall": statistics.median(times), "identical": same, "tasks": len(stream.data),
-            "overhead_ms": (workers * times[-1] - busy) / max(len(stream.data), 1) * 1e3,
+    return {"wall": statistics.median(times), "one": statistics.median(here), "identical": same,
+            "ratio": statistics.median(d / h for d, h in zip(times, here)), "tasks": len(stream.data),
+            "overhead_ms": (workers * threads * times[-1] - busy) / max(len(stream.data), 1) * 1e3,
             "worker_peak_mb": max(peaks.values()) / 1024}
 
 
@@ -200,8 +208,9 @@ def write_survey(directory: str, n: int) -> list[str]:
     return paths
 
 
-def survey_worker(method: str, workers: str, repeats: int, *paths: str) -> dict:
-    """A survey of ``paths`` in one process and on LocalClusters of ``workers`` (comma list), timed in turn."""
+def survey_worker(method: str, workers: str, threads: int, repeats: int, *paths: str) -> dict:
+    """A survey of ``paths`` in one process and on LocalClusters of ``workers`` (comma list) of ``threads``
+    threads each, in turn round by round beside each cluster."""
     import hashlib
 
     import numpy as np
@@ -223,17 +232,19 @@ def survey_worker(method: str, workers: str, repeats: int, *paths: str) -> dict:
                 digest.update(np.ascontiguousarray(hgjax.io.read_points(Path(out) / Path(q).name).points).tobytes())
         return wall, digest.hexdigest()
 
-    run(None)
-    one = [run(None) for _ in range(repeats)]
-    res = {"n": sum(hgjax.io.header_count(q) for q in paths), "edge": edge,
-           "one": statistics.median(w for w, _ in one), "dask": {}}
+    want = run(None)[1]
+    res = {"n": sum(hgjax.io.header_count(q) for q in paths), "edge": edge, "dask": {}}
     for w in [int(x) for x in workers.split(",") if x]:
-        with LocalCluster(n_workers=w, threads_per_worker=1, processes=True, dashboard_address=None,
+        with LocalCluster(n_workers=w, threads_per_worker=threads, processes=True, dashboard_address=None,
                           host="127.0.0.1") as cluster, Client(cluster) as client:
             run(client)
-            got = [run(client) for _ in range(repeats)]
-        res["dask"][w] = {"wall": statistics.median(t for t, _ in got),
-                          "identical": all(d == one[0][1] for _, d in got)}
+            one, got = [], []
+            for _ in range(repeats):
+                one.append(run(None))
+                got.append(run(client))
+        res["dask"][w] = {"one": statistics.median(t for t, _ in one), "wall": statistics.median(t for t, _ in got),
+                          "ratio": statistics.median(d / h for (d, _), (h, _) in zip(got, one)),
+                          "identical": all(d == want for _, d in got + one)}
     return res
 
 
@@ -310,12 +321,13 @@ def measure(args) -> dict:
                     row["mem_one"] = _spawn("mem", cloud, n, m, "none", tmp, timeout=args.timeout)
                     row["mem_tiled"] = _spawn("mem", cloud, n, m, edge, tmp, timeout=args.timeout)
                     for w in [int(x) for x in args.dask.split(",") if x]:
-                        row[f"dask{w}"] = _spawn("dask", cloud, n, m, w, args.repeats, edge, tmp, timeout=args.timeout)
+                        row[f"dask{w}"] = _spawn("dask", cloud, n, m, w, args.threads, args.repeats, edge, tmp,
+                                                timeout=args.timeout)
                 res["rows"].append(row)
                 _log(name, m, row)
         if args.survey:
             paths = write_survey(tmp, args.survey)
-            res["survey"] = {m: _spawn("survey", m, args.dask, args.repeats, *paths, timeout=args.timeout)
+            res["survey"] = {m: _spawn("survey", m, args.dask, args.threads, args.repeats, *paths, timeout=args.timeout)
                              for m in methods}
             _log("survey", res["survey"])
         if args.stream:
@@ -426,38 +438,41 @@ def report(res: dict, args) -> tuple[list[str], list[str], list[str]]:
                      f"{peak('mem_tiled')} | {same} |")
     dask = [r for r in res["rows"] if any(k.startswith("dask") for k in r)]
     if dask:
-        table += ["", "Tiles as Dask tasks (`client=` a LocalCluster of 1 or 2 worker processes, 1 thread each, on "
-                  "this machine), same clouds and edges; wall = median after a warm-up; overhead per task = (workers x "
-                  "wall - summed task compute) / tasks:", "",
-                  "| cloud | method | one process s | workers | wall s | / one process | tasks | overhead ms/task | "
-                  "peak MB per worker | indices |", "|---|---|---|---|---|---|---|---|---|---|"]
+        table += ["", f"Tiles as Dask tasks (`client=` a LocalCluster of {args.dask} worker processes, {args.threads}"
+                  " thread(s) each, on this machine), same clouds and edges, timed in turn with the same tiles in one "
+                  "process (no client) in the same fresh process; medians after a warm-up; / one process = median of "
+                  "the per-round ratios, target <= 1.15; overhead per task = (workers x threads x wall - summed task "
+                  "compute) / tasks:", "",
+                  "| cloud | method | one process s | workers | threads | wall s | / one process | tasks | "
+                  "overhead ms/task | peak MB per worker | indices |", "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in dask:
             for k in sorted(k for k in r if k.startswith("dask")):
-                d, one = r[k], r["pair"]["one"]
+                d = r[k]
                 if "error" in d:
-                    table.append(f"| {r['cloud']} | {r['method']} | | {k[4:]} | error: {d['error']} | | | | | |")
+                    table.append(f"| {r['cloud']} | {r['method']} | | {k[4:]} | | error: {d['error']} | | | | | |")
                     continue
                 same = "identical" if d["identical"] else "**differ**"
                 if not d["identical"]:
                     bad.append(f"{r['cloud']} {r['method']} dask {k[4:]}")
-                table.append(f"| {r['cloud']} | {r['method']} | {one:.3f} | {k[4:]} | {d['wall']:.3f} | "
-                             f"{d['wall'] / one:.2f} | {d['tasks']} | {d['overhead_ms']:.1f} | "
+                table.append(f"| {r['cloud']} | {r['method']} | {d['one']:.3f} | {k[4:]} | {args.threads} | "
+                             f"{d['wall']:.3f} | {d['ratio']:.2f} | {d['tasks']} | {d['overhead_ms']:.1f} | "
                              f"{d['worker_peak_mb']:.0f} | {same} |")
     if res.get("survey"):
         table += ["", f"(d) A survey of 4 LAZ files (`--survey`: the box surface x 100 cut at its x and y medians), "
                   "`hgjax.survey.resample_files(paths, out, 0.2, method=m, tile=edge)` with tiles of about N / 8 "
-                  "points, in one process and on a LocalCluster of 1 thread per worker; medians after a warm-up:", "",
-                  "| survey points | method | one process s | workers | wall s | / one process | outputs |",
-                  "|---|---|---|---|---|---|---|"]
+                  f"points, in one process and on a LocalCluster of {args.threads} thread(s) per worker, in turn round by "
+                  "round; medians after a warm-up, / one process = median of the per-round ratios:", "",
+                  "| survey points | method | one process s | workers | threads | wall s | / one process | outputs |",
+                  "|---|---|---|---|---|---|---|---|"]
         for m, r in res["survey"].items():
             if "error" in r:
-                table.append(f"| | {m} | error: {r['error']} | | | | |")
+                table.append(f"| | {m} | error: {r['error']} | | | | | |")
                 continue
             for w, d in r["dask"].items():
                 if not d["identical"]:
                     bad.append(f"survey {m} dask {w}")
-                table.append(f"| {r['n']:,} | {m} | {r['one']:.3f} | {w} | {d['wall']:.3f} | "
-                             f"{d['wall'] / r['one']:.2f} | {'identical' if d['identical'] else '**differ**'} |")
+                table.append(f"| {r['n']:,} | {m} | {d['one']:.3f} | {w} | {args.threads} | {d['wall']:.3f} | "
+                             f"{d['ratio']:.2f} | {'identical' if d['identical'] else '**differ**'} |")
     if res["knn"]:
         table += ["", "kNN16 yardsticks of the same clouds (s, medians; peak of their process):", "",
                   "| cloud | bare kNN (random order) | floor (Morton order) | bare / floor | peak MB |",
@@ -533,6 +548,7 @@ def main(argv=None) -> None:
     parser.add_argument("--tmpdir", default=None, help="where the clouds are saved (default: the system's)")
     parser.add_argument("--timeout", type=float, default=None, help="seconds per worker process (default none)")
     parser.add_argument("--dask", default="1,2", help="Dask worker counts to time beside one process ('' for none)")
+    parser.add_argument("--threads", type=int, default=1, help="threads per Dask worker (default 1)")
     parser.add_argument("--survey", type=float, default=0, help="N of the 4-file LAZ survey rows (default 0: none)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: --sizes 2e4,1e5 --repeats 1 --stream 2e5 --per-tile 2.5e4 (scan included)")
@@ -544,8 +560,8 @@ def main(argv=None) -> None:
         fn = {"pair": lambda c, n, m, r, e, d: pair_worker(c, int(n), m, int(r), float(e), d),
               "mem": lambda c, n, m, e, d: mem_worker(c, int(n), m, e, d),
               "knn": lambda c, n, r, d: knn_worker(c, int(n), int(r), d),
-              "dask": lambda c, n, m, w, r, e, d: dask_worker(c, int(n), m, int(w), int(r), float(e), d),
-              "survey": lambda m, w, r, *paths: survey_worker(m, w, int(r), *paths),
+              "dask": lambda c, n, m, w, t, r, e, d: dask_worker(c, int(n), m, int(w), int(t), int(r), float(e), d),
+              "survey": lambda m, w, t, r, *paths: survey_worker(m, w, int(t), int(r), *paths),
               "stream": stream_worker}[kind]
         print(json.dumps(fn(*a)))
         return
