@@ -158,9 +158,12 @@ def dask_worker(cloud: str, n: int, method: str, workers: int, threads: int, rep
     warm-up of each (each worker compiles its kernels once); medians and the median of the
     per-round ratios; the indices are checked against one process; per-worker peak RSS from the
     workers; scheduler overhead per task = (workers x threads x wall - summed task compute time)
-    / tasks of the last call.
+    / tasks of the last call; bytes per tile and call: gathered by the client (``dask.sizeof``) and
+    sent between workers (the workers' ``transfer_outgoing_bytes_total``, the copies of the cloud
+    each worker makes once included).
     """
     import numpy as np
+    from dask.sizeof import sizeof
     from distributed import Client, LocalCluster, get_task_stream
 
     import hgjax
@@ -173,6 +176,14 @@ def dask_worker(cloud: str, n: int, method: str, workers: int, threads: int, rep
                                            key=__import__("jax").random.key(0))
         same = bool((np.asarray(run()) == want).all())
         _tiled(pts, method, edge)
+        gathered, gather = [0], client.gather
+
+        def counted(futures, *a, **kw):
+            out = gather(futures, *a, **kw)
+            gathered[0] += sizeof(out)
+            return out
+
+        client.gather = counted
         here, times = [], []
         for _ in range(repeats):
             t = time.perf_counter()
@@ -186,7 +197,11 @@ def dask_worker(cloud: str, n: int, method: str, workers: int, threads: int, rep
         busy = sum(stop - start for task in stream.data for action, start, stop in
                    ((s["action"], s["start"], s["stop"]) for s in task["startstops"]) if action == "compute")
         peaks = client.run(lambda: __import__("resource").getrusage(__import__("resource").RUSAGE_SELF).ru_maxrss)
-    return {"wall": statistics.median(times), "one": statistics.median(here), "identical": same,
+        between = sum(client.run(lambda dask_worker: dask_worker.transfer_outgoing_bytes_total).values())
+        tiles = len(hgjax.tiles.plan(pts, RATIO, method=method, tile=edge)[1].occupied())
+    return {"wall": statistics.median(times), "one": statistics.median(here), "identical": same, "tiles": tiles,
+            "client_kb_per_tile": gathered[0] / repeats / tiles / 1024,
+            "worker_kb_per_tile": between / (repeats + 1) / tiles / 1024,
             "ratio": statistics.median(d / h for d, h in zip(times, here)), "tasks": len(stream.data),
             "overhead_ms": (workers * threads * times[-1] - busy) / max(len(stream.data), 1) * 1e3,
             "worker_peak_mb": max(peaks.values()) / 1024}
@@ -442,20 +457,23 @@ def report(res: dict, args) -> tuple[list[str], list[str], list[str]]:
                   " thread(s) each, on this machine), same clouds and edges, timed in turn with the same tiles in one "
                   "process (no client) in the same fresh process; medians after a warm-up; / one process = median of "
                   "the per-round ratios, target <= 1.15; overhead per task = (workers x threads x wall - summed task "
-                  "compute) / tasks:", "",
-                  "| cloud | method | one process s | workers | threads | wall s | / one process | tasks | "
-                  "overhead ms/task | peak MB per worker | indices |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "compute) / tasks; KB per tile: gathered by the client, and sent between workers (the cloud's copies "
+                  "included), per call:", "",
+                  "| cloud | method | one process s | workers | threads | wall s | / one process | tasks | tiles | "
+                  "overhead ms/task | client KB/tile | worker KB/tile | peak MB per worker | indices |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in dask:
             for k in sorted(k for k in r if k.startswith("dask")):
                 d = r[k]
                 if "error" in d:
-                    table.append(f"| {r['cloud']} | {r['method']} | | {k[4:]} | | error: {d['error']} | | | | | |")
+                    table.append(f"| {r['cloud']} | {r['method']} | | {k[4:]} | | error: {d['error']} |" + " |" * 8)
                     continue
                 same = "identical" if d["identical"] else "**differ**"
                 if not d["identical"]:
                     bad.append(f"{r['cloud']} {r['method']} dask {k[4:]}")
                 table.append(f"| {r['cloud']} | {r['method']} | {d['one']:.3f} | {k[4:]} | {args.threads} | "
-                             f"{d['wall']:.3f} | {d['ratio']:.2f} | {d['tasks']} | {d['overhead_ms']:.1f} | "
+                             f"{d['wall']:.3f} | {d['ratio']:.2f} | {d['tasks']} | {d['tiles']} | {d['overhead_ms']:.1f} | "
+                             f"{d['client_kb_per_tile']:.0f} | {d['worker_kb_per_tile']:.0f} | "
                              f"{d['worker_peak_mb']:.0f} | {same} |")
     if res.get("survey"):
         table += ["", f"(d) A survey of 4 LAZ files (`--survey`: the box surface x 100 cut at its x and y medians), "
