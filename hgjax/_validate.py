@@ -20,12 +20,13 @@ import numpy as np
 FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 
-def check_points(points: Any, name: str = "points") -> np.ndarray:
+def check_points(points: Any, name: str = "points", *, empty: bool = False) -> np.ndarray:
     """Validate a point cloud and return it as a read-only NumPy view (no copy when possible).
 
     Args:
       points: array-like of shape (N, 3), float32 or float64, all finite.
       name: argument name quoted in error messages.
+      empty: accept N = 0 (a file's points to write).
 
     Returns:
       np.ndarray of shape (N, 3) with the caller's float dtype. It is a read-only view, so
@@ -33,7 +34,7 @@ def check_points(points: Any, name: str = "points") -> np.ndarray:
 
     Raises:
       TypeError: if the dtype is not float32 or float64.
-      ValueError: if the shape is not (N, 3) with N >= 1, or a coordinate is NaN or inf.
+      ValueError: if the shape is not (N, 3) with N >= 1 (N >= 0 with ``empty``), or a coordinate is NaN or inf.
     """
     if points is None:
         raise TypeError(f"{name} must be an array of shape (N, 3); got None")
@@ -48,9 +49,9 @@ def check_points(points: Any, name: str = "points") -> np.ndarray:
         )
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3); got {arr.shape}")
-    if arr.shape[0] == 0:
+    if arr.shape[0] == 0 and not empty:
         raise ValueError(f"{name} must contain at least one point; got shape {arr.shape}")
-    if not (np.isfinite(arr.min()) and np.isfinite(arr.max())):  # NaN propagates through min and max
+    if arr.size and not (np.isfinite(arr.min()) and np.isfinite(arr.max())):  # NaN propagates through min and max
         bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
         raise ValueError(
             f"{name} contains {bad.size} point(s) with NaN or inf coordinates"

@@ -544,3 +544,20 @@ def test_a_text_files_bad_value_is_reported_on_its_line(tmp_path, text, line):
     (tmp_path / "a.xyz").write_text(text)
     with pytest.raises(io.PointCloudReadError, match=f"a.xyz: line {line}, column 3: 'abc' is not a number$"):
         io.read_points(tmp_path / "a.xyz")
+
+
+@pytest.mark.parametrize("ext", io.WRITE_EXTENSIONS)
+def test_an_empty_cloud_is_written_and_named_when_read(tmp_path, ext):
+    """Zero points (a file a survey keeps nothing of) make a valid file of the format; reading it says it holds none."""
+    if ext in (".las", ".laz"):
+        pytest.importorskip("laspy")
+    if ext == ".pcd":
+        pytest.importorskip("pypcd4")
+    path = tmp_path / f"empty{ext}"
+    io.write_points(path, np.zeros((0, 3)), scores=np.zeros(0), attributes={"intensity": np.zeros(0, np.uint16)})
+    assert path.stat().st_size > 0
+    assert io.header_count(path) in (0, None)
+    with pytest.raises(io.PointCloudReadError, match="holds no points"):
+        io.read_points(path)
+    with pytest.raises(ValueError, match="points must have shape"):
+        io.write_points(tmp_path / f"bad{ext}", np.zeros((0, 2)))

@@ -153,6 +153,25 @@ def test_skip_existing_resumes(tmp_path):
     assert len(changed.written) == 2
 
 
+
+def test_a_file_that_keeps_no_point_is_written_empty(tmp_path):
+    """A small far file ranks below the kept count: its output holds no point, the others are written as usual."""
+    paths, cloud = _survey(tmp_path, n_files=2, n=1500)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.offsets, header.scales = OFFSET, np.array([0.01, 0.01, 0.001])
+    far = laspy.LasData(header)
+    far.x, far.y, far.z = (OFFSET + [9000.0, 9000.0, 0.0] + np.arange(9.0).reshape(3, 3) * 0.001).T
+    far.write(tmp_path / "far.las")
+    paths.append(str(tmp_path / "far.las"))
+    out = tmp_path / "kept"
+    result = survey.resample_files(paths, out, 0.01, method="ea")
+    assert result.written == [str(out / Path(p).name) for p in paths] and not result.failures
+    assert io.header_count(out / "far.las") == 0
+    kept = [io.header_count(out / Path(p).name) for p in paths[:2]]
+    assert sum(kept) == int(np.ceil(0.01 * (len(cloud) + 3)))
+    manifest = json.loads((out / "hgjax-manifest.json").read_text())
+    assert [o["kept"] for o in manifest["outputs"]] == kept + [0]
+
 @pytest.mark.full
 def test_cli_survey_on_two_workers(tmp_path):
     paths, cloud = _survey(tmp_path, n_files=2, n=1500)

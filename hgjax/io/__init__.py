@@ -435,7 +435,8 @@ def write_points(path, points, *, attributes: Mapping[str, np.ndarray] | None = 
         ...``, or a plain array: see ``header``),
         ``.pcd`` (PCL; colours as a packed ``rgb`` float, or ``rgba`` uint32 for 4
         channels; normals as ``normal_x`` ...), ``.las`` / ``.laz`` (see ``header``).
-      points: (N, 3) float32 or float64; PLY, NPY and PCD store them in that dtype.
+      points: (N, 3) float32 or float64, N >= 0 (no point: a valid empty file of the format, which
+        :func:`read_points` refuses as holding none); PLY, NPY and PCD store them in that dtype.
       attributes: per-point arrays with leading axis N: ``colors`` (N, 3|4) (as ``red green
         blue [alpha]``, 8-bit except in LAS), ``normals`` (N, 3) (as ``nx ny nz``), and any
         other (N,) or (N, C) numeric column (as ``name`` or ``name_0 ... name_{C-1}``).

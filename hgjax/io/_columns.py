@@ -79,7 +79,7 @@ def _validated(points, attributes: Mapping[str, np.ndarray] | None, scores) -> t
     """Points (N, 3) and attributes (each (N,) or (N, C), ``colors`` (N, 3|4), ``normals`` (N, 3))."""
     from hgjax import _validate
 
-    pts = np.asarray(_validate.check_points(points))
+    pts = np.asarray(_validate.check_points(points, empty=True))
     n = pts.shape[0]
     attrs = {name: np.asarray(value) for name, value in (attributes or {}).items()}
     if scores is not None:

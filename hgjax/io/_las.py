@@ -151,8 +151,8 @@ def _las_writer(points, attributes, header, binary: bool, compressed: bool, *, c
     if header is None or _is_plain(header):  # no header, or a plain .npy input's layout
         header = laspy.LasHeader(point_format=6 + ("colors" in attributes) + ("colors" in attributes and
                                                                              "nir" in values), version="1.4")
-        header.offsets = np.floor(points.min(axis=0).astype(np.float64))
-        header.scales = np.full(3, _las_scale(float((points - header.offsets).max())))
+        header.offsets = np.floor(points.min(axis=0).astype(np.float64)) if points.size else np.zeros(3)
+        header.scales = np.full(3, _las_scale(float((points - header.offsets).max(initial=0))))
     elif not isinstance(header, laspy.LasHeader):
         raise TypeError(f"header must be a laspy.LasHeader (PointData.header of a LAS/LAZ file) or None;"
                         f" got {type(header).__name__}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import BinaryIO, Callable
 
 import numpy as np
@@ -17,7 +18,7 @@ def _read_npy(path: str) -> tuple[dict[str, np.ndarray], np.dtype | None]:
         if array.ndim != 1:
             raise PointCloudReadError(f"cannot read {path}: expected a structured array of shape (N,); got shape"
                                       f" {array.shape}")
-        return {name: np.asarray(array[name]).reshape(array.shape[0], -1).squeeze(1)
+        return {name: np.asarray(array[name]).reshape(array.shape[0], math.prod(array.dtype[name].shape)).squeeze(1)
                 for name in array.dtype.names}, None
     if array.dtype.kind not in "fiu":
         raise PointCloudReadError(f"cannot read {path}: expected a numeric (N, 3) array; got dtype {array.dtype}")
