@@ -401,7 +401,7 @@ def _scan(cloud: _Cloud, qi, block, width: int, slots: int, metric: str, fold=No
         if fold is not None:
             acc = fold(acc, c)
         both = {name: (None if c[name] is None else jnp.concatenate([best[name], c[name]], axis=1)) for name in _KEYS}
-        return offset + slots, _select(both, width), acc
+        return offset + slots, _select(both, width, cloud.edge, metric), acc
 
     _, best, acc = lax.while_loop(lambda s: s[0] < total, step, (jnp.int32(0), best, acc))
     return best, acc
@@ -434,18 +434,29 @@ def _sorted_exact(c, width: int):
     return got
 
 
-def _sorted_fast(c, width: int):
+def _approximate(hi, edge, metric: str):
+    """float32 keys that never decrease where the exact keys ``hi`` grow: ``hi`` itself in float32;
+    float64 keys (x64) first divided by the cell ``edge`` (twice for ``metric="l2sq"``): a block's
+    keys are a few edges at most, so keys beyond float32's range (a cloud scaled by 1e150 or
+    1e-138) neither overflow nor all round to 0 (correctly rounded divisions and casts are monotone)."""
+    if hi.dtype != jnp.float64:
+        return hi
+    scaled = hi / edge
+    return (scaled / edge if metric == "l2sq" else scaled).astype(jnp.float32)
+
+
+def _sorted_fast(c, width: int, edge, metric: str):
     """The first ``width`` candidates by (hi, lo, gid), and (B,) whether that is certain.
 
     ``lax.top_k`` preselects ``width + PRESELECT_EXTRA`` candidates by a float32 key that is
-    monotone in the exact one (never decreasing where the exact key grows); they are then
-    ordered exactly. Certain where the preselection's last key exceeds its ``width``-th (every
-    candidate up to the ``width``-th exact one is then inside), or where the row holds fewer
-    candidates than that.
+    monotone in the exact one (never decreasing where the exact key grows,
+    :func:`_approximate`); they are then ordered exactly. Certain where the preselection's last
+    key exceeds its ``width``-th (every candidate up to the ``width``-th exact one is then
+    inside), or where the row holds fewer candidates than that.
     """
     cap = c["hi"].shape[1]
     p = min(width + PRESELECT_EXTRA, cap)
-    approx = c["hi"].astype(jnp.float32)  # RN to float32 is monotone
+    approx = _approximate(c["hi"], edge, metric)
     top, at = lax.top_k(-approx, p)
     pick = {name: (None if c[name] is None else jnp.take_along_axis(c[name], at, axis=1))
             for name in ("hi", "lo", "gid", "cidx")}
@@ -475,9 +486,10 @@ def _sorted_fast(c, width: int):
     return got, certain
 
 
-def _select(c, width: int, force_exact=None):
+def _select(c, width: int, edge, metric: str):
     """The first ``width`` candidates of every row (pads with inf keys): the fast path where it is
-    certain for the whole block of rows, else one exact sort (``lax.cond``)."""
+    certain for the whole block of rows, else one exact sort (``lax.cond``); ``edge`` and
+    ``metric`` as :func:`_approximate`."""
     cap = c["hi"].shape[1]
     if width > cap:  # fewer slots than columns: pad the candidates
         pad = width - cap
@@ -486,8 +498,8 @@ def _select(c, width: int, force_exact=None):
                  gid=jnp.pad(c["gid"], ((0, 0), (0, pad)), constant_values=np.iinfo(np.int32).max),
                  cidx=jnp.pad(c["cidx"], ((0, 0), (0, pad)), constant_values=-1))
     keys = {name: c[name] for name in ("hi", "lo", "gid", "cidx")}
-    fast, certain = _sorted_fast(dict(keys), width)
-    ok = jnp.all(certain) if force_exact is None else jnp.all(certain) & ~force_exact
+    fast, certain = _sorted_fast(dict(keys), width, edge, metric)
+    ok = jnp.all(certain)
     names = [name for name in ("hi", "lo", "gid", "cidx") if keys[name] is not None]
     out = lax.cond(ok, lambda: tuple(fast[name] for name in names),
                    lambda: tuple(_sorted_exact(dict(keys), width)[name] for name in names))
@@ -509,20 +521,21 @@ def _default_edge(coords, real, cand_mask, k: int):
     pad = blocks * block - n
     c = jnp.concatenate([coords, jnp.zeros((pad, 3), coords.dtype)]).reshape(blocks, block, 3)
     ok = jnp.concatenate([cand_mask, jnp.zeros(pad, bool)]).reshape(blocks, block)
+    lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
+    hi = jnp.max(jnp.where(real[:, None], coords, -jnp.inf), axis=0)
+    extent = jnp.max(hi - lo)
+    unit = jnp.where(extent > 0, extent, 1)  # distances in extents: float32 holds them at any scale
 
     def step(best, xs):
         cb, okb = xs
-        d = q[:, None, :] - cb[None]
+        d = (q[:, None, :] - cb[None]) / unit
         # float32 (an estimate; XLA's CPU top_k is fast for float32 only)
         sq = jnp.where(okb[None], jnp.sum(d * d, axis=-1), jnp.inf).astype(jnp.float32)
         both = jnp.concatenate([best, sq], axis=1)
         return -lax.top_k(-both, kk)[0], None
 
     best, _ = lax.scan(step, jnp.full((s, kk), jnp.inf, jnp.float32), (c, ok))
-    reach = jnp.sqrt(best[:, -1].astype(coords.dtype))
-    lo = jnp.min(jnp.where(real[:, None], coords, jnp.inf), axis=0)
-    hi = jnp.max(jnp.where(real[:, None], coords, -jnp.inf), axis=0)
-    extent = jnp.max(hi - lo)
+    reach = jnp.sqrt(best[:, -1].astype(coords.dtype)) * unit
     floor = extent * (2.0 ** (-16 if coords.dtype == jnp.float32 else -28))
     finite = jnp.where(jnp.isfinite(reach), reach, 0)
     edge = jnp.maximum(EDGE_MARGIN * jnp.max(finite), floor)
