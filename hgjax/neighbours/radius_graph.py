@@ -535,6 +535,7 @@ def graph(points, *, variant: str = "invariant", radius_factor: float | None = N
 
 
 MAX_ROUNDS = 12  # eager rounds of growth before giving up
+JIT_ROW_SHARE = 2  # a row's columns under jit, in max_nn (the rows of a 600-point lattice hold up to 1.5 max_nn)
 BALL_MARGIN = 2.0 ** -18  # the reference ball's squared radius over r: beyond float32 q's rounding (< 2^-21)
 RADIUS_MARGIN = 2.0 ** -20  # float32 pairs: the search's radius over r's leading part (then the exact pair test)
 ROW_BLOCK = 4096  # rows per block of the graph's own per-row work (exact keys, the reference's ranking)
@@ -551,7 +552,8 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
       variant, radius_factor, max_nn: as :func:`hgjax.neighbours.radius_graph.graph` (validated here).
       capacity: columns of ``idx`` (static). Eagerly as the host: None sizes them to the
         fullest row (rounded up to a power of two), a fixed one too small raises. Under
-        ``jit`` default ``bucket(max_nn)``; a wider row raises, naming the capacity it needs.
+        ``jit`` default ``bucket(2 max_nn)`` (a row lists what it keeps and what keeps it:
+        lattices and tied clouds pass ``max_nn``); a wider row raises, naming the capacity it needs.
       cell_slots: candidates the searches read per step (static; default
         :data:`hgjax.neighbours.backend.CELL_SLOTS`): speed only.
       cell_edge: the first edge of the graph's search (traced), or None for one from the data:
@@ -585,7 +587,7 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     statics = dict(variant=variant, factor=factor, max_nn=max_nn, slots=slots)
     ball = spatial.bucket(max_nn) if cap is None else cap  # the reference's ball columns
     if traced:
-        columns = ball
+        columns = spatial.bucket(JIT_ROW_SHARE * max_nn) if cap is None else cap
         lists, report = _search(jnp.asarray(pts), None, cell_edge, ball=ball, **statics)
         idx, first, width = _assemble(lists, variant=variant, columns=columns)
         wide = jnp.maximum(jnp.where(report["ball"] > ball, report["ball"], 0), jnp.where(width > columns, width, 0))

@@ -247,7 +247,7 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
       variant, radius_factor, max_nn: as :func:`hgjax.neighbours.radius_graph.graph`.
       capacity: fixed number of columns K (at least the fullest row); default the fullest
         row rounded up to a power of two. Static with ``search="jax"`` under ``jit`` (default
-        there ``bucket(max_nn)``; a wider row is recorded on ``overflow``).
+        there ``bucket(2 max_nn)``; a wider row stops the program, naming the capacity it needs).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search:
         jit, vmap, grad; the same graph, :mod:`hgjax.neighbours.radius_graph`).
       cell_slots, cell_edge: the traced search's candidates read per step (static) and first
