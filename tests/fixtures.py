@@ -76,6 +76,27 @@ def smooth_and_rounded(n=1200, seed=3):
     return {"smooth": smooth, "rounded": (np.round(smooth * 20) / 20).astype(np.float32)}
 
 
+def cloud_families(seed=0):
+    """400 float64 points of each kind of cloud a traced search must treat as the host does, by name.
+
+    smooth (a box union), quantised (the same rounded to 1/16: equal distances), lattice,
+    lattice_0.1 and lattice_0.3 (a 20 x 10 x 2 grid of spacing 1/8, 0.1 or 0.3, shuffled and
+    moved by whole spacings: 0.1 and 0.3 are no binary fractions, so float32 rounds the
+    lattice unevenly), collinear, coplanar and tilted_plane (random in a plane through no axis).
+    """
+    rng = np.random.default_rng(seed)
+    n = 400
+    smooth = box_union(n, seed=seed)
+    out = {"smooth": smooth, "quantised": np.round(smooth * 16) / 16}
+    for name, spacing in (("lattice", 0.125), ("lattice_0.1", 0.1), ("lattice_0.3", 0.3)):
+        out[name] = grid((20, 10, 2), spacing, seed=seed) + rng.integers(0, 3, (1, 3)) * spacing
+    out["collinear"] = np.outer(np.sort(rng.random(n)), [1.0, 2.0, 3.0]) + np.array([0.3, -1.0, 2.0])
+    out["coplanar"] = np.c_[rng.random((n, 2)), np.zeros(n)]
+    uv = rng.random((n, 2))
+    out["tilted_plane"] = uv[:, :1] * np.array([1.0, 0.3, 0.2]) + uv[:, 1:] * np.array([-0.1, 0.7, 0.9]) + 5.0
+    return out
+
+
 def degenerate_clouds(n=40):
     """Clouds of n points (a multiple of 4) that break naive kernels, by name.
 

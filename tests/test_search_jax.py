@@ -106,6 +106,17 @@ def test_knn_distances_are_the_hosts_bits():
     np.testing.assert_array_equal(np.asarray(found.reach)[:len(p)], got[:, -1])
 
 
+@pytest.mark.parametrize("metric", ["l2", "l2sq", "linf"])
+@pytest.mark.parametrize("scale", [1e150, 1e-138])
+def test_knn_at_the_ends_of_float64_equals_the_host(scale, metric):
+    """x64: keys near 1e301 or 1e-276 (squared), beyond float32's range, still rank as the host's."""
+    p = CLOUDS["quantised_1mm"] * scale
+    with x64_mode(True):
+        found = traced_knn(K, False, True, metric)(*padded(p, np.float64))
+    assert not bool(found.overflow)
+    np.testing.assert_array_equal(cut(found.idx, len(p)), naive_rows(p, K, metric))
+
+
 def naive_rows(p, k, metric="l2", radius=None, dedupe=False):
     """Brute force: every pair's key as the host computes it (float64 local frame, x + y + z in order), rows
     by (key, index), the point itself first; radius: keep keys below it."""
