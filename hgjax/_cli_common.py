@@ -225,9 +225,10 @@ def _load(path: str, args):
 
 def _method_params(args, entry) -> dict:
     """``-p``, ``--variant`` and ``--search`` parameters, checked against the registry entry's
-    parameters of the stages the CLI runs (build, score, select: not the soft score's ``tau``),
-    before any input is read. Without ``--search`` the engine picks the backend's default
-    (:func:`hgjax.engine.searched`)."""
+    parameters of the stages the CLI runs (build, score, select: not the soft score's ``tau``);
+    a ``--search`` the method's tiles cannot build with is refused by the engine's own check
+    (:func:`hgjax.engine.searched`), before any input is read. Without ``--search`` the engine
+    picks the backend's default."""
     params = {}
     for name, value in args.param:
         if name in CLI_PARAMS:
@@ -248,7 +249,9 @@ def _method_params(args, entry) -> dict:
     if args.search is not None:
         if "search" not in accepted:
             raise UsageError(f"method {entry.name!r} does not take --search: it builds no neighbourhoods")
-        params["search"] = args.search
+        from hgjax import engine
+
+        params = engine.searched(entry, {**params, "search": args.search})
     return params
 
 

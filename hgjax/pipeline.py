@@ -17,12 +17,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate
-from hgjax.neighbours import backend, spatial
+from hgjax.neighbours import backend, radius_graph, spatial
 from hgjax._method import Method
 from hgjax._registry import DEFAULT, METHODS, scoring, split
 from hgjax.select import soft_select, top_k
 
-__all__ = ["keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"]
+__all__ = ["capacity", "keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"]
 
 def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
     """The neighbourhoods a method scores, built on the host with SciPy, or traced (``search="jax"``).
@@ -31,9 +31,10 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
     ones, HKC/HKF's cubes and GFR's graph) the build is pure JAX: it runs under ``jax.jit`` and
     ``jax.vmap`` and inside ``jax.grad``, with the host's neighbour sets and no sizes to pass: the
     k-nearest search reads every candidate its cells hold. Only a ball's or a graph row's
-    static columns (``capacity``) can be outgrown; eagerly they are sized and recorded in
-    ``nb.params``; under ``jit`` a row wider than them stops the program with an error naming
-    the ``capacity`` needed, never a truncated result.
+    static columns (``capacity``) can be outgrown; eagerly they are sized to the cloud
+    (``nb.idx.shape[-1]``; :func:`capacity` counts them without a build); under ``jit`` a row
+    wider than them stops the program with an error naming the ``capacity`` needed, never a
+    truncated result.
 
     Build once per cloud, then call :func:`score` or :func:`soft_score` as often as needed,
     inside your own ``jit``, ``vmap`` or ``grad``. Parameters another stage takes (e.g.
@@ -63,6 +64,47 @@ def neighbourhoods(points, method: str, **params) -> spatial.Neighbourhoods:
     entry = scoring(method)
     nb = entry.build(points, **split(entry, "build", params))
     return dataclasses.replace(nb, method=method)
+
+
+def capacity(points, method: str, **params) -> int:
+    """The columns (``capacity``) a traced build of ``method`` needs for these points, counted by the host search.
+
+    The allocation of a jitted update: under ``jax.jit`` a ball (HKC/HKF) or a graph row (GFR)
+    of ``search="jax"`` has static columns, and one wider than them stops the program with an
+    error naming the capacity needed. This counts them directly, without compiling anything:
+    the host's build of the same neighbourhoods (SciPy's k-d tree; the traced search's sets),
+    its fullest row rounded up to a power of two (at least 8), the shape bucket of
+    :func:`neighbourhoods`, and for GFR's reference variant its search's fullest ball
+    (:func:`hgjax.neighbours.radius_graph.reference_ball`). The k-nearest methods need no
+    sizing: their capacity is their k.
+
+    Args:
+      points: (N, 3) float32 or float64; never modified.
+      method: a scoring method of :data:`METHODS`.
+      **params: the method's neighbourhood parameters, as :func:`neighbourhoods` takes them
+        (``search`` and parameters of other stages are ignored).
+
+    Returns:
+      The columns to pass as ``capacity=`` to a jitted build, score or resample of clouds like these.
+
+    Raises:
+      TypeError, ValueError: invalid points, method or parameters (as :func:`neighbourhoods`).
+
+    Examples:
+      >>> import jax, numpy as np, hgjax
+      >>> p = hgjax.eval.box_union_cloud(seed=0, n_points=2000).points.astype(np.float32)
+      >>> cols = hgjax.capacity(p, "hkc")
+      >>> nb = jax.jit(lambda q: hgjax.neighbourhoods(q, "hkc", search="jax", capacity=cols))(p)
+      >>> nb.idx.shape == (2000, cols), bool((np.asarray(nb.idx) == hgjax.neighbourhoods(p, "hkc").idx).all())
+      (True, True)
+    """
+    entry = scoring(method)
+    build = {k: v for k, v in split(entry, "build", params).items() if k != "search"}
+    nb = entry.build(points, **build)
+    width = nb.idx.shape[-1]
+    if entry.kind == "graph" and dict(nb.params).get("variant") == "reference":
+        width = max(width, spatial.bucket(radius_graph.reference_ball(_validate.check_points(points))))
+    return int(width)
 
 
 _CHECKS = {"kernel_size": _validate.check_kernel_size, "lengths": _validate.check_lengths}

@@ -21,11 +21,6 @@ def clouds():
     return smooth_and_rounded()
 
 
-def _searched(nb) -> dict:
-    """The sizes an eager build recorded to pass back inside jit (none for the k-nearest kinds)."""
-    return {name: value for name, value in nb.params if name == "capacity"}
-
-
 @pytest.mark.parametrize("method", KNN)
 @pytest.mark.parametrize("which", ["smooth", "rounded"])
 def test_traced_neighbourhoods_equal_the_host(clouds, method, which):
@@ -34,7 +29,7 @@ def test_traced_neighbourhoods_equal_the_host(clouds, method, which):
     eager = hgjax.neighbourhoods(p, method, search="jax")
     np.testing.assert_array_equal(np.asarray(eager.idx), host.idx)
     np.testing.assert_array_equal(np.asarray(eager.points), np.asarray(host.points))
-    jitted = jax.jit(lambda q: hgjax.neighbourhoods(q, method, search="jax", **_searched(eager)))(p)
+    jitted = jax.jit(lambda q: hgjax.neighbourhoods(q, method, search="jax"))(p)
     assert int(jitted.overflow) == 0
     np.testing.assert_array_equal(np.asarray(jitted.idx), host.idx)
     np.testing.assert_array_equal(np.asarray(jitted.points), np.asarray(host.points))
@@ -46,8 +41,9 @@ def test_traced_neighbourhoods_equal_the_host_in_float64(clouds):
         p = clouds["rounded"].astype(np.float64)
         host = hgjax.neighbourhoods(p, "ea")
         eager = hgjax.neighbourhoods(p, "ea", search="jax")
-        jitted = jax.jit(lambda q: hgjax.neighbourhoods(q, "ea", search="jax", **_searched(eager)))(p)
+        jitted = jax.jit(lambda q: hgjax.neighbourhoods(q, "ea", search="jax"))(p)
         assert jitted.points.dtype == jnp.float64
+        np.testing.assert_array_equal(np.asarray(eager.idx), host.idx)
         np.testing.assert_array_equal(np.asarray(jitted.idx), host.idx)
         np.testing.assert_array_equal(np.asarray(jitted.points), host.points)
 
@@ -62,8 +58,7 @@ def test_few_slots_under_jit_still_read_every_candidate(clouds):
 @pytest.mark.parametrize("method", KNN)
 def test_jitted_resample_equals_the_host_composition(clouds, method):
     p = clouds["rounded"]
-    settings = _searched(hgjax.neighbourhoods(p, method, search="jax"))
-    got = jax.jit(lambda q: hgjax.resample(q, 0.2, method=method, search="jax", **settings))(p)
+    got = jax.jit(lambda q: hgjax.resample(q, 0.2, method=method, search="jax"))(p)
     host = hgjax.keep(np.asarray(hgjax.score(hgjax.neighbourhoods(p, method), method)), 0.2, method=method)
     np.testing.assert_array_equal(np.asarray(got), host)
     assert set(np.asarray(got).tolist()) == set(hgjax.resample(p, 0.2, method=method).tolist())
@@ -71,8 +66,7 @@ def test_jitted_resample_equals_the_host_composition(clouds, method):
 
 def test_vmap_over_a_batch_equals_a_loop(clouds):
     batch = np.stack([clouds["smooth"], clouds["smooth"][::-1] + np.float32(0.25)])
-    settings = _searched(hgjax.neighbourhoods(batch[1], "ea", search="jax"))
-    nbs = jax.vmap(lambda q: hgjax.neighbourhoods(q, "ea", search="jax", **settings))(batch)
+    nbs = jax.vmap(lambda q: hgjax.neighbourhoods(q, "ea", search="jax"))(batch)
     assert not np.asarray(nbs.overflow).any()
     for b in range(2):
         np.testing.assert_array_equal(np.asarray(nbs.idx[b]), hgjax.neighbourhoods(batch[b], "ea").idx)
@@ -106,11 +100,6 @@ def test_what_the_traced_search_does_not_cover_is_refused(clouds, call):
 
 
 # ----------------------------------------------------------------------------- HKC/HKF: cubes and balls
-def _cube_settings(nb) -> dict:
-    """The traced search's settings and the columns an eager cube build ended with, to pass back inside jit."""
-    return {**_searched(nb), "capacity": dict(nb.params)["capacity"]}
-
-
 @functools.lru_cache(maxsize=None)
 def _jitted_cubes(variant: str, cell_slots: int, capacity: int):
     """One jitted HKC build per static setting (the edge traced), shared by the clouds that need it."""
@@ -119,7 +108,7 @@ def _jitted_cubes(variant: str, cell_slots: int, capacity: int):
 
 
 def _jitted_like(nb, p, variant="invariant"):
-    return _jitted_cubes(variant, 8, _cube_settings(nb)["capacity"])(p, None)
+    return _jitted_cubes(variant, 8, nb.idx.shape[-1])(p, None)
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +205,7 @@ def test_the_traced_d_factor_ramp_is_the_hosts():
 def test_cube_resample_equals_the_host(clouds, cube_builds):
     """Jitted (HKC) and eager (HKF, same cubes) resamples with the traced search keep the host's points."""
     p = clouds["smooth"]
-    settings = _cube_settings(cube_builds("smooth", "invariant")[1])
+    settings = {"capacity": cube_builds("smooth", "invariant")[1].idx.shape[-1]}
     got = jax.jit(lambda q: hgjax.resample(q, 0.2, method="hkc", search="jax", **settings))(p)
     np.testing.assert_array_equal(np.asarray(got), hgjax.resample(p, 0.2, method="hkc"))
     np.testing.assert_array_equal(np.asarray(hgjax.resample(p, 0.2, method="hkf", search="jax")),

@@ -40,8 +40,8 @@ cube) reads its cells ``cell_slots`` candidates at a time and starts from ``cell
 own default (a ball's: 1.1 x the 90th percentile of the radii; the rows it misses are searched
 again at a wider edge): both set the speed only. What can overflow is a ball wider than its
 static columns (``capacity``): eagerly the columns are the host's (the fullest row rounded up),
-recorded on the result; under ``jit`` a wider ball stops the program, naming the columns it needs
-(:func:`hgjax.neighbours.backend.guard`).
+counted before the traced program runs, so each size compiles once; under ``jit`` a wider ball
+stops the program, naming the columns it needs (:func:`hgjax.neighbours.backend.guard`).
 
 Degenerate clouds: fewer than ``local_k + 1`` locations lower the spacing's k to the number
 of other locations, as the host does (under ``jit`` the count is traced, and a ``lax.switch``
@@ -64,8 +64,8 @@ from hgjax.neighbours import backend, cells, spatial
 from hgjax.neighbours.cells import _pair_keys
 from hgjax.neighbours.container import Neighbourhoods
 
-__all__ = ["COLUMNS", "build", "build_params", "cube", "default_d_factor", "index_balls", "linear_ramp", "local_spacing",
-           "resolve", "row_batches", "tile_batches", "traced"]
+__all__ = ["COLUMNS", "build", "build_params", "cube", "default_d_factor", "linear_ramp", "local_spacing", "resolve", "row_batches",
+           "traced"]
 
 COLUMNS = 128
 """Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
@@ -185,52 +185,6 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
         start = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
         yield part, idx, 2 / k * half / widen, reach
 
-def tile_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
-    """:func:`row_batches` by the build's search: the host's, or with ``params["search"] == "jax"`` one
-    batch of :func:`index_balls` (a tiled run's build)."""
-    if params.get("search") == "jax":
-        return iter([(slice(0, len(rows)), *index_balls(index, rows, params))])
-    return row_batches(index, rows, params)
-
-
-def index_balls(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
-    """The cube neighbourhoods of sorted ``rows`` (R,) that :func:`row_batches` yields, by the traced search.
-
-    The local spacing's (LOCAL_K + 1)-nearest search and the cube (or ball) query run over the
-    whole index (:func:`hgjax.neighbours.backend.index_search`: the host's neighbour sets and
-    distances bit for bit), and the spacing is :func:`hgjax.neighbours.spatial.spacing_of` of
-    those distances, in the host's float64 operations: the rows, scales and reaches are the host's.
-
-    Returns:
-      (idx, scale, reach) as one batch of :func:`row_batches`: idx (R, W) int32, W the fullest row.
-    """
-    rows = np.asarray(rows, dtype=np.int64)
-    n, k = index.n, params["kernel_size"]
-    invariant = params["variant"] == "invariant"
-    widen = np.sqrt(3.0) if invariant else 1.0
-    factor = widen * k / 2 * params["d_factor"]
-    if params["resolution"] is None:
-        local_k = min(LOCAL_K, n - 1)
-        if local_k < 1:
-            res, reach = np.ones(n), np.zeros(n)
-        else:
-            near = backend.index_search(index, cells.knn, local_k + 1)
-            res, reach = spatial.spacing_of(near.reach[near.idx], near.reach)
-        if n <= LOCAL_K:  # the estimate read fewer neighbours than the whole cloud may hold
-            reach = np.full(n, np.inf)
-    else:
-        res, reach = params["resolution"], np.zeros(n)
-    half = np.broadcast_to(factor * res, (n,))
-    typical = np.sort(half[rows])[(rows.size - 1) * EDGE_QUANTILE // 100]
-    max_count = MAX_COUNT if invariant else None
-    found = backend.index_search(index, cells.within, radius=half, columns=max_count or FIRST_COLUMNS,
-                                 metric="l2" if invariant else "linf", max_count=max_count,
-                                 edge=cells.EDGE_MARGIN * typical)
-    idx = found.idx[rows]
-    idx = idx[:, :max(1, int((idx < n).sum(axis=1).max(initial=1)))]
-    return idx, 2 / k * found.reach[rows] / widen, np.maximum(reach, half)[rows]
-
-
 def build(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                    resolution: float | None = None, dedupe: bool | None = None,
                    capacity: int | None = None, search: str = "host", cell_slots: int | None = None,
@@ -263,10 +217,10 @@ def build(points, *, variant: str = "invariant", d_factor: float | None = None, 
       dedupe: count exact duplicates once (default: True for "invariant", False for
         "reference").
       capacity: fixed number of columns K (see :func:`hgjax.cube`); default automatic. With
-        ``search="jax"`` under ``jit`` it sets a static shape: pass the one an eager build
-        recorded (``nb.params``); without it, 256 columns for "invariant" (a cube never
-        holds more) and 128 for "reference" (a wider cube stops the program, naming the
-        capacity it needs).
+        ``search="jax"`` under ``jit`` it sets a static shape: pass :func:`hgjax.capacity` of
+        the cloud (or an eager build's ``idx.shape[-1]``); without it, 256 columns for
+        "invariant" (a cube never holds more) and 128 for "reference" (a wider cube stops
+        the program, naming the capacity it needs).
       search: ``"host"`` (SciPy's k-d tree; not jittable) or ``"jax"`` (the traced search,
         :func:`traced`: jit, vmap; the host's neighbour sets and ``scale``,
         every whole-cloud decision (d factor, resolution) traced too).
@@ -364,8 +318,9 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
       cell_slots: candidates the traced searches read per step (static; default
         :data:`hgjax.neighbours.backend.CELL_SLOTS`): speed only.
       cell_edge: their first cell edge (traced), or None for one from the data: speed only.
-      params: build parameters recorded on the result (``search`` added; eagerly also the
-        ``capacity`` it ended with, to pass inside ``jit`` for a batch of one shape).
+      params: build parameters recorded on the result (``search`` added); eagerly also the host
+        build's parameters that count the columns. The columns are ``idx.shape[-1]``, not a
+        parameter, so two eager builds stack (:func:`hgjax.stack_neighbourhoods`).
 
     Returns:
       :class:`hgjax.Neighbourhoods` with the host's ``idx`` (N, K) int32 padded with N,
@@ -387,10 +342,11 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
         return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record({**params, "search": "jax"}),
                                       overflow=backend.guard(overflow), points_lo=lo)
     # Eagerly the same program, jitted once per setting: the spacing's k from the host's count of locations
-    # (no switch over every k), the columns grown to what the fullest row reports.
+    # (no switch over every k); the columns counted before it runs: max_count bounds a shrinking ball, else
+    # the host's fullest cube (the same sets) does. Only a traced row wider than that would grow them.
     locations = len(np.unique(np.asarray(p), axis=0)) if dedupe else n  # as the search sees the points
     spacing_k = min(local_k, locations - 1) if isinstance(spacing, str) and spacing == "local" else None
-    columns = capacity if capacity is not None else (max_count or FIRST_COLUMNS)
+    columns = capacity if capacity is not None else (max_count or build(points, **params).idx.shape[1])
     while True:
         idx, scale, overflow, width = _jitted_balls(columns=columns, spacing_k=spacing_k, **statics)(p, cell_edge)
         needed = int(overflow)
@@ -403,16 +359,17 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
     width = int(width)
     _validate.check_capacity(capacity, width, "cube")
     cols = spatial.bucket(width) if capacity is None else capacity
-    idx = idx[:, :cols] if idx.shape[1] >= cols else jnp.pad(idx, ((0, 0), (0, cols - idx.shape[1])), constant_values=n)
+    idx = np.asarray(idx)[:, :cols]
+    idx = jnp.asarray(np.pad(idx, ((0, 0), (0, cols - idx.shape[1])), constant_values=n))
     local, lo = backend.host_frame(points)
-    record = {**params, "search": "jax", "capacity": cols}
-    return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype), params=spatial.record(record),
+    return spatial.Neighbourhoods(local, idx, scale.astype(local.dtype),
+                                  params=spatial.record({**params, "search": "jax"}),
                                   overflow=jnp.zeros((), jnp.int32), points_lo=lo)
 
 
 def _traced_build(points, params: dict, capacity, cell_slots, cell_edge) -> Neighbourhoods:
     """:func:`neighbourhoods` by the traced search: the cube (or ball) with every decision of :func:`resolve` traced."""
-    pts = backend.checked_points(points)
+    pts = _validate.check_traced_points(points) if _stream.is_traced(points) else _validate.check_points(points)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     slots = None if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)

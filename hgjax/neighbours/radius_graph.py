@@ -58,7 +58,7 @@ from jax import lax
 from hgjax import _exact, _stream, _validate
 from hgjax.neighbours import backend, cells, spatial
 
-__all__ = ["MAX_NN", "RADIUS_FACTOR", "build", "graph", "graph_params", "index_location_rows", "location_rows",
+__all__ = ["MAX_NN", "RADIUS_FACTOR", "build", "graph", "graph_params", "location_rows", "reference_ball",
            "squared_radius"]
 
 GFR_VARIANTS = ("invariant", "reference")
@@ -116,6 +116,26 @@ def _reference_radius(p32: np.ndarray, index: spatial.SpatialIndex) -> float:
     if min_nn == max_nn:
         max_nn = 5 * min_nn
     return float(min(10 * min_nn, 2 * max_nn))
+
+
+def reference_ball(points) -> int:
+    """The fullest ball of the reference graph's traced search (:func:`build`): the points within the
+    reference radius of each point, itself included, counted by the host's k-d tree (the columns
+    that search needs, counted before it runs; a hair wider than its ball: never too few).
+
+    Args:
+      points: (N, 3) float32 or float64, already validated.
+
+    Returns:
+      The largest count, at least 1.
+    """
+    p32 = spatial.local_frame(np.asarray(points))[0].astype(np.float32)
+    index = spatial.SpatialIndex(p32.astype(np.float64))
+    r = _reference_radius(p32, index)
+    if r <= 0:
+        return 1
+    idx, _ = index.cube(np.sqrt(r * (1 + 2 * BALL_MARGIN)) * (1 + SURE_GAP), norm=2)
+    return max(1, int((idx < index.n).sum(axis=1).max()))
 
 
 def _pairs(p: np.ndarray, index: spatial.SpatialIndex, r: float, max_nn: int):
@@ -213,29 +233,6 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         if hi > lo or not want[own].all() or (own[1:] < own[:-1]).any():
             own, counts, cols = _merged(batch, want, own, counts, cols, back_row[lo:hi], back_col[lo:hi])
         yield from by_width(own, counts, cols, m)
-
-
-def index_location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.ndarray):
-    """:func:`location_rows` by the traced search: the same partners of the rows ``want`` (in another
-    order within a row, which no sum over a row reads), a tiled run's build.
-
-    What every location keeps is one capped k-nearest search over the whole index
-    (:func:`hgjax.neighbours.backend.index_search` of :func:`hgjax.neighbours.cells.knn` with
-    ``metric="l2sq"`` and ``radius`` r: the host's q and (q, gid) order bit for bit); a wanted row's
-    partners are what it keeps and the rows that keep it.
-
-    Yields:
-      (own, sym) as :func:`location_rows`: each row's partners ascending.
-    """
-    m = index.n
-    kept = backend.index_search(index, cells.knn, min(max_nn + 1, m), radius=r, metric="l2sq").idx[:, 1:]
-    a = np.broadcast_to(np.arange(m)[:, None], kept.shape)[kept < m]
-    b = kept[kept < m].astype(np.int64)
-    rows, cols = np.concatenate([a, b]), np.concatenate([b, a])
-    mine = want[rows]
-    rows, cols = split_keys(rows[mine] * m + cols[mine], m)
-    own = np.flatnonzero(want)
-    yield from by_width(own, np.bincount(rows, minlength=m)[own], cols.astype(np.int32), m)
 
 
 def _merged(batch: np.ndarray, want: np.ndarray, own: np.ndarray, counts: np.ndarray, cols: np.ndarray,
@@ -574,10 +571,13 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     Args:
       points: (N, 3) float32 or float64; a tracer under ``jit``.
       variant, radius_factor, max_nn: as :func:`hgjax.neighbours.radius_graph.graph` (validated here).
-      capacity: columns of ``idx`` (static). Eagerly as the host: None sizes them to the
-        fullest row (rounded up to a power of two), a fixed one too small raises. Under
+      capacity: columns of ``idx`` (static; the reference variant's ball columns too). Eagerly
+        as the host: None sizes them to the fullest row (rounded up to a power of two), counted
+        before the rows are written (and the reference ball's by the host's k-d tree,
+        :func:`reference_ball`), so each size compiles once; a fixed one too small raises. Under
         ``jit`` default ``bucket(2 max_nn)`` (a row lists what it keeps and what keeps it:
-        lattices and tied clouds pass ``max_nn``); a wider row raises, naming the capacity it needs.
+        lattices and tied clouds pass ``max_nn``); a wider row raises, naming the capacity it needs
+        (:func:`hgjax.capacity` counts it for a cloud).
       cell_slots: candidates the searches read per step (static; default
         :data:`hgjax.neighbours.backend.CELL_SLOTS`): speed only.
       cell_edge: the first edge of the graph's search (traced), or None for one from the data:
@@ -587,8 +587,8 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
       :class:`hgjax.Neighbourhoods` with the host's ``idx`` and ``first`` (eagerly: None
       where no two points coincide, as the host; under ``jit`` an (N,) array for the
       invariant graph, the identity without duplicates, which scores alike) and ``params``
-      recording ``search="jax"`` and ``capacity`` (eagerly the columns the build ended with,
-      to pass back inside ``jit`` for one shape across clouds).
+      recording ``search="jax"`` (the columns are ``idx.shape[-1]``, not a parameter: two
+      eager builds stack, :func:`hgjax.stack_neighbourhoods`).
 
     Raises:
       TypeError, ValueError: invalid arguments; a fixed capacity too small (eagerly, or under
@@ -603,7 +603,7 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     """
     variant, factor, max_nn = graph_params(variant, radius_factor, max_nn)
     traced = _stream.is_traced(points)
-    pts = backend.checked_points(points)
+    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
     slots = backend.CELL_SLOTS if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     params = {"variant": variant, "radius_factor": radius_factor, "max_nn": max_nn, "search": "jax"}
@@ -617,10 +617,11 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
         wide = jnp.maximum(jnp.where(report["ball"] > ball, report["ball"], 0), jnp.where(width > columns, width, 0))
         overflow = backend.guard(jnp.where(report["uncovered"], -1, wide).astype(jnp.int32))
         local, lo = backend.traced_frame(pts)
-        record = {**params, "capacity": columns}
-        return spatial.Neighbourhoods(local, idx, first=first, params=spatial.record(record), overflow=overflow,
+        return spatial.Neighbourhoods(local, idx, first=first, params=spatial.record(params), overflow=overflow,
                                       points_lo=lo)
     p = jnp.asarray(pts)
+    if variant == "reference":  # the ball's columns counted first: one program
+        ball = spatial.bucket(reference_ball(pts))
     edges = [None, cell_edge]
     for _ in range(MAX_ROUNDS):
         lists, report = _jitted_search(ball=ball, **statics)(p, *edges)
@@ -635,14 +636,10 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
                 edges[s] = need if np.isfinite(need) else 4 * float(report[f"edge_{name}"])
     else:
         raise RuntimeError(f"the traced graph search still overflows after {MAX_ROUNDS} rounds")
-    columns = spatial.bucket(max_nn) if cap is None else cap
-    idx, first, width = _jitted_assemble(variant, columns)(lists)
+    pairs, width = _jitted_pairs(variant)(lists)  # the fullest row, counted before any columns
     width = int(width)
-    if cap is None and spatial.bucket(width) != columns:
-        columns = spatial.bucket(width)
-        idx, first, width = _jitted_assemble(variant, columns)(lists)
-        width = int(width)
     _validate.check_capacity(cap, width, "GFR row")
+    idx, first = _jitted_rows(variant, spatial.bucket(width) if cap is None else cap)(pairs)
     idx = np.asarray(idx)
     first = None if first is None else np.asarray(first)
     if first is not None and (first == np.arange(n)).all():
@@ -651,10 +648,9 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     local = spatial.local_frame(host)[0]
     dtype = spatial.working_dtype(host.dtype, extent=spatial.frame_extent(local),
                                   spacing=lambda: spatial.pair_spacing(local, idx, first))
-    record = {**params, "capacity": columns}
     return spatial.Neighbourhoods(jnp.asarray(local.astype(dtype)), jnp.asarray(idx),
                                   first=None if first is None else jnp.asarray(first, jnp.int32),
-                                  params=spatial.record(record), overflow=jnp.zeros((), jnp.int32))
+                                  params=spatial.record(params), overflow=jnp.zeros((), jnp.int32))
 
 
 @functools.lru_cache(maxsize=None)
@@ -663,8 +659,13 @@ def _jitted_search(**statics):
 
 
 @functools.lru_cache(maxsize=None)
-def _jitted_assemble(variant: str, columns: int):
-    return jax.jit(functools.partial(_assemble, variant=variant, columns=columns))
+def _jitted_pairs(variant: str):
+    return jax.jit(functools.partial(_pairs_of, variant=variant))
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted_rows(variant: str, columns: int):
+    return jax.jit(functools.partial(_rows, variant=variant, columns=columns))
 
 
 # ----------------------------------------------------------------------------- the searches
@@ -836,12 +837,16 @@ def _reference_lists(points, edge_near, edge_main, slots: int, ball_columns: int
 def _assemble(lists, *, variant: str, columns: int):
     """(idx (N, columns) int32, first (N,) or None, width): the host's rows from :func:`_search`'s lists;
     ``width`` the fullest row (a row wider than ``columns`` is cut: the caller reports it)."""
+    pairs, width = _pairs_of(lists, variant=variant)
+    return (*_rows(pairs, variant=variant, columns=columns), width)
+
+
+def _pairs_of(lists, *, variant: str):
+    """(pairs, width): the stored pairs of :func:`_search`'s lists, each with its row and its rank in the
+    row, and the fullest row's count: what sizes the columns, computed without them."""
     if variant == "reference":
         n = lists.shape[0]
-        width = jnp.max(jnp.sum(lists < n, axis=1)).astype(jnp.int32)
-        w = lists.shape[1]
-        idx = lists[:, :columns] if w >= columns else jnp.pad(lists, ((0, 0), (0, columns - w)), constant_values=n)
-        return idx.astype(jnp.int32), None, width
+        return lists, jnp.max(jnp.sum(lists < n, axis=1)).astype(jnp.int32)
     kept, first = lists
     n = kept.shape[0]
     iota = jnp.arange(n, dtype=jnp.int32)
@@ -855,7 +860,19 @@ def _assemble(lists, *, variant: str, columns: int):
     counts = jnp.zeros(n + 1, jnp.int32).at[lo].add(new.astype(jnp.int32))[:n]
     start = jnp.cumsum(counts) - counts
     rank = jnp.cumsum(new.astype(jnp.int32)) - 1 - start[jnp.minimum(lo, n - 1)]
+    return (lo, hi, rank, new, first), jnp.max(counts, initial=0)
+
+
+def _rows(pairs, *, variant: str, columns: int):
+    """(idx (N, columns) int32, first (N,) or None): the pairs of :func:`_pairs_of` written into ``columns``
+    columns (a row wider than them is cut: the caller reports it)."""
+    if variant == "reference":
+        n, w = pairs.shape
+        idx = pairs[:, :columns] if w >= columns else jnp.pad(pairs, ((0, 0), (0, columns - w)), constant_values=n)
+        return idx.astype(jnp.int32), None
+    lo, hi, rank, new, first = pairs
+    n = first.shape[0]
     put = new & (rank < columns)
     idx = jnp.full((n, columns), n, jnp.int32).at[jnp.where(put, lo, n), jnp.where(put, rank, 0)].set(
         hi.astype(jnp.int32), mode="drop")
-    return idx, first.astype(jnp.int32), jnp.max(counts, initial=0)
+    return idx, first.astype(jnp.int32)
