@@ -13,9 +13,16 @@ The traced builds move the points to the host's local frame (:func:`traced_frame
 bounding-box centre subtracted) with the centre carried exactly (TwoSum), so the float32
 coordinates equal the host's float64 subtraction rounded once, up to a double rounding at an
 exact midpoint; under x64 the subtraction is the host's own.
+
+A tiled run (:mod:`hgjax._tiling`) builds each tile by either search: with ``search="jax"`` every
+kind's tile build (k nearest, cubes and balls, GFR's graph) runs the traced search on the tile's
+host index (:func:`index_search`), whose rows are the host's bit for bit, so a core point's
+neighbourhood and score do not depend on the search nor on the tile that holds it.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -24,12 +31,22 @@ import numpy as np
 from hgjax import _exact, _stream, _validate
 from hgjax.neighbours import cells, spatial
 
-__all__ = ["CELL_SLOTS", "SEARCHES", "check", "default_search", "guard", "host_frame", "traced_frame"]
+__all__ = ["CELL_SLOTS", "SEARCHES", "check", "checked_points", "default_search", "guard", "host_frame", "index_search",
+           "traced_frame", "with_search"]
 
 CELL_SLOTS = cells.SLOTS
 """Candidates a query of the traced search reads per step (static; a speed setting, never a limit)."""
 SEARCHES = ("host", "jax")
 """The neighbour searches: SciPy's k-d tree on the host, or the traced search."""
+
+
+def checked_points(points, search: str = "jax"):
+    """``points`` validated for a build by ``search``: with the traced search a tracer's shape and dtype
+    (:func:`hgjax._validate.check_traced_points`: its values do not exist yet), anything else in full
+    (:func:`hgjax._validate.check_points`)."""
+    if search == "jax" and _stream.is_traced(points):
+        return _validate.check_traced_points(points)
+    return _validate.check_points(points)
 
 
 def traced_frame(points) -> tuple[jax.Array, jax.Array | None]:
@@ -93,6 +110,13 @@ def check(nb: spatial.Neighbourhoods) -> None:
         guard(overflow)
 
 
+def with_search(build: dict, params: dict) -> dict:
+    """``build`` with ``"search": "jax"`` when the run's tiles build with the traced search (``params``
+    as :func:`hgjax.engine.searched` validated them); the host search is recorded by no key, so a host
+    run's plan is what it always was."""
+    return {**build, "search": "jax"} if params.get("search") == "jax" else build
+
+
 def default_search() -> str:
     """The search a run uses when none is named: ``"jax"`` on a GPU/TPU backend, ``"host"`` on CPU.
 
@@ -102,3 +126,36 @@ def default_search() -> str:
     return "host" if jax.default_backend() == "cpu" else "jax"
 
 
+def index_search(index: spatial.SpatialIndex, query, *args, radius=None, **kwargs) -> cells.Found:
+    """``query`` (:func:`hgjax.neighbours.cells.knn` or :func:`hgjax.neighbours.cells.within`) over every row of a
+    tile's host index, grown until nothing overflows (:func:`hgjax.neighbours.cells.grown`): a tiled run's build.
+
+    The search runs on the index's own float64 coordinates with x64 enabled for this call only
+    (``frame=False``: the host's frame, its distances the k-d tree's), ties by the index's global
+    ids, so the neighbourhoods are the host's bit for bit. The index is padded to a power of two
+    (:func:`hgjax.neighbours.spatial.bucket`): one program per size class.
+
+    Args:
+      index: the tile's index.
+      query, *args, **kwargs: the query and its arguments (``k`` or ``columns``, ``metric``, ...).
+      radius: the query's radius, a scalar or one per row of the index (n,), or None.
+
+    Returns:
+      :class:`hgjax.neighbours.cells.Found` of NumPy arrays, its rows the index's n rows (indices
+      into them, padded with n), distances and reaches float64.
+
+    Raises:
+      ValueError: global ids beyond int32 (the traced search's tie key).
+    """
+    if index.gid_span > np.iinfo(np.int32).max:
+        raise ValueError(f"search='jax' breaks ties by int32 global ids; this cloud's go up to {index.gid_span - 1}:"
+                         " use search='host'")
+    n = index.n
+    pad = spatial.bucket(n) - n
+    if radius is not None:
+        kwargs["radius"] = np.pad(np.broadcast_to(np.asarray(radius, np.float64), (n,)), (0, pad))
+    with jax.enable_x64(True):
+        found = cells.grown(query, np.pad(index.points, ((0, pad), (0, 0))), *args,
+                            gid=np.pad(index.gid[:n], (0, pad)).astype(np.int32), count=n, frame=False, **kwargs)
+        found = jax.tree.map(np.asarray, found)
+    return dataclasses.replace(found, idx=np.minimum(found.idx[:n], n), dist=found.dist[:n], reach=found.reach[:n])
