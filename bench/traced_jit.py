@@ -5,7 +5,8 @@ Usage:
 
 The README's cloud (``hgjax.eval.box_union_cloud(seed=0)``, float32), every scoring method in a
 fresh process: ``jax.jit(lambda p: hgjax.resample(p, 0.2, method=m, search="jax"))`` (GFR with
-``mode="top"``) beside ``hgjax.resample(p, 0.2, method=m)`` on the host: the share of the host's
+``mode="top"``; PCA-AC, whose Ward selection runs on the host, as its jitted traced neighbourhoods
+and score, then ``hgjax.keep``) beside ``hgjax.resample(p, 0.2, method=m)`` on the host: the share of the host's
 kept points it keeps, whether the two arrays are equal (order included), the first call's seconds
 (compilation included) and the median of three warm calls. Then the same compiled program on a
 copy 16 times denser (the cloud scaled by 1/4: a surface holds 16 times the points per area), and
@@ -28,7 +29,7 @@ sys.path.insert(0, str(HERE))
 
 import _report  # noqa: E402
 
-METHODS = ("ea", "lhf", "mss", "hkc", "hkf", "gfr")
+METHODS = ("ea", "lhf", "mss", "pca_ac", "hkc", "hkf", "gfr")
 PARAMS = {"gfr": {"mode": "top"}}
 
 
@@ -41,7 +42,13 @@ def measure(n: int, method: str) -> dict:
 
     p = hgjax.eval.box_union_cloud(seed=0, n_points=n).points.astype(np.float32)
     extra = PARAMS.get(method, {})
-    jitted = jax.jit(lambda q: hgjax.resample(q, 0.2, method=method, search="jax", **extra))
+    if method == "pca_ac":  # a host selection: the jitted traced build and score, then the host's keep
+        scored = jax.jit(lambda q: hgjax.score(hgjax.neighbourhoods(q, method, search="jax"), method))
+
+        def jitted(q):
+            return hgjax.keep(np.asarray(scored(q)), 0.2, method=method)
+    else:
+        jitted = jax.jit(lambda q: hgjax.resample(q, 0.2, method=method, search="jax", **extra))
     out = {}
     for name, cloud in (("cloud", p), ("16x denser", p / 4)):
         host = np.asarray(hgjax.resample(cloud, 0.2, method=method, **extra))
