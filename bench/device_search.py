@@ -89,9 +89,8 @@ def measure(n: int, method: str, repeats: int) -> dict:
         whole = jax.jit(lambda x: hgjax.resample(x, RATIO, method=method, search="jax", **cells, **extra))
         calls["jitted resample"] = lambda: whole(p)
         differ["jitted resample"] = len(set(kept.tolist()) - set(np.asarray(whole(p)).tolist()))
-    if "jax" in entry.tiling.searches:
-        calls["engine, traced tiles"] = lambda: hgjax.tiles.resample(p, RATIO, method=method, search="jax", **extra)
-        differ["engine, traced tiles"] = len(set(kept.tolist()) - set(calls["engine, traced tiles"]().tolist()))
+    calls["engine, traced tiles"] = lambda: hgjax.tiles.resample(p, RATIO, method=method, search="jax", **extra)
+    differ["engine, traced tiles"] = len(set(kept.tolist()) - set(calls["engine, traced tiles"]().tolist()))
     times = {"floor": [], **{name: [] for name in calls}}
     for _ in range(repeats):
         for name, fn in calls.items():

@@ -225,10 +225,9 @@ def _load(path: str, args):
 
 def _method_params(args, entry) -> dict:
     """``-p``, ``--variant`` and ``--search`` parameters, checked against the registry entry's
-    parameters of the stages the CLI runs (build, score, select: not the soft score's ``tau``);
-    a ``--search`` the method's tiles cannot build with is refused by the engine's own check
-    (:func:`hgjax.engine.searched`), before any input is read. Without ``--search`` the engine
-    picks the backend's default."""
+    parameters of the stages the CLI runs (build, score, select: not the soft score's ``tau``),
+    before any input is read. Without ``--search`` the engine picks the backend's default
+    (:func:`hgjax.engine.searched`)."""
     params = {}
     for name, value in args.param:
         if name in CLI_PARAMS:
@@ -249,9 +248,7 @@ def _method_params(args, entry) -> dict:
     if args.search is not None:
         if "search" not in accepted:
             raise UsageError(f"method {entry.name!r} does not take --search: it builds no neighbourhoods")
-        from hgjax import engine
-
-        params = engine.searched(entry, {**params, "search": args.search})
+        params["search"] = args.search
     return params
 
 

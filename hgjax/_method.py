@@ -66,9 +66,6 @@ class Tiling:
       refused: ``refused(params) -> (qualifier, reason) | None``: why these parameters need
         the whole cloud at once (the tiled path refuses a tile size, naming the reason);
         None when the method always tiles.
-      searches: the neighbour searches its tiles can build with (the build parameter
-        ``search``): ``("host",)``, or ``("host", "jax")`` where ``rows`` also builds with the
-        traced search (:func:`hgjax.neighbours.nearest.index_knn`), the default on a GPU/TPU backend.
     """
 
     params: Callable
@@ -81,7 +78,6 @@ class Tiling:
     select: Callable | None = None
     whole_selection: bool = False
     refused: Callable | None = None
-    searches: tuple[str, ...] = ("host",)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -94,8 +94,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return_scores = _validate.check_bool(return_scores, "return_scores")
     tile = checked_tile(entry, params, tile, client)
     _registry.check_known(entry, params)
-    one_tile = tile is None and client is None and not isinstance(points, _tiling.Source)
-    params = searched(entry, params, one_tile)
+    params = searched(entry, params)
     _validate.check_stream(params)  # the kernel stream's chunk_size and progress, before any work
     if isinstance(entry, Sampler):
         return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
@@ -128,34 +127,25 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     return Run(idx, _tiling.gathered(runner, parts, plan) if return_scores else None, plan, selection, threshold)
 
 
-def searched(entry: Method | Sampler, params: dict, one_tile: bool = False) -> dict:
-    """``params`` with the run's neighbour search: the one named, else the backend's default
-    (:func:`hgjax.neighbours.backend.default_search`) where the method's tiles can build with it.
-    A run on one tile (``one_tile``) takes any search: one its tiles cannot build with builds the
-    whole cloud's neighbourhoods at once.
+def searched(entry: Method | Sampler, params: dict) -> dict:
+    """``params`` with the run's neighbour search: the one named (validated), else the backend's default
+    (:func:`hgjax.neighbours.backend.default_search`); every method's tiles build with either.
 
     Raises:
-      ValueError: a ``search`` the method's tiles cannot build with, for a tiled run.
+      ValueError: an unknown ``search``.
     """
     if isinstance(entry, Sampler):
         return params
-    searches = entry.tiling.searches
     if "search" in params:
-        search = _validate.check_choice(params["search"], "search", backend.SEARCHES)
-        if search not in searches and not one_tile:
-            raise ValueError(f"method {entry.name!r} builds its tiles with search in {searches}; got"
-                             f" search={search!r} (tile=None runs it on the whole cloud)")
+        _validate.check_choice(params["search"], "search", backend.SEARCHES)
         return params
-    default = backend.default_search()
-    return {**params, "search": default} if default in searches else params
+    return {**params, "search": backend.default_search()}
 
 
 def whole_cloud(entry: Method, params: dict) -> bool:
-    """Whether a run of ``entry`` with ``params`` (searched, :func:`searched`) builds the whole cloud's
-    neighbourhoods at once: a method that cannot run in tiles with these parameters and does not
-    select on the whole cloud anyway, or a search its tiles cannot build with."""
-    refused = entry.refused(params) is not None and not entry.tiling.whole_selection
-    return refused or params.get("search") not in (None, *entry.tiling.searches)
+    """Whether a run of ``entry`` with ``params`` builds the whole cloud's neighbourhoods at once: a method
+    that cannot run in tiles with these parameters and does not select on the whole cloud anyway."""
+    return entry.refused(params) is not None and not entry.tiling.whole_selection
 
 
 def first_stage(entry: Method | Sampler, params: dict) -> str:
@@ -163,7 +153,7 @@ def first_stage(entry: Method | Sampler, params: dict) -> str:
     whole cloud's, or the plan of its tiles."""
     if isinstance(entry, Sampler):
         return STAGES["sampler"][0]
-    return STAGES["whole cloud" if whole_cloud(entry, searched(entry, params, True)) else "tiles"][0]
+    return STAGES["whole cloud" if whole_cloud(entry, params) else "tiles"][0]
 
 
 def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> float | None:
@@ -196,8 +186,7 @@ def _sample(entry: Sampler, points, ratio, tile, client, key, params: dict) -> n
 
 
 def _whole(points, ratio, entry: Method, key, params: dict, clock: Clock) -> tuple[np.ndarray, np.ndarray]:
-    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference, or a search
-    its tiles cannot build with)."""
+    """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference)."""
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
     nb = clock("neighbourhoods", pipeline.neighbourhoods(pts, entry.name, **params))
@@ -234,8 +223,7 @@ def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None,
         on the host's engine with either neighbour search and returns NumPy.
       **params: keyword parameters of the method's stages (e.g. ``variant``, ``lengths``,
         ``chunk_size``, ``progress``), and ``search``: the neighbour search, ``"host"`` (a k-d
-        tree) or ``"jax"`` (the traced search; the GPU/TPU default where the tiles build with
-        it), the same neighbourhoods either way.
+        tree) or ``"jax"`` (the traced search; the GPU/TPU default), the same neighbourhoods either way.
 
     Returns:
       (M,) int64 unique indices into ``points``, M = ceil(ratio N), from the highest to the

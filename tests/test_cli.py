@@ -171,13 +171,14 @@ def test_parameter_errors_exit_2(capsys, tmp_path, args, message):
 
 
 @pytest.mark.full
-def test_search_is_the_engines_and_keeps_the_same_points(capsys, tmp_path, runs):
+@pytest.mark.parametrize("method", ["ea", "hkc"])
+def test_search_is_the_engines_and_keeps_the_same_points(capsys, tmp_path, runs, method):
     """--search names the search of the engine's tiles (the backend's default without it): the
     traced search keeps and writes what the host's k-d tree does."""
     written = {}
     for search in (None, "jax"):
         out = tmp_path / f"{search}.ply"
-        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--samples", 600, "--method", "ea",
+        code, _, err = run_here(capsys, "resample", LAMPPOST, "-o", out, "--samples", 600, "--method", method,
                                 *([] if search is None else ["--search", search]))
         assert code == 0, err
         written[search] = io.read_points(out)
@@ -185,18 +186,6 @@ def test_search_is_the_engines_and_keeps_the_same_points(capsys, tmp_path, runs)
     assert len(written["jax"]) == 120
     np.testing.assert_array_equal(written["jax"].points, written[None].points)
     np.testing.assert_array_equal(written["jax"].attributes["score"], written[None].attributes["score"])
-
-
-def test_a_search_the_tiles_cannot_build_with_is_the_engines_error(capsys, tmp_path):
-    host_only = sorted(m for m, e in hgjax.METHODS.items() if isinstance(e, hgjax.Method) and e.tiling is not None
-                       and "jax" not in e.tiling.searches)
-    if not host_only:
-        pytest.skip("every method's tiles build with the traced search")
-    code, out, err = run_here(capsys, "score", LAMPPOST, "-o", tmp_path / "k.ply", "--method", host_only[0],
-                              "--search", "jax")
-    assert code == 2 and out == "" and len(err.splitlines()) == 1, err
-    assert f"method {host_only[0]!r}" in err and "search='jax'" in err, err
-    assert not (tmp_path / "k.ply").exists()
 
 
 @pytest.mark.full

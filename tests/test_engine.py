@@ -34,13 +34,12 @@ def test_the_search_picks_the_neighbours_only(cloud, method):
     np.testing.assert_array_equal(np.asarray(program), host)
 
 
-def test_a_search_the_tiles_cannot_build_with_runs_on_the_whole_cloud(cloud):
+def test_either_search_runs_in_tiles(cloud):
     stages = []
-    idx = hgjax.tiles.resample(cloud, 0.2, method="hkf", search="jax", on_stage=lambda name, _: stages.append(name))
+    idx = hgjax.tiles.resample(cloud, 0.2, method="hkf", search="jax", tile=2.5,
+                               on_stage=lambda name, _: stages.append(name))
     np.testing.assert_array_equal(idx, hgjax.resample(cloud, 0.2, method="hkf"))
-    assert stages == ["neighbourhoods", "score", "keep"]
-    with pytest.raises(ValueError, match="builds its tiles with search in.*tile=None"):
-        hgjax.tiles.resample(cloud, 0.2, method="hkf", search="jax", tile=0.5)
+    assert stages == ["plan", "tiles", "keep"]
 
 
 def test_a_traced_resample_runs_the_traced_search(cloud):

@@ -64,8 +64,8 @@ from hgjax.neighbours import backend, cells, spatial
 from hgjax.neighbours.cells import _pair_keys
 from hgjax.neighbours.container import Neighbourhoods
 
-__all__ = ["COLUMNS", "build", "build_params", "cube", "default_d_factor", "linear_ramp", "local_spacing", "resolve", "row_batches",
-           "traced"]
+__all__ = ["COLUMNS", "build", "build_params", "cube", "default_d_factor", "index_balls", "linear_ramp", "local_spacing",
+           "resolve", "row_batches", "tile_batches", "traced"]
 
 COLUMNS = 128
 """Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
@@ -184,6 +184,52 @@ def row_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
         # percentile count instead of doubling up from 32 again.
         start = int(np.percentile((idx < index.n).sum(axis=1), 95)) + 2
         yield part, idx, 2 / k * half / widen, reach
+
+def tile_batches(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
+    """:func:`row_batches` by the build's search: the host's, or with ``params["search"] == "jax"`` one
+    batch of :func:`index_balls` (a tiled run's build)."""
+    if params.get("search") == "jax":
+        return iter([(slice(0, len(rows)), *index_balls(index, rows, params))])
+    return row_batches(index, rows, params)
+
+
+def index_balls(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
+    """The cube neighbourhoods of sorted ``rows`` (R,) that :func:`row_batches` yields, by the traced search.
+
+    The local spacing's (LOCAL_K + 1)-nearest search and the cube (or ball) query run over the
+    whole index (:func:`hgjax.neighbours.backend.index_search`: the host's neighbour sets and
+    distances bit for bit), and the spacing is :func:`hgjax.neighbours.spatial.spacing_of` of
+    those distances, in the host's float64 operations: the rows, scales and reaches are the host's.
+
+    Returns:
+      (idx, scale, reach) as one batch of :func:`row_batches`: idx (R, W) int32, W the fullest row.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    n, k = index.n, params["kernel_size"]
+    invariant = params["variant"] == "invariant"
+    widen = np.sqrt(3.0) if invariant else 1.0
+    factor = widen * k / 2 * params["d_factor"]
+    if params["resolution"] is None:
+        local_k = min(LOCAL_K, n - 1)
+        if local_k < 1:
+            res, reach = np.ones(n), np.zeros(n)
+        else:
+            near = backend.index_search(index, cells.knn, local_k + 1)
+            res, reach = spatial.spacing_of(near.reach[near.idx], near.reach)
+        if n <= LOCAL_K:  # the estimate read fewer neighbours than the whole cloud may hold
+            reach = np.full(n, np.inf)
+    else:
+        res, reach = params["resolution"], np.zeros(n)
+    half = np.broadcast_to(factor * res, (n,))
+    typical = np.sort(half[rows])[(rows.size - 1) * EDGE_QUANTILE // 100]
+    max_count = MAX_COUNT if invariant else None
+    found = backend.index_search(index, cells.within, radius=half, columns=max_count or FIRST_COLUMNS,
+                                 metric="l2" if invariant else "linf", max_count=max_count,
+                                 edge=cells.EDGE_MARGIN * typical)
+    idx = found.idx[rows]
+    idx = idx[:, :max(1, int((idx < n).sum(axis=1).max(initial=1)))]
+    return idx, 2 / k * found.reach[rows] / widen, np.maximum(reach, half)[rows]
+
 
 def build(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
                    resolution: float | None = None, dedupe: bool | None = None,
@@ -369,7 +415,7 @@ def traced(points, *, metric: str, widen: float, kernel_size: int, d_factor, ram
 
 def _traced_build(points, params: dict, capacity, cell_slots, cell_edge) -> Neighbourhoods:
     """:func:`neighbourhoods` by the traced search: the cube (or ball) with every decision of :func:`resolve` traced."""
-    pts = _validate.check_traced_points(points) if _stream.is_traced(points) else _validate.check_points(points)
+    pts = backend.checked_points(points)
     _validate.check_min_points(pts.shape[0], 2, "HKC/HKF")
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     slots = None if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)

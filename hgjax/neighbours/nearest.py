@@ -11,7 +11,6 @@ increasing distance, ties by index in the spatially sorted frame.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -19,7 +18,7 @@ from hgjax import _stream, _validate
 from hgjax.neighbours import backend, cells, spatial
 from hgjax.neighbours.container import Neighbourhoods, record
 
-__all__ = ["build", "build_params", "index_knn", "knn", "reach", "tile_rows", "traced", "with_search"]
+__all__ = ["build", "build_params", "index_knn", "knn", "reach", "tile_rows", "traced"]
 
 
 def knn(points, k: int, *, dedupe: bool = False, capacity: int | None = None) -> Neighbourhoods:
@@ -79,7 +78,7 @@ def build(points, k: int, *, dedupe: bool, capacity: int | None, search: str = "
     search = _validate.check_choice(search, "search", backend.SEARCHES)
     if search == "host":
         return knn(points, k, dedupe=dedupe, capacity=capacity)
-    pts = _validate.check_traced_points(points) if _stream.is_traced(points) else _validate.check_points(points)
+    pts = backend.checked_points(points)
     k = _validate.check_int(k, "k", minimum=1)
     _validate.check_min_points(pts.shape[0], k, f"k={k} nearest neighbours")
     cap = k if capacity is None else _validate.check_int(capacity, "capacity", minimum=k)
@@ -126,11 +125,8 @@ def traced(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: in
 
 
 def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:meth:`hgjax.neighbours.spatial.SpatialIndex.knn` of sorted-frame ``rows`` by the traced search (a tile's build).
-
-    The search runs on the index's own float64 coordinates with x64 enabled for this call only
-    (``frame=False``: the host's frame, its distances the k-d tree's), ties by the index's
-    global ids, so the neighbourhoods are the host's bit for bit.
+    """:meth:`hgjax.neighbours.spatial.SpatialIndex.knn` of sorted-frame ``rows`` by the traced search (a tile's build,
+    :func:`hgjax.neighbours.backend.index_search`: the host's neighbourhoods bit for bit).
 
     Returns:
       (idx, reach): idx (R, k) int32 sorted-frame rows, column 0 the point itself, padded
@@ -140,17 +136,10 @@ def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np
     Raises:
       ValueError: global ids beyond int32 (the traced search's tie key).
     """
-    if index.gid_span > np.iinfo(np.int32).max:
-        raise ValueError(f"search='jax' breaks ties by int32 global ids; this cloud's go up to {index.gid_span - 1}:"
-                         " use search='host'")
     n, k_eff = index.n, min(k, index.n)
-    rows_in = spatial.bucket(n)  # the tile padded to a power of two: one program per size class
-    with jax.enable_x64(True):
-        found = cells.grown(cells.knn, np.pad(index.points, ((0, rows_in - n), (0, 0))), k_eff,
-                                  gid=np.pad(index.gid[:n], (0, rows_in - n)).astype(np.int32), count=n,
-                                  frame=False)
-        idx, reach = np.asarray(found.idx)[rows], np.asarray(found.reach, np.float64)[rows]
-    idx = np.pad(np.minimum(idx, n), ((0, 0), (0, k - k_eff)), constant_values=n)
+    found = backend.index_search(index, cells.knn, k_eff)
+    idx, reach = found.idx[rows], found.reach[rows]
+    idx = np.pad(idx, ((0, 0), (0, k - k_eff)), constant_values=n)
     return idx, (reach if k_eff == k else np.full(reach.shape, np.inf))
 
 
@@ -165,14 +154,7 @@ def build_params(n: int, k: int, params: dict) -> dict:
     build = {"k": k, "dedupe": _validate.check_bool(params.get("dedupe", True), "dedupe")}
     _validate.check_capacity_param(params, k)
     _validate.check_min_points(n, k, f"k={k} nearest neighbours")
-    return with_search(build, params)
-
-
-def with_search(build: dict, params: dict) -> dict:
-    """``build`` with ``"search": "jax"`` when the run's tiles build with the traced search (``params``
-    as :func:`hgjax.engine.searched` validated them); the host search is recorded by no key, so a host
-    run's plan is what it always was."""
-    return {**build, "search": "jax"} if params.get("search") == "jax" else build
+    return backend.with_search(build, params)
 
 
 def tile_rows(index, rows, build: dict, dtype):

@@ -58,8 +58,8 @@ from jax import lax
 from hgjax import _exact, _stream, _validate
 from hgjax.neighbours import backend, cells, spatial
 
-__all__ = ["MAX_NN", "RADIUS_FACTOR", "build", "graph", "graph_params", "location_rows", "reference_ball",
-           "squared_radius"]
+__all__ = ["MAX_NN", "RADIUS_FACTOR", "build", "graph", "graph_params", "index_location_rows", "location_rows",
+           "reference_ball", "squared_radius"]
 
 GFR_VARIANTS = ("invariant", "reference")
 MAX_NN = 100
@@ -233,6 +233,29 @@ def location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.n
         if hi > lo or not want[own].all() or (own[1:] < own[:-1]).any():
             own, counts, cols = _merged(batch, want, own, counts, cols, back_row[lo:hi], back_col[lo:hi])
         yield from by_width(own, counts, cols, m)
+
+
+def index_location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want: np.ndarray):
+    """:func:`location_rows` by the traced search: the same partners of the rows ``want`` (in another
+    order within a row, which no sum over a row reads), a tiled run's build.
+
+    What every location keeps is one capped k-nearest search over the whole index
+    (:func:`hgjax.neighbours.backend.index_search` of :func:`hgjax.neighbours.cells.knn` with
+    ``metric="l2sq"`` and ``radius`` r: the host's q and (q, gid) order bit for bit); a wanted row's
+    partners are what it keeps and the rows that keep it.
+
+    Yields:
+      (own, sym) as :func:`location_rows`: each row's partners ascending.
+    """
+    m = index.n
+    kept = backend.index_search(index, cells.knn, min(max_nn + 1, m), radius=r, metric="l2sq").idx[:, 1:]
+    a = np.broadcast_to(np.arange(m)[:, None], kept.shape)[kept < m]
+    b = kept[kept < m].astype(np.int64)
+    rows, cols = np.concatenate([a, b]), np.concatenate([b, a])
+    mine = want[rows]
+    rows, cols = split_keys(rows[mine] * m + cols[mine], m)
+    own = np.flatnonzero(want)
+    yield from by_width(own, np.bincount(rows, minlength=m)[own], cols.astype(np.int32), m)
 
 
 def _merged(batch: np.ndarray, want: np.ndarray, own: np.ndarray, counts: np.ndarray, cols: np.ndarray,
@@ -603,7 +626,7 @@ def build(points, *, variant: str, radius_factor, max_nn: int, capacity: int | N
     """
     variant, factor, max_nn = graph_params(variant, radius_factor, max_nn)
     traced = _stream.is_traced(points)
-    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    pts = backend.checked_points(points)
     slots = backend.CELL_SLOTS if cell_slots is None else _validate.check_int(cell_slots, "cell_slots", minimum=1)
     cap = None if capacity is None else _validate.check_int(capacity, "capacity", minimum=1)
     params = {"variant": variant, "radius_factor": radius_factor, "max_nn": max_nn, "search": "jax"}

@@ -670,9 +670,15 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
     extra = np.unique(nbrs[np.isnan(rk[nbrs])])
     if extra.size:
         rk[extra] = chunked_knn(index, k + 1, extra)[1]
-    spacing = np.sqrt(np.pi / k * (rk[nbrs] ** 2).mean(axis=1))
-    reach = reach + rk[nbrs].max(axis=1)
-    return np.where(spacing > 0, spacing, 1.0), reach
+    return spacing_of(rk[nbrs], reach)
+
+
+def spacing_of(rk_near: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(spacing, reach) of :func:`local_spacing` from each row's r_k of its k + 1 nearest points ``rk_near``
+    (R, k + 1), itself first, and the row's own k-th distance ``reach`` (R,)."""
+    k = rk_near.shape[1] - 1
+    spacing = np.sqrt(np.pi / k * (rk_near ** 2).mean(axis=1))
+    return np.where(spacing > 0, spacing, 1.0), reach + rk_near.max(axis=1)
 
 
 def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):

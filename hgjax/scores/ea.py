@@ -19,7 +19,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from hgjax import _method, _stream, _validate
-from hgjax.neighbours import backend, nearest, spatial
+from hgjax.neighbours import nearest, spatial
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K, eigenvalues
 
@@ -144,5 +144,4 @@ METHOD = _method.Method(
     "ea", "knn", largest=True, needs_key=False,
     summary="eigenvalue analysis baseline: keep the largest surface variation l0 / (l0 + l1 + l2)",
     citation=_method.DICTA, build=neighbourhoods, score=score, soft_score=soft_score,
-    tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=tile_kernel,
-                          searches=backend.SEARCHES))
+    tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=tile_kernel))

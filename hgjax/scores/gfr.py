@@ -593,17 +593,22 @@ def row_sums(flows: np.ndarray, smallest: np.ndarray, largest: np.ndarray, nbr: 
     return lp
 
 
-def graph_rows(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int):
-    """The stored partners of the ``rows`` (R,) of a deduplicated index, as :func:`hgjax.neighbours.radius_graph.location_rows` yields them."""
+def graph_rows(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, search: str = "host"):
+    """The stored partners of the ``rows`` (R,) of a deduplicated index, as
+    :func:`hgjax.neighbours.radius_graph.location_rows` yields them (with ``search="jax"``
+    :func:`hgjax.neighbours.radius_graph.index_location_rows`: the same partners)."""
     want = np.zeros(index.n, bool)
     want[rows] = True
+    if search == "jax":
+        return radius_graph.index_location_rows(index, r, max_nn, want)
     return radius_graph.location_rows(index, r, max_nn, want)
 
 
-def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype) -> tuple[list, tuple]:
+def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: int, dtype,
+               search: str = "host") -> tuple[list, tuple]:
     """The stored partners of the ``rows`` (R,) of a deduplicated index, and their exact pair sums.
 
-    One chunk of rows at a time (:func:`hgjax.neighbours.radius_graph.location_rows`): the partners and the sums of
+    One chunk of rows at a time (:func:`graph_rows` by ``search``): the partners and the sums of
     :func:`pair_sums` (q in ``dtype``); only the partners are kept, as
     (own, sym) per chunk, for :func:`graph_norms`. A chunk's sums are taken in a background
     thread, in the caller's JAX precision and on its default device, while the next chunk's
@@ -620,7 +625,7 @@ def graph_sums(index: spatial.SpatialIndex, rows: np.ndarray, r: float, max_nn: 
 
     chunks, sums = [], []
     with concurrent.futures.ThreadPoolExecutor(1) as behind:
-        for own, sym in graph_rows(index, rows, r, max_nn):
+        for own, sym in graph_rows(index, rows, r, max_nn, search):
             sums.append(behind.submit(sums_of, own, sym))
             chunks.append((own, sym))
         sums = [s.result() for s in sums]
@@ -726,7 +731,8 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
                                                   params.get("max_nn", radius_graph.MAX_NN))
     mode = _validate.check_choice(params.get("mode", "random"), "mode", MODES)
     _validate.check_capacity_param(params, 1)
-    return {"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn}, {"mode": mode}
+    build = {"variant": variant, "radius_factor": factor, "dedupe": True, "r": None, "max_nn": max_nn}
+    return backend.with_search(build, params), {"mode": mode}
 
 
 def check_key(key, params: dict):
@@ -781,10 +787,11 @@ def _tile_graph(cloud: _tiling.Cloud, cell, plan_: _tiling.Plan, with_sums: bool
     reach = _graph_reach(b["r"])
     gids, core, index, rows, _ = _tiling.covered(cloud, cell, plan_.halo, True,
                                                  lambda index, rows: (None, np.full(rows.size, reach)))
+    search = b.get("search", "host")
     if with_sums:
-        chunks, sums = graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype)
+        chunks, sums = graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype, search)
     else:
-        chunks, sums = list(graph_rows(index, rows, b["r"], b["max_nn"])), None
+        chunks, sums = list(graph_rows(index, rows, b["r"], b["max_nn"], search)), None
     return {"gids": gids, "core": core, "index": index, "rows": rows, "chunks": chunks, "sums": sums}
 
 

@@ -33,7 +33,7 @@ import functools
 import jax.numpy as jnp
 
 from hgjax import _method, _stream, _validate
-from hgjax.neighbours import balls
+from hgjax.neighbours import backend, balls
 from hgjax.scores import _common, cubic_kernel
 
 __all__ = ["beta", "score", "soft_beta", "soft_score"]
@@ -168,7 +168,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
                                                           "dedupe") if k in params})
     _validate.check_capacity_param(params, 1)
     _validate.check_min_points(n, 2, "HKC/HKF")
-    return build, {"kernel_size": build["kernel_size"], "variant": build["variant"]}
+    return backend.with_search(build, params), {"kernel_size": build["kernel_size"], "variant": build["variant"]}
 
 
 def resolve_build(build: dict, stats) -> dict:
@@ -177,8 +177,9 @@ def resolve_build(build: dict, stats) -> dict:
 
 
 def tile_rows(index, rows, build: dict, dtype):
-    """(part, idx, (d,), reach) per batch: the cube neighbourhoods of ``rows`` (:func:`hgjax.neighbours.balls.row_batches`)."""
-    for part, idx, scale, reach in balls.row_batches(index, rows, build):
+    """(part, idx, (d,), reach) per batch: the cube neighbourhoods of ``rows`` by the build's search
+    (:func:`hgjax.neighbours.balls.tile_batches`)."""
+    for part, idx, scale, reach in balls.tile_batches(index, rows, build):
         yield part, idx, (scale.astype(dtype),), reach
 
 

@@ -362,8 +362,7 @@ def neighbourhoods(points, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant
     """
     params = build_params(lengths=lengths, variant=variant, dedupe=dedupe)
     lengths = params["lengths"]
-    traced = search == "jax" and _stream.is_traced(points)
-    pts = _validate.check_traced_points(points) if traced else _validate.check_points(points)
+    pts = backend.checked_points(points, search)
     _validate.check_min_points(pts.shape[0], max(lengths), f"LHF lengths={lengths}")
     nb = nearest.build(pts, max(lengths), dedupe=params["dedupe"], capacity=capacity, search=search,
                            cell_slots=cell_slots, cell_edge=cell_edge)
@@ -488,7 +487,7 @@ def tile_params(n: int, params: dict) -> tuple[dict, dict]:
     solver = _validate.check_choice(params.get("solver", "gram"), "solver", SOLVERS)
     _validate.check_capacity_param(params, max(b["lengths"]))
     _validate.check_min_points(n, max(b["lengths"]), f"LHF lengths={b['lengths']}")
-    return (nearest.with_search({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
+    return (backend.with_search({"k": max(b["lengths"]), "dedupe": b["dedupe"]}, params),
             {"lengths": b["lengths"], "variant": b["variant"], "solver": solver})
 
 
@@ -526,4 +525,4 @@ METHOD = _method.Method(
     soft_score=soft_score,
     columns=2, combine=combine,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=_tile_kernel,
-                          select=tiled_select, searches=backend.SEARCHES))
+                          select=tiled_select))

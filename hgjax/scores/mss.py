@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _exact, _method, _stream, _validate
-from hgjax.neighbours import backend, nearest, spatial
+from hgjax.neighbours import nearest, spatial
 from hgjax.scores import _common, _mss_weights, ea
 from hgjax.scores.eigen import jacobi
 
@@ -478,4 +478,4 @@ METHOD = _method.Method(
     soft_score=soft_score,
     bytes_per_sample=4096,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, resolve=resolve, rows=tile_rows,
-                          kernel=_tile_kernel, searches=backend.SEARCHES))
+                          kernel=_tile_kernel))

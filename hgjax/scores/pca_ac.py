@@ -38,7 +38,7 @@ import heapq
 import numpy as np
 
 from hgjax import _method, _validate, select
-from hgjax.neighbours import backend, nearest
+from hgjax.neighbours import nearest
 from hgjax.scores import ea
 
 __all__ = ["DEFAULT_N_CLUSTERS", "keep", "ward_1d"]
@@ -254,5 +254,5 @@ METHOD = _method.Method(
     citation=_method.DICTA, build=ea.neighbourhoods, score=ea.score, soft_score=ea.soft_score,
     select=_select,
     tiling=_method.Tiling(params=tile_params, reach=nearest.reach, rows=nearest.tile_rows, kernel=ea.tile_kernel,
-                          whole_selection=True, refused=_untiled, searches=backend.SEARCHES),
+                          whole_selection=True, refused=_untiled),
     ranks_as=(ea.METHOD.name, "PCA-AC's Ward clusters are intervals of EA's surface variation, on the same neighbours"))
