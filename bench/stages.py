@@ -47,8 +47,8 @@ PUBLIC = "public build: `hgjax.neighbourhoods(p, m)`, its own call after the res
 STAGES = [
     ("resample (whole call)", "hgjax.engine", "run", 0),
     ("sample statistics (d_factor)", "hgjax.neighbours.spatial", "nearest_distances", 1),
-    ("tile_scores (index, neighbourhoods, kernel)", "hgjax._tiling", "tile_scores", 1),
-    ("gather (tile points in the frame, float64)", "hgjax._tiling.Cloud", "gather", 2),
+    ("tile_scores (index, neighbourhoods, kernel)", "hgjax.engine", "tile_scores", 1),
+    ("gather (tile points in the frame, float64)", "hgjax.engine._grid.Cloud", "gather", 2),
     ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.neighbours.spatial.SpatialIndex", "__init__", 2),
     ("spatial_order (Morton codes and sort)", "hgjax.neighbours.spatial", "spatial_order", 3),
     ("device_points (the tile's points to the device)", "hgjax._stream", "device_points", 2),
@@ -62,7 +62,7 @@ STAGES = [
     ("cube: the ball rows", "hgjax.neighbours.spatial.SpatialIndex", "cube", 3),
     ("_cube_query (re-queries of wider rows)", "hgjax.neighbours.spatial.SpatialIndex", "_cube_query", 4),
     ("_ranked (tie ranking: lexsort)", "hgjax.neighbours.spatial.SpatialIndex", "_ranked", 3),
-    ("covers (halo check)", "hgjax._tiling.Cloud", "covers", 2),
+    ("covers (halo check)", "hgjax.engine._grid.Cloud", "covers", 2),
     ("NarrowStream.push (HKC/HKF rows routed by width, chunks dispatched as built)", "hgjax._stream.NarrowStream",
      "push", 2),
     ("NarrowStream.collect (the last chunks, then waiting for the kernel)", "hgjax._stream.NarrowStream", "collect", 2),
@@ -75,13 +75,13 @@ STAGES = [
     ("_in_ball (0 < q < r from the tree's distances)", "hgjax.neighbours.radius_graph", "_in_ball", 3),
     ("pair_sums (exact sums of c, c q, c q^2: the moment kernel's row sums)", "hgjax.scores.gfr", "pair_sums", 2),
     ("pair_lengths (q kernel: float64 q)", "hgjax.scores.gfr", "pair_lengths", 3),
-    ("ExactSum.of", "hgjax.select.ExactSum", "of", 3),
+    ("ExactSum.of", "hgjax.engine.select.ExactSum", "of", 3),
     ("_tile_norms (GFR flows and row sums)", "hgjax.scores.gfr", "_tile_norms", 1),
     ("laplacian_norms (flow kernel, rows summed on the device)", "hgjax.scores.gfr", "laplacian_norms", 2),
     ("row_sums (rows summed in global-id order on the host)", "hgjax.scores.gfr", "row_sums", 3),
-    ("per_point (scores of the core points)", "hgjax._tiling", "per_point", 2),
+    ("per_point (scores of the core points)", "hgjax.engine", "per_point", 2),
     ("LHF tiled_select (Gamma_a, Gamma_b, mix)", "hgjax.scores.lhf", "tiled_select", 1),
-    ("selection (exact top-k)", "hgjax.select", "top_pairs", 1),
+    ("selection (exact top-k)", "hgjax.engine.select", "top_pairs", 1),
 ]
 
 
@@ -132,7 +132,7 @@ def _install(totals: dict, cpu: dict) -> None:
                 return timed(lambda: _fn(*args, **kwargs), _key, _labels)
 
         setattr(owner, attr, wrapped)
-        methods = importlib.import_module("hgjax._registry").METHODS  # entries hold their hooks by reference
+        methods = importlib.import_module("hgjax.engine._registry").METHODS  # entries hold their hooks by reference
         for name, entry in methods.items():
             tiling = getattr(entry, "tiling", None)
             if tiling is None:

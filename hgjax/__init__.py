@@ -17,11 +17,10 @@ _EXPORTS = {
     "hgjax._method": ("Method", "Sampler"),
     "hgjax.neighbours.container": ("Neighbourhoods", "stack_neighbourhoods"),
     "hgjax.neighbours.precision": ("PrecisionWarning", "local_frame", "working_dtype"),
-    "hgjax._registry": ("METHODS",),
-    "hgjax.engine": ("resample",),
-    "hgjax.pipeline": ("capacity", "keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"),
+    "hgjax.engine": ("METHODS", "capacity", "keep", "neighbourhoods", "resample", "score", "soft_resample",
+                     "soft_score", "soft_weights"),
     "hgjax.samplers": ("farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"),
-    "hgjax.select": ("soft_select", "top_k", "weighted_sample"),
+    "hgjax.engine.select": ("soft_select", "top_k", "weighted_sample"),
     "hgjax.neighbours.balls": ("cube",),
     "hgjax.neighbours.nearest": ("knn",),
     "hgjax.neighbours.spatial": ("intrinsic_resolution", "spatial_order"),
@@ -40,7 +39,7 @@ def __getattr__(name: str):
         except PackageNotFoundError:  # running from a source tree without installation
             value = "0.0.0+local"
     elif not name.startswith("__") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        value = importlib.import_module(f"{__name__}.{name}")  # any submodule: hgjax.tiles, hgjax._stream
+        value = importlib.import_module(f"{__name__}.{name}")  # any submodule: hgjax.tiles, hgjax.survey
     else:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     globals()[name] = value

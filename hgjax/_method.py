@@ -3,7 +3,7 @@
 Each method module declares its own entry (``METHOD`` in :mod:`hgjax.scores.hkc` and its
 siblings, ``SAMPLERS`` in :mod:`hgjax.samplers`) with its stages' functions and its tiling
 capability; each stage's parameters are its function's keyword-only parameters
-(:func:`keywords`), so the two never disagree. :data:`hgjax.METHODS` (:mod:`hgjax._registry`)
+(:func:`keywords`), so the two never disagree. :data:`hgjax.METHODS` (:mod:`hgjax.engine._registry`)
 collects them.
 """
 
@@ -29,10 +29,36 @@ def keywords(fn: Callable | None) -> frozenset:
 
 
 @dataclasses.dataclass(frozen=True)
+class Passes:
+    """A method whose tiles are scored in two passes with a global reduction between them, declared
+    by the method (GFR: each tile's graph and its exact pair sums, the weights' moments over the
+    whole cloud, then each tile's flows). The engine (:func:`hgjax.engine._passes.scores`) verifies
+    each tile's halo, runs the passes and decides where a tile's state waits between them: in this
+    process, on the Dask worker that made it, or on disk for a large cloud in this process.
+
+    Attributes:
+      reach: ``reach(build) -> float``: how far around a core location the tile must hold every
+        point (the halo is verified, then doubled until it does; the first halo is just wider).
+      first: ``first(index, rows, plan) -> state``: a tile's state from its host index and its core
+        ``rows`` (picklable: it may travel to disk).
+      summary: ``summary(state) -> part``: what the reduction takes of a tile's state.
+      reduce: ``reduce(parts) -> total``: the global value of every tile's part.
+      second: ``second(index, rows, state, plan, total, stream) -> (R,)``: the scores of the core
+        ``rows`` in the plan's dtype (``stream``: the kernel stream's ``chunk_size`` and ``progress``).
+    """
+
+    reach: Callable
+    first: Callable
+    summary: Callable
+    reduce: Callable
+    second: Callable
+
+
+@dataclasses.dataclass(frozen=True)
 class Tiling:
     """How a scoring method runs in tiles, declared by the method (PDAL's ``Streamable``).
 
-    The engine (:mod:`hgjax.engine`) and the tiled grid (:mod:`hgjax._tiling`) ask a method
+    The engine (:mod:`hgjax.engine`) and the tiled grid (:mod:`hgjax.engine`) ask a method
     only through this object, never by name.
 
     Attributes:
@@ -44,21 +70,19 @@ class Tiling:
       resolve: ``resolve(build, stats) -> build``: the build parameters decided from the
         whole cloud, ``stats()`` giving the seeded sample's nearest distances and
         neighbourhoods (:class:`hgjax.neighbours.spatial.SampleStats`); None when nothing is decided.
-      halo: ``halo(build, first) -> halo``: the first halo once ``resolve`` has run (GFR's
-        graph needs twice its radius); None keeps ``first``.
       rows: ``rows(index, rows, build, dtype)``: a tile's neighbourhoods of the sorted-frame
         ``rows``, yielded batch by batch as ``(part, idx, row_args, reach)`` (a slice of
         ``rows``, their neighbour rows, per-row kernel arguments and the radius each
-        neighbourhood reaches); with ``kernel``, what :func:`hgjax._tiling.tile_scores` streams.
+        neighbourhood reaches); with ``kernel``, what :func:`hgjax.engine._grid.tile_scores` streams.
       kernel: ``kernel(score_params) -> (row kernel, narrow)``: the per-neighbourhood kernel
         the tiles stream (:class:`hgjax._stream.Stream`, or :class:`hgjax._stream.NarrowStream`
         when ``narrow``).
-      scores: ``scores(runner, plan, stream) -> parts``: every tile's (gids, scores), for a
-        method whose tiles are not independent rows (GFR's two passes over its graph); None
-        runs :func:`hgjax._tiling.tile_scores` on every tile.
+      passes: for a method whose tiles are not independent rows, its two passes
+        (:class:`Passes`); None streams ``rows`` through ``kernel`` on every tile
+        (:func:`hgjax.engine._grid.tile_scores`).
       select: ``select(runner, parts, plan, key) -> (parts, keyed parts, statistics,
         largest)``: the global selection over the tiles' (gids, scores) parts, as order keys
-        for :func:`hgjax.select.top_pairs`; None keeps the top scores.
+        for :func:`hgjax.engine.select.top_pairs`; None keeps the top scores.
       whole_selection: the selection ranks every score at once (PCA-AC's Ward clustering):
         ``refused`` refuses a tile size, and a run without one scores the cloud as one tile
         before the method's ``select`` takes all the scores. False for a method whose refused
@@ -71,13 +95,32 @@ class Tiling:
     params: Callable
     reach: Callable
     resolve: Callable | None = None
-    halo: Callable | None = None
     rows: Callable | None = None
     kernel: Callable | None = None
-    scores: Callable | None = None
+    passes: Passes | None = None
     select: Callable | None = None
     whole_selection: bool = False
     refused: Callable | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleTiles:
+    """How a sampler runs in tiles, declared by the sampler: the engine (:mod:`hgjax.engine._sampled`)
+    cuts the cloud, gives each tile's points to ``part``, ranks every tile's candidates at once by
+    (value, global id), and fills a count beyond the candidates with the other points in index order.
+
+    Attributes:
+      plan: ``plan(points, m, **params) -> context``: the whole-cloud decisions (voxel's grid) from the
+        validated (N, 3) points and the count m (None: every candidate).
+      halo: ``halo(context) -> float``: the width of the halo each tile reads around its core.
+      part: ``part(points, core, context) -> (values, rows)``: a tile's candidates from its points
+        (n, 3) float64 (ascending global ids, halo included) and their (n,) core mask: the rows of
+        its candidates and their float64 values, the largest kept first.
+    """
+
+    plan: Callable
+    halo: Callable
+    part: Callable
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,10 +223,11 @@ class Sampler:
       bytes_per_sample: as :attr:`Method.bytes_per_sample`.
       untiled: ``untiled(params) -> (qualifier, reason) | None``: why it needs the whole cloud
         at once (:attr:`Tiling.refused`); None when it always tiles.
-      tiled: ``tiled(points, ratio, tile, client, *, key=..., **params) -> (M,) indices``: its
-        own engine for tiles, a Dask client or a survey of files (``key`` passed only when
-        ``needs_key``); None samples the whole cloud in one process.
-      lazy: ``tiled`` reads no coordinate (a survey is sampled from its point count alone).
+      tiles: how it runs in tiles or on a Dask client (:class:`SampleTiles`); None samples the
+        whole cloud in one process.
+      ids: ``ids(n, ratio, *, key=...) -> (M,) indices``: the sample from the point count alone
+        (``key`` passed only when ``needs_key``): tiles, a client and a survey of files read no
+        coordinate; None reads the points.
 
     Examples:
       >>> import hgjax
@@ -199,8 +243,8 @@ class Sampler:
     sample: Callable
     bytes_per_sample: int = 2048
     untiled: Callable | None = None
-    tiled: Callable | None = None
-    lazy: bool = False
+    tiles: SampleTiles | None = None
+    ids: Callable | None = None
 
     @property
     def params(self) -> frozenset:

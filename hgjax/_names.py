@@ -1,6 +1,6 @@
 """The names of the registered methods, importable without NumPy or JAX.
 
-:mod:`hgjax._registry` takes its default from here and refuses method entries whose names
+:mod:`hgjax.engine._registry` takes its default from here and refuses method entries whose names
 differ from these; the command line builds its parser from them before the engine is
 imported, so that ``hgjax --help`` answers at once.
 """

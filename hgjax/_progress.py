@@ -2,7 +2,7 @@
 
 The command line installs one :class:`Progress` for its run (:func:`installed`). The library reports
 to the one installed (:func:`current`): a pass over tiles or files as each task ends
-(:class:`hgjax._tiling.Ticker`) and the rows of a kernel stream as they are computed
+(:class:`hgjax.engine._runners.Ticker`) and the rows of a kernel stream as they are computed
 (:mod:`hgjax._stream`). The command line begins its own stages (read, write) and the first of the
 engine's (:meth:`Progress.begin`); each stage's end (the engine's ``on_stage``, :meth:`Progress.ended`)
 begins the next one.
@@ -212,7 +212,7 @@ class Progress:
                 self.begin(NEXT[name], self.points)
 
     def count(self, what: str, total: float, tasks: int, task: str, unit: str) -> object:
-        """A pass of ``tasks`` tasks of ``total`` units in all (:class:`hgjax._tiling.Ticker`) begins: it is the
+        """A pass of ``tasks`` tasks of ``total`` units in all (:class:`hgjax.engine._runners.Ticker`) begins: it is the
         count of the current stage, or begins the stage it names. Returns the pass, for :meth:`task_done`."""
         with self.lock:
             label = LABELS.get(what, what)

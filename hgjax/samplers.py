@@ -16,10 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _tiling, _validate, select
+from hgjax import _method, _validate
 from hgjax.neighbours import spatial
-from hgjax.scores.eigen import DEFAULT_K
-from hgjax.select import ascending_bits, keyed_top
+from hgjax.engine.select import ascending_bits, keyed_top
 
 __all__ = ["farthest_point_sample", "fps_backend", "uniform_sample", "voxel_sample"]
 
@@ -41,7 +40,7 @@ def uniform_sample(points, ratio: float, *, key) -> np.ndarray:
     Returns:
       (M,) int64 unique indices in draw order, M = ceil(ratio N): the points with the
       largest draws, each point's draw made from the key and its index alone
-      (:func:`hgjax.select.point_bits`), so a point's fate does not depend on N or on tiles.
+      (:func:`hgjax.engine.select.point_bits`), so a point's fate does not depend on N or on tiles.
 
     Raises:
       TypeError, ValueError: invalid points, ratio or key (a missing key is an error).
@@ -599,64 +598,37 @@ def _fps_untiled(params: dict) -> tuple[str, str]:
     return "", "each farthest-point pick needs the farthest point of the whole cloud, so FPS cannot be cut into tiles"
 
 
-def _tiled_voxel(points, ratio, tile, client, *, voxel_size=None) -> np.ndarray:
-    """``voxel`` in tiles: :func:`hgjax.voxel_sample`'s grid, voxels owned by the tile of their lowest id.
+def _voxel_plan(pts: np.ndarray, m: int | None, *, voxel_size=None) -> VoxelGrid:
+    """``voxel`` in tiles: :func:`hgjax.voxel_sample`'s grid, searched once on the whole cloud (or given).
 
-    The edge is searched once on the whole cloud (or given); each tile assigns its core
-    points and a halo of one voxel edge, so every voxel with a core point is whole. A voxel
-    belongs to the tile that owns its lowest-id point, which gives its representative (the
-    point nearest the centroid, summed in id order) and population; the global ranking is
-    by (population, id), exactly as in one process.
+    Each tile assigns its core points and a halo of one voxel edge, so every voxel with a core
+    point is whole (:func:`_voxel_part`); the global ranking is by (population, id), exactly as
+    in one process.
     """
-    pts = _validate.check_points(points)
-    n = pts.shape[0]
-    if tile is not None:
-        tile = _validate.check_positive(tile, "tile")
-    m = None if ratio is None else _validate.n_keep(n, _validate.check_ratio(ratio))
     if m is None and voxel_size is None:
         raise ValueError("voxel_sample needs ratio or voxel_size; got neither")
-    grid = dataclasses.replace(voxel_grid(pts, m, voxel_size), voxel=None)
-    bmin, bmax = _tiling.bounds(pts)
-    origin = spatial.frame_origin(bmin, bmax, np.float64)  # the extent already checked by voxel_grid
-    source = points if isinstance(points, np.memmap) else None
-    runner = _tiling.runner(_tiling.Cloud(pts, origin, bmin - origin, bmax - origin, tile, source), client, DEFAULT_K)
-    parts = runner.tiles(_voxel_part, grid)
-    v = sum(runner.gather(runner.each(_count, parts)))
-    ranked = select.top_pairs(parts, v if m is None else min(m, v), run=runner.run(parts))
-    if m is None or m <= v:
-        return ranked
-    reps = np.concatenate([g for _, g in runner.gather(parts)])
-    return np.concatenate([ranked, np.setdiff1d(np.arange(n), reps)])[:m].astype(np.int64)
+    return dataclasses.replace(voxel_grid(pts, m, voxel_size), voxel=None)
 
 
-def _voxel_part(cloud: _tiling.Cloud, cell, grid) -> tuple[np.ndarray, np.ndarray]:
-    """(keys, gids) of the voxels a tile owns: representatives ranked by population."""
-    gids, _, core = cloud.gather(cell, 1.01 * grid.size)
-    rep, counts, first = voxel_tile(np.asarray(cloud.points[gids], dtype=np.float64).T, grid)
+def _voxel_halo(grid: VoxelGrid) -> float:
+    return 1.01 * grid.size
+
+
+def _voxel_part(points: np.ndarray, core: np.ndarray, grid: VoxelGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(populations, rows) of the voxels a tile owns, each by its representative: a voxel belongs to
+    the tile that owns its lowest-id point, which gives its representative (the point nearest the
+    centroid, summed in id order) and population."""
+    rep, counts, first = voxel_tile(points.T, grid)
     owned = core[first]
-    return select.order_keys(counts[owned].astype(np.float64), largest=True), gids[rep[owned]]
-
-
-def _count(part) -> int:
-    return int(part[1].size)
-
-
-def _tiled_uniform(points, ratio, tile, client, *, key=None) -> np.ndarray:
-    """``uniform`` on a cloud or a survey: each point's draw comes from the key and its global id
-    (:func:`hgjax.select.point_bits`), so the draw reads the point count N and no coordinate."""
-    n = points.n if isinstance(points, _tiling.Source) else _validate.check_points(points).shape[0]
-    if tile is not None:
-        _validate.check_positive(tile, "tile")
-    return uniform_ids(n, ratio, key=key)
+    return counts[owned].astype(np.float64), rep[owned]
 
 
 SAMPLERS = (
     _method.Sampler("uniform", needs_key=True, summary="uniformly random subset (needs key)",
-                      citation="random down-sampling", sample=uniform_sample,
-                      tiled=_tiled_uniform, lazy=True),
+                      citation="random down-sampling", sample=uniform_sample, ids=uniform_ids),
     _method.Sampler("voxel", needs_key=False, summary="one point per voxel of a grid sized to reach the count",
                       citation="voxel-grid down-sampling", sample=voxel_sample,
-                      tiled=_tiled_voxel),
+                      tiles=_method.SampleTiles(plan=_voxel_plan, halo=_voxel_halo, part=_voxel_part)),
     _method.Sampler("fps", needs_key=False, summary="farthest point sampling from point 0",
                       citation="Eldar, Lindenbaum, Porat, Zeevi, IEEE TIP 6(9), 1997", sample=farthest_point_sample, untiled=_fps_untiled),
 )

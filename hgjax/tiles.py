@@ -6,7 +6,7 @@ the same indices, in the same order, as :func:`hgjax.resample` on the whole clou
 (:mod:`hgjax.engine`): every whole-cloud decision made once in a :class:`Plan`; each tile
 scored on its core points with a verified halo (:func:`tile_scores`); the kept set is the
 top ceil(ratio N) by (score, global id) over the whole cloud, exactly, from per-tile
-histograms of order-preserving integer keys (:mod:`hgjax._tiling` says how).
+histograms of order-preserving integer keys (:mod:`hgjax.engine` says how).
 
 Each tile is a pure function of its points and the plan, and only per-tile summaries and
 scores leave it, so tiles run in this process or as Dask tasks (``client``). A method says
@@ -17,23 +17,23 @@ refused with a tile size. Files as one cloud: :func:`hgjax.survey.resample_files
 
 from __future__ import annotations
 
-from hgjax import _registry, _tiling, engine
+from hgjax import engine
 from hgjax._method import Method
-from hgjax._tiling import Plan, tile_scores
+from hgjax.engine import Plan, tile_scores
 
 __all__ = ["TILED", "Plan", "plan", "resample", "tile_scores"]
 
-TILED = tuple(sorted(name for name, entry in _registry.METHODS.items() if entry.refused({}) is None))
+TILED = tuple(sorted(name for name, entry in engine.METHODS.items() if entry.refused({}) is None))
 """The methods that run in tiles with their default parameters."""
 
 
 def plan(points, ratio: float, *, method: str, tile: float | None = None, client=None,
-         **params) -> tuple[Plan, _tiling.Cloud]:
+         **params) -> tuple[Plan, engine.Cloud]:
     """Resolve every whole-cloud decision of a tiled run (host, or a Dask client's workers).
 
     Args:
       points: (N, 3) float32 or float64 array (an ``np.memmap`` streams from disk), or a lazy
-        source (:class:`hgjax._tiling.Source`).
+        source (:class:`hgjax.engine._grid.Source`).
       ratio: fraction kept, in (0, 1].
       method: a scoring method (not the samplers); one outside :data:`TILED` (PCA-AC) only
         as one tile.
@@ -48,16 +48,16 @@ def plan(points, ratio: float, *, method: str, tile: float | None = None, client
       ValueError: a sampler, or a ``tile`` or ``client`` for a method refused in tiles;
         TypeError, ValueError: invalid arguments.
     """
-    entry = _registry.entry(method)
+    entry = engine.entry(method)
     if not isinstance(entry, Method):
         raise ValueError(f"method {method!r} has no tiled plan; expected one of"
-                         f" {sorted(m for m, e in _registry.METHODS.items() if isinstance(e, Method))}")
+                         f" {sorted(m for m, e in engine.METHODS.items() if isinstance(e, Method))}")
     tile = engine.checked_tile(entry, params, tile, client)
     plan_, runner = engine.planned(points, ratio, entry, tile, params, client)
     return plan_, runner.cloud
 
 
-def resample(points, ratio: float, *, method: str = _registry.DEFAULT, tile: float | None = None, client=None, key=None,
+def resample(points, ratio: float, *, method: str = engine.DEFAULT, tile: float | None = None, client=None, key=None,
              return_scores: bool = False, on_stage=None, **params):
     """Indices of the ceil(ratio N) points a method keeps, computed tile by tile.
 

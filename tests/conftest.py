@@ -1,12 +1,9 @@
-"""Strict settings for the whole suite: x64 available, no implicit rank promotion; a persistent
-compilation cache per test process and the one Dask cluster."""
+"""The suite's fixtures: a persistent compilation cache per test process and the one Dask cluster (x64 and
+no implicit rank promotion: the repository root's conftest)."""
 
 import jax
 import numpy as np
 import pytest
-
-jax.config.update("jax_enable_x64", True)
-jax.config.update("jax_numpy_rank_promotion", "raise")
 
 # Per-dtype tolerances (jax-md style): relative tolerance for kernel-vs-naive agreement.
 TOL = {np.dtype(np.float32): 2e-4, np.dtype(np.float64): 1e-10}

@@ -1,6 +1,14 @@
-"""The shape of the package: imports point one way, and generic code names no method."""
+"""The shape of the package: imports point one way, each room is entered by its door, and generic code names
+no method.
+
+The rooms: :mod:`hgjax.engine` (plan, tiles, runners, selection, survey, the run's composition) and
+:mod:`hgjax.cli` (the command line) are packages whose modules are private; the rest of the package
+imports ``hgjax.engine`` and ``hgjax.cli`` themselves (and the engine's public :mod:`hgjax.engine.select`),
+never a private module of theirs. The top level holds the public face (``hgjax``, ``tiles``, ``survey``,
+``samplers``, ...) and the floors every room stands on (``_validate``, ``_method``, ``_names``, ...)."""
 
 import ast
+import importlib
 import pathlib
 
 import pytest
@@ -8,8 +16,9 @@ import pytest
 import hgjax
 
 PACKAGE = pathlib.Path(hgjax.__file__).parent
-GENERIC = ["engine.py", "tiles.py", "_tiling.py", "select.py", "cli.py", "_cli_common.py", "_cli_batch.py",
-           "_cli_survey.py", "_cli_compare.py", "_cli_signals.py", "__main__.py", "survey.py", "pipeline.py"]
+ROOMS = ("hgjax.engine", "hgjax.cli")
+GENERIC = sorted([str(p.relative_to(PACKAGE)) for room in ("engine", "cli") for p in (PACKAGE / room).glob("*.py")]
+                 + ["tiles.py", "survey.py", "__main__.py"])
 
 
 def _module(path: pathlib.Path) -> str:
@@ -17,22 +26,41 @@ def _module(path: pathlib.Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def _doors() -> dict:
+    """{room: {name: the private module that defines it}} of each room's door (its ``_EXPORTS``)."""
+    return {room: importlib.import_module(room)._SOURCE for room in ROOMS}
+
+
+def _imported(tree: ast.Module) -> list:
+    """The dotted names ``tree`` imports (``from a import b`` gives ``a.b`` and ``a``), and the rooms' names it
+    reads through a door (``engine.run`` of ``from hgjax import engine`` gives ``hgjax.engine.run``)."""
+    names, aliases = [], {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+            aliases.update((a.asname, a.name) for a in node.names if a.asname)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names += [f"{node.module}.{a.name}" for a in node.names] + [node.module]
+            aliases.update((a.asname or a.name, f"{node.module}.{a.name}") for a in node.names)
+    names += [f"{aliases[n.value.id]}.{n.attr}" for n in ast.walk(tree)
+              if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and aliases.get(n.value.id) in ROOMS]
+    return names
+
+
 def _imports(path: pathlib.Path, modules: set) -> set:
-    """The hgjax modules ``path`` imports, at module level or inside functions (a lazy import is still an arrow)."""
+    """The hgjax modules ``path`` imports, at module level or inside functions (a lazy import is still an arrow);
+    a name read through a room's door is an arrow to the module that defines it."""
     me = _module(path)
     found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Import):
-            names = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names = [f"{node.module}.{a.name}" for a in node.names] + [node.module]
-        else:
-            continue
-        for name in names:
-            while name and name not in modules:
-                name = name.rpartition(".")[0]
-            if name and name != me and name.startswith("hgjax"):
-                found.add(name)
+    doors = _doors()
+    for name in _imported(ast.parse(path.read_text())):
+        room, _, rest = name.rpartition(".")
+        if rest in doors.get(room, {}):
+            name = doors[room][rest]
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        if name and name != me and name.startswith("hgjax"):
+            found.add(name)
     return found
 
 
@@ -76,6 +104,33 @@ def _cycle(graph: dict):
 
 def test_no_import_cycle():
     assert _cycle(_graph()) is None, " -> ".join(_cycle(_graph()))
+
+
+@pytest.mark.parametrize("room", ROOMS)
+def test_nothing_outside_a_room_imports_its_private_modules(room):
+    """A room is entered by its door: outside ``hgjax.engine``, no module imports ``hgjax.engine._grid`` and
+    the like (nor ``hgjax.cli._main`` outside ``hgjax.cli``)."""
+    found = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        me = _module(path)
+        if me == room or me.startswith(room + "."):
+            continue
+        private = sorted({n for n in _imported(ast.parse(path.read_text())) if n.startswith(room + "._")})
+        if private:
+            found[me] = private
+    assert not found, found
+
+
+def test_the_door_check_sees_a_private_import():
+    tree = ast.parse("from hgjax.engine import _grid\nfrom hgjax import engine\nengine.run(engine.Plan)\n")
+    assert {"hgjax.engine._grid", "hgjax.engine.run", "hgjax.engine.Plan"} <= set(_imported(tree))
+
+
+@pytest.mark.parametrize("room", ROOMS)
+def test_every_name_of_a_door_is_defined_where_it_says(room):
+    door = importlib.import_module(room)
+    missing = sorted(n for n, module in door._SOURCE.items() if not hasattr(importlib.import_module(module), n))
+    assert not missing and sorted(door.__all__) == sorted(door._SOURCE), missing
 
 
 def test_the_cycle_check_finds_a_cycle():

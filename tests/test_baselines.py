@@ -218,7 +218,7 @@ def test_pca_ac_ranks_the_scores_ea_ranks(dtype, n_clusters):
 
 
 def test_pca_ac_checks_n_clusters_before_scoring(monkeypatch):
-    monkeypatch.setattr(hgjax._tiling, "tile_scores", lambda *a, **k: pytest.fail("scored before the check"))
+    monkeypatch.setattr(hgjax.engine, "tile_scores", lambda *a, **k: pytest.fail("scored before the check"))
     with pytest.raises(ValueError, match="n_clusters"):
         hgjax.resample(uniform_cloud(100), 0.2, method="pca_ac", n_clusters=0)
 

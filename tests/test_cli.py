@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _cli_common, _validate, cli, engine, io
+from hgjax import _validate, cli, engine, io
+from hgjax.cli import _common as cli_common
+from hgjax.cli import _main as cli_main
 from hgjax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -201,16 +203,16 @@ def test_count_keeps_exactly_m_points(capsys, tmp_path, method):
 def test_count_ratio_is_exact_for_every_size():
     for n in range(1, 150):
         for m in range(1, n + 1):
-            assert _validate.n_keep(n, cli.count_ratio(m, n)) == m
+            assert _validate.n_keep(n, cli_common.count_ratio(m, n)) == m
     # Every count of every N below 1200 at once: n_keep's rounded ceiling of count_ratio(m, n) x n
     # (its clamp to [1, n] cannot change a value that is m).
     n, m = np.meshgrid(np.arange(1, 1200), np.arange(1, 1200), indexing="ij")
     n, m = n[m <= n], m[m <= n]
-    np.testing.assert_array_equal(_validate._ceil_rounded(cli.count_ratio(m, n) * n, np), m)
+    np.testing.assert_array_equal(_validate._ceil_rounded(cli_common.count_ratio(m, n) * n, np), m)
     rng = np.random.default_rng(0)
     for n in [*rng.integers(1, 10**10, 3000).tolist(), 6369616873]:
         for m in (1, 2, int(rng.integers(1, n + 1)), n - 1, n):
-            assert _validate.n_keep(n, cli.count_ratio(m, n)) == m, (m, n)
+            assert _validate.n_keep(n, cli_common.count_ratio(m, n)) == m, (m, n)
 
 
 def test_voxel_size_is_one_pass_at_that_size(capsys, tmp_path):
@@ -265,9 +267,9 @@ def test_demo_ranks_every_method_by_edge_recall_and_draws_them_in_the_working_fo
                                                                                                    "voxel"))
     assert f"the share of the {edges} edge points kept; 1.000 at best" in out
     assert next(row for row in rows if row[0] == "hkf")[4:] == ["same", "points", "as", "hkc"]
-    assert f"wrote the picture to {tmp_path / cli.DEMO_PICTURE}" in out
+    assert f"wrote the picture to {tmp_path / cli_main.DEMO_PICTURE}" in out
     assert out.splitlines()[-1].startswith("next: hgjax resample ")
-    assert matplotlib.image.imread(tmp_path / cli.DEMO_PICTURE).shape[1] > 1000
+    assert matplotlib.image.imread(tmp_path / cli_main.DEMO_PICTURE).shape[1] > 1000
 
 
 def test_version_and_help(capsys):
@@ -306,7 +308,7 @@ def _option(command: str, dest: str):
 def test_the_parsers_methods_are_the_registrys(command):
     method = _option(command, "method")
     names = [m for m in sorted(hgjax.METHODS) if command == "resample" or isinstance(hgjax.METHODS[m], hgjax.Method)]
-    assert (method.choices, method.default) == (names, hgjax._registry.DEFAULT)
+    assert (method.choices, method.default) == (names, hgjax.engine._registry.DEFAULT)
 
 
 def test_the_parsers_formats_are_the_writers():
@@ -315,8 +317,8 @@ def test_the_parsers_formats_are_the_writers():
 
 def test_the_registry_refuses_method_names_its_name_list_does_not_hold():
     with pytest.raises(RuntimeError, match="hgjax._names lists"):
-        hgjax._registry._by_name(*[e for m, e in hgjax.METHODS.items() if m != "fps"])
-    assert hgjax._registry._by_name(*hgjax.METHODS.values()) == hgjax.METHODS
+        hgjax.engine._registry._by_name(*[e for m, e in hgjax.METHODS.items() if m != "fps"])
+    assert hgjax.engine._registry._by_name(*hgjax.METHODS.values()) == hgjax.METHODS
 
 
 @pytest.mark.parametrize("args, message", [
@@ -405,7 +407,7 @@ def test_too_many_samples_are_refused_up_front(capsys, tmp_path, monkeypatch):
     cost = hgjax.METHODS["hkc"].bytes_per_sample
     assert code == 2 and f"--samples 1000000000 needs about {cost:.1f} GB" in err and "or fewer" in err
     assert time.perf_counter() - start < 5
-    monkeypatch.setattr(_cli_common, "_available_memory", lambda: 2**30)  # where _check_samples reads it
+    monkeypatch.setattr(cli_common, "_available_memory", lambda: 2**30)  # where _check_samples reads it
     code, _, err = run_here(capsys, "compare", MESH, "--samples", 10**6)
     costliest = max(e.bytes_per_sample for e in hgjax.METHODS.values())  # compare runs every method
     assert code == 2 and f"use --samples {2**30 // costliest} or fewer" in err
@@ -417,7 +419,7 @@ def test_too_many_samples_are_refused_up_front(capsys, tmp_path, monkeypatch):
 
 
 def test_available_memory_from_the_system():
-    memory = cli._available_memory()
+    memory = cli_common._available_memory()
     assert 2**20 < memory < 2**50
 
 
@@ -531,12 +533,10 @@ def test_every_method_resamples_to_ply_with_its_score(tmp_path, capsys, method):
 
 @pytest.mark.parametrize("command", ["resample", "score", "compare", "demo"])
 def test_each_command_help_holds_its_own_examples_not_the_global_epilog(capsys, command):
-    from hgjax import cli
-
     code, text, _ = run_here(capsys, command, "--help")
     assert code == 0
     examples = text.split("examples:\n", 1)[1].splitlines()
     assert examples[0].strip().startswith(f"hgjax {command}")
     assert "130  interrupted" not in text and "Inputs: PLY" not in text
-    assert text.rstrip().endswith(cli.MORE.strip())
+    assert text.rstrip().endswith(cli_main.MORE.strip())
     assert "-q, --quiet" in text and "--no-progress" in text and "-v, --verbose" in text

@@ -9,7 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from hgjax import _progress, _tiling, io
+from hgjax import _progress, io
+from hgjax.engine import _runners
 from hgjax.cli import main
 
 RUN_NOW = ("import sys; from hgjax import _progress; _progress.DELAY = _progress.STAGE_DELAY = _progress.PERIOD = 0.0;"
@@ -136,8 +137,8 @@ def test_no_time_left_from_a_first_tile_of_a_few_points():
 
 
 def test_a_survey_ticker_gives_no_time_left_from_a_tiny_first_tile(capsys, monkeypatch):
-    monkeypatch.setattr(_tiling.Ticker, "PERIOD", 0.0)
-    tick = _tiling.Ticker("tile scores", {"a": 2, "b": 418_000})
+    monkeypatch.setattr(_runners.Ticker, "PERIOD", 0.0)
+    tick = _runners.Ticker("tile scores", {"a": 2, "b": 418_000})
     tick("a")
     assert "ETA" not in capsys.readouterr().err.splitlines()[-1]
     tick("b")

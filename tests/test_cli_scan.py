@@ -297,25 +297,25 @@ def test_score_writes_finite_values(tmp_path):
 
 
 def test_samples_memory_uses_the_method_cost_and_the_cgroup_limit(tmp_path, monkeypatch):
-    from hgjax import _cli_common, cli
+    from hgjax.cli import _common as cli_common
 
     mesh = str(pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes" / "fandisk.obj")
-    monkeypatch.setattr(_cli_common, "_available_memory", lambda: 3 * 10**9)  # where _check_samples reads it
-    cli._check_samples(10**6, [mesh], ["hkc"])
-    with pytest.raises(cli.UsageError, match="with gfr, more than the 3.0 GB available"):
-        cli._check_samples(10**6, [mesh], ["hkc", "gfr"])
+    monkeypatch.setattr(cli_common, "_available_memory", lambda: 3 * 10**9)  # where _check_samples reads it
+    cli_common._check_samples(10**6, [mesh], ["hkc"])
+    with pytest.raises(cli_common.UsageError, match="with gfr, more than the 3.0 GB available"):
+        cli_common._check_samples(10**6, [mesh], ["hkc", "gfr"])
     monkeypatch.undo()
-    unlimited = cli._available_memory(str(tmp_path / "none"))
+    unlimited = cli_common._available_memory(str(tmp_path / "none"))
     (tmp_path / "v2").mkdir()
     (tmp_path / "v2" / "memory.max").write_text(f"{2**30}\n")
     (tmp_path / "v2" / "memory.current").write_text(f"{2**28}\n")
-    assert cli._available_memory(str(tmp_path / "v2")) == min(unlimited, 2**30 - 2**28)
+    assert cli_common._available_memory(str(tmp_path / "v2")) == min(unlimited, 2**30 - 2**28)
     (tmp_path / "v2" / "memory.max").write_text("max\n")
-    assert cli._available_memory(str(tmp_path / "v2")) == pytest.approx(unlimited, rel=0.2)
+    assert cli_common._available_memory(str(tmp_path / "v2")) == pytest.approx(unlimited, rel=0.2)
     (tmp_path / "v1" / "memory").mkdir(parents=True)
     (tmp_path / "v1" / "memory" / "memory.limit_in_bytes").write_text(f"{2**29}\n")
     (tmp_path / "v1" / "memory" / "memory.usage_in_bytes").write_text(f"{2**28}\n")
-    assert cli._available_memory(str(tmp_path / "v1")) == min(unlimited, 2**28)
+    assert cli_common._available_memory(str(tmp_path / "v1")) == min(unlimited, 2**28)
 
 
 @pytest.mark.full

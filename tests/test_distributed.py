@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _tiling, tiles
+from hgjax import tiles
+from hgjax.engine import _grid, _runners
 
 pytestmark = pytest.mark.full
 
@@ -48,13 +49,13 @@ def test_tiles_are_spread_over_the_workers_largest_first(client, clouds):
     where the cloud was held); the placement is stable and the indices those of one process."""
     p = clouds["smooth"]
     plan, cloud = tiles.plan(p, 0.2, method="ea", tile=1.0)
-    runner = _tiling.Dask(cloud, client, 16)
+    runner = _runners.Dask(cloud, client, 16)
     cells = runner.cloud.occupied()
     where = runner.placed(cells)
     assert set(where.values()) == set(client.ncores()) and where == runner.placed(cells[::-1])
     load = {w: sum(runner.cloud.core_size(c) for c in cells if where[c] == w) for w in client.ncores()}
     assert max(load.values()) - min(load.values()) <= max(map(runner.cloud.core_size, cells))
-    parts = runner.tiles(_tiling.tile_scores, plan)
+    parts = runner.tiles(_grid.tile_scores, plan)
     distributed.wait(parts)
     ran = client.who_has(parts)
     assert {ran[f.key][0] for f in parts} == set(client.ncores())
@@ -110,7 +111,7 @@ def test_a_worker_dead_in_a_small_task_names_the_largest_tile_too():
     p = np.concatenate([rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.01], rng.uniform(0, 2, (400, 3)) * [1, 1, 0.01]])
     _, cloud = tiles.plan(p, 0.2, method="ea", tile=1.0)
     small, large = sorted(cloud.occupied(), key=cloud.core_size)[::len(cloud.occupied()) - 1]
-    dask = object.__new__(_tiling.Dask)
+    dask = object.__new__(_runners.Dask)
     dask.cloud, dask.k, dask.cells = cloud, 16, {"a": small, "b": large}
     message = dask.killed("a", 2**29)
     assert message.startswith(f"Dask workers died running tile {small} (task 'a'): it needs about 0.0 MiB")

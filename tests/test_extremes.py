@@ -109,10 +109,10 @@ def test_gfr_random_weights_of_infinite_and_huge_scores():
     scores = np.array([1.0, np.inf, 2.0, np.inf, 0.0])
     weights = np.where(np.isinf(scores), 0.8 / 2, 0.0) + 0.2 / 5
     np.testing.assert_array_equal(hgjax.keep(scores, count=3, method="gfr", key=KEY),
-                                  hgjax.select.weighted_sample(KEY, weights, 3))
+                                  hgjax.engine.select.weighted_sample(KEY, weights, 3))
     huge = np.array([1e308, 1e308, 1.0, 0.0])  # a sum beyond float64: pi = (0.4 + 0.05, 0.45, 0.05, 0.05)
     np.testing.assert_array_equal(hgjax.keep(huge, count=2, method="gfr", key=KEY),
-                                  hgjax.select.weighted_sample(KEY, np.array([0.45, 0.45, 0.05, 0.05]), 2))
+                                  hgjax.engine.select.weighted_sample(KEY, np.array([0.45, 0.45, 0.05, 0.05]), 2))
     with pytest.raises(ValueError, match=r"scores must be >= 0 .* got -1.0"):
         hgjax.keep(np.array([1.0, -1.0]), count=1, method="gfr", key=KEY)
 

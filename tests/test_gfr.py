@@ -401,11 +401,11 @@ def test_exact_sum_is_the_exact_sum_in_any_grouping():
                              [1e308, -1e308, 5e-324, -5e-324, 2.0**-1060, 0.0, -0.0, 1.0, 2.0**-53],
                              rng.random(3000).astype(np.float32)])
     exact = float(sum(Fraction(v) for v in values.tolist()))
-    whole = hgjax.select.ExactSum.of(values)
-    parts = sum((hgjax.select.ExactSum.of(part) for part in np.array_split(values[rng.permutation(values.size)], 7)),
-                hgjax.select.ExactSum())
+    whole = hgjax.engine.select.ExactSum.of(values)
+    parts = sum((hgjax.engine.select.ExactSum.of(part) for part in np.array_split(values[rng.permutation(values.size)], 7)),
+                hgjax.engine.select.ExactSum())
     assert whole.value() == parts.value() == exact
-    assert hgjax.select.ExactSum.of(np.zeros(4)).value() == hgjax.select.ExactSum.of([]).value() == 0.0
+    assert hgjax.engine.select.ExactSum.of(np.zeros(4)).value() == hgjax.engine.select.ExactSum.of([]).value() == 0.0
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -500,7 +500,7 @@ def test_pair_sums_are_the_exact_sums_of_every_pair(dtype, with_counts):
     w = {key: Fraction(float(c[key[0]] * c[key[1]])) for key in pairs}
     want = [float(ends * sum(w[key] * v**power for key, v in pairs.items())) for power in (0, 1, 2)]
     if dtype == np.float64:  # the host's terms: c q and (c q) q, each rounded as before
-        want[2] = hgjax.select.ExactSum.of([float(w[key]) * float(v) * float(v) for key, v in pairs.items()]).value()
+        want[2] = hgjax.engine.select.ExactSum.of([float(w[key]) * float(v) * float(v) for key, v in pairs.items()]).value()
     assert got == want
     assert k < sym.shape[1] and len(pairs) > 1000
     if dtype == np.float32:  # both summations ran: rows exact in any order, and rows that are not

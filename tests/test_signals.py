@@ -22,6 +22,7 @@ import pytest
 
 import hgjax
 from hgjax import cli, io
+from hgjax.cli import _signals as cli_signals
 
 pytestmark = [pytest.mark.full, pytest.mark.usefixtures("cli_cache"),
               pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/status")]
@@ -212,14 +213,14 @@ def _with_default_handlers(test):
             signal.signal(s, previous)
 
 
-@pytest.mark.parametrize("sig, raised", [(signal.SIGINT, KeyboardInterrupt), (signal.SIGTERM, cli.Terminated)])
+@pytest.mark.parametrize("sig, raised", [(signal.SIGINT, KeyboardInterrupt), (signal.SIGTERM, cli_signals.Terminated)])
 def test_a_signal_during_start_up_imports_waits_for_them(sig, raised):
     """In this process, a signal that comes while the start-up's modules are imported is recorded and
     raised when the imports return, so it never becomes an extension module's ImportError."""
     received, reached = [], []
 
     def test():
-        with pytest.raises(raised), cli._signals(received) as held:
+        with pytest.raises(raised), cli_signals._signals(received) as held:
             with held():
                 os.kill(os.getpid(), sig)
                 time.sleep(0.2)  # the handler runs here, between two bytecodes of the "import"
@@ -250,7 +251,7 @@ def test_an_interrupt_that_a_command_swallows_still_exits_130(capsys, monkeypatc
 def test_the_command_line_installs_its_handlers_before_numpy_and_jax():
     """``hgjax.cli`` (and so ``hgjax``) imports neither NumPy nor JAX: ``main`` installs its handlers
     first, and start-up's imports come after."""
-    code = "import sys, hgjax.cli; print(sorted({'numpy', 'jax', 'jaxlib', 'scipy'} & set(sys.modules)))"
+    code = "import sys, hgjax.cli._main; print(sorted({'numpy', 'jax', 'jaxlib', 'scipy'} & set(sys.modules)))"
     proc = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
 
@@ -262,7 +263,7 @@ signal.signal(signal.SIGTERM, signal.SIG_DFL)
 importing, sig = builtins.__import__, getattr(signal, sys.argv[1])
 
 def interrupted(name, *args, **kwargs):
-    if name == "argparse" and name not in sys.modules:  # hgjax.cli's first standard-library import
+    if name == "argparse" and name not in sys.modules:  # hgjax.cli._main's first standard-library import
         os.kill(os.getpid(), sig)
         time.sleep(0.5)
     return importing(name, *args, **kwargs)
@@ -284,7 +285,7 @@ def test_a_signal_while_the_console_script_imports_the_command_line_ends_it_clea
 
 NOISY_WORKERS = """
 import multiprocessing, os, threading, time
-from hgjax import _cli_signals
+from hgjax.cli import _signals as cli_signals
 
 def noisy():
     for _ in range(300):
@@ -295,7 +296,7 @@ worker = multiprocessing.get_context("fork").Process(target=noisy)
 worker.start()
 threading.Thread(target=noisy, daemon=True).start()
 time.sleep(0.2)
-_cli_signals._exit_at_once("SIGINT")
+cli_signals._exit_at_once("SIGINT")
 """
 
 

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import hgjax
-from hgjax import _tiling, io, survey, tiles
+from hgjax import io, survey, tiles
+from hgjax.engine import _runners
 
 laspy = pytest.importorskip("laspy")
 
@@ -268,7 +269,7 @@ def test_progress_from_the_first_stage(tmp_path, capsys):
     survey.resample_files(paths, tmp_path / "kept", 0.2, method="ea", tile=TILE, progress=True,
                           on_stage=lambda name, seconds: print(f"stage {name} ended", file=sys.stderr))
     lines = capsys.readouterr().err.splitlines()
-    assert lines[0] == f"hgjax survey: check: 2 files, {_tiling.Ticker.si(sum(map(os.path.getsize, paths)))} bytes"
+    assert lines[0] == f"hgjax survey: check: 2 files, {_runners.Ticker.si(sum(map(os.path.getsize, paths)))} bytes"
     assert lines.index("stage check ended") > 1  # the check reported its files before it ended
     stages = [line.split()[1] for line in lines if line.startswith("stage ")]
     assert stages == ["check", "plan", "tiles", "keep", "write"]
@@ -282,7 +283,7 @@ def test_progress_from_the_first_stage(tmp_path, capsys):
 
 
 def test_ticker_lines_and_bar(capsys, monkeypatch):
-    tick = _tiling.Ticker("tile scores", {"a": 1500, "b": 500})
+    tick = _runners.Ticker("tile scores", {"a": 1500, "b": 500})
     tick("a")
     tick("b")
     lines = capsys.readouterr().err.splitlines()
@@ -290,7 +291,7 @@ def test_ticker_lines_and_bar(capsys, monkeypatch):
     assert re.fullmatch(r"hgjax tiles: tile scores 2/2 tiles, 2k/2k points, \S+ points/s, ETA 0 s", lines[-1])
     pytest.importorskip("tqdm")
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True)  # a terminal: a tqdm bar instead
-    tick = _tiling.Ticker("tile scores", {"a": 1500, "b": 500})
+    tick = _runners.Ticker("tile scores", {"a": 1500, "b": 500})
     tick("a")
     tick("b")
     err = capsys.readouterr().err
@@ -313,11 +314,11 @@ def test_tickers_in_many_threads_print_whole_lines(monkeypatch):
 
     stream = Slow()
     monkeypatch.setattr(sys, "stderr", stream)
-    monkeypatch.setattr(_tiling.Ticker, "PERIOD", 0.0)
+    monkeypatch.setattr(_runners.Ticker, "PERIOD", 0.0)
     sizes = {i: 10 for i in range(20)}
 
     def one_pass(name):
-        tick = _tiling.Ticker(name, sizes)
+        tick = _runners.Ticker(name, sizes)
         for key in sizes:
             tick(key)
 

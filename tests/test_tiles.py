@@ -11,9 +11,9 @@ import pytest
 
 import hgjax
 from fixtures import backend_compiles, box_union, grid
-from hgjax import _stream, _tiling, select, tiles
+from hgjax import _stream, tiles
+from hgjax.engine import _grid, _passes, _runners, select
 from hgjax.neighbours import balls, spatial
-from hgjax.scores import gfr
 
 KEYED = {"uniform": {"key": jax.random.key(3)}, "gfr": {"key": jax.random.key(4)}}
 VARIANTS = [("ea", {}), ("mss", {}), ("lhf", {}), ("hkc", {}), ("hkf", {}), ("uniform", {}), ("gfr", {}), ("gfr", {"mode": "top"}), ("voxel", {}),
@@ -64,7 +64,7 @@ def test_the_grid_is_planned_by_a_stable_sort_of_keys_of_any_width():
     rng = np.random.default_rng(5)
     for top, dtype in ((3, np.uint32), (70_000, np.uint32), (1 << 32, np.uint32), (1 << 40, np.uint64)):
         key = rng.integers(0, top, 50_000, dtype=np.uint64).astype(dtype)  # ties at every width
-        np.testing.assert_array_equal(_tiling.stable_order(key, top), np.argsort(key, kind="stable"), err_msg=str(top))
+        np.testing.assert_array_equal(_grid.stable_order(key, top), np.argsort(key, kind="stable"), err_msg=str(top))
 
 
 def test_points_on_tile_edges_are_owned_once():
@@ -100,8 +100,8 @@ def test_halo_slabs_hold_every_point_of_the_box_and_no_other():
 @pytest.mark.parametrize("method,params", [("hkc", {}), ("gfr", {"mode": "top"})])
 def test_each_tile_is_gathered_once_per_halo(smooth, method, params, monkeypatch):
     seen = []
-    gather = _tiling.Cloud.gather
-    monkeypatch.setattr(_tiling.Cloud, "gather",
+    gather = _grid.Cloud.gather
+    monkeypatch.setattr(_grid.Cloud, "gather",
                         lambda self, cell, halo: seen.append((cell, halo)) or gather(self, cell, halo))
     tiles.resample(smooth, 0.2, method=method, tile=1.4, **params)
     assert len(seen) == len(set(seen)), sorted(seen)
@@ -115,36 +115,37 @@ class _Graph(dict):
 @pytest.mark.parametrize("mode, disk_free", [("top", None), ("random", None), ("top", 0)])
 def test_gfr_beyond_keep_points_spills_each_graph_between_passes(smooth, mode, disk_free, monkeypatch, tmp_path):
     """Above KEEP_POINTS the first pass keeps each tile's pair sums only (no graph outlives its
-    tile in memory) and writes its graph to a temporary directory that the second pass reads
+    tile in memory) and writes its tile to a temporary directory that the second pass reads
     and that is gone at the end; with no room on the disk the second pass builds the graphs
-    again, without their pair sums. The same indices as one process either way."""
+    again. The same indices as one process either way."""
     want = hgjax.resample(smooth, 0.2, method="gfr", mode=mode, key=jax.random.key(3))
-    alive, alive_at_build, with_sums, graph = [0], [], [], gfr._tile_graph
+    entry = hgjax.METHODS["gfr"]
+    passes = entry.tiling.passes
+    alive, alive_at_build = [0], []
 
     def freed():
         alive[0] -= 1
 
-    def counted(*args, **kwargs):
-        g = _Graph(graph(*args, **kwargs))
-        with_sums.append(g["sums"] is not None)
+    def counted(*args):
+        g = _Graph(passes.first(*args))
         alive[0] += 1
         weakref.finalize(g, freed)
         alive_at_build.append(alive[0])
         return g
 
-    monkeypatch.setattr(_tiling, "KEEP_POINTS", 0)
-    monkeypatch.setattr(gfr, "_tile_graph", counted)
+    watched = dataclasses.replace(entry, tiling=dataclasses.replace(
+        entry.tiling, passes=dataclasses.replace(passes, first=counted)))
+    monkeypatch.setitem(hgjax.METHODS, "gfr", watched)
+    monkeypatch.setattr(_runners, "KEEP_POINTS", 0)
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     if disk_free is not None:
-        monkeypatch.setattr(gfr.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1, 1, disk_free))
+        monkeypatch.setattr(_passes.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1, 1, disk_free))
     got = tiles.resample(smooth, 0.2, method="gfr", tile=1.4, mode=mode, key=jax.random.key(3))
     np.testing.assert_array_equal(got, want)
     cells = tiles.plan(smooth, 0.2, method="gfr", tile=1.4)[1].members
     assert len(cells) >= 4 and max(alive_at_build) == 1  # no graph outlives its tile
-    if disk_free is None:
-        assert with_sums == [True] * len(cells)  # each graph built once, read back from the disk
-    else:
-        assert with_sums == [True] * len(cells) + [False] * len(cells)  # the second pass sums nothing
+    # each graph built once and read back from the disk, or, with no room there, built again
+    assert len(alive_at_build) == len(cells) * (1 if disk_free is None else 2)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -255,8 +256,8 @@ def test_a_streamed_run_holds_a_tile_and_a_few_bytes_per_point(monkeypatch, tmp_
     where one process grows by about 150. Above KEEP_POINTS no tile's index outlives it; the
     planning pass reads PASS_ROWS points at a time (both lowered to this size, as at 1e8). NumPy's
     and Python's allocations are counted (XLA's buffers and the k-d tree's nodes are not)."""
-    monkeypatch.setattr(_tiling, "KEEP_POINTS", 0)
-    monkeypatch.setattr(_tiling, "PASS_ROWS", 1 << 16)
+    monkeypatch.setattr(_runners, "KEEP_POINTS", 0)
+    monkeypatch.setattr(_grid, "PASS_ROWS", 1 << 16)
     small, large = tmp_path / "small.npy", tmp_path / "large.npy"
     np.save(small, hgjax.eval.box_surface(200_000, seed=0).astype(np.float32))
     np.save(large, hgjax.eval.box_surface(800_000, seed=0).astype(np.float32))

@@ -5,7 +5,7 @@ Every input is read and checked against its output format before anything is com
 manifest of its directory as soon as it is written (:func:`_run_batch`), so ``--skip-existing``
 resumes a batch where it stopped (:func:`_prepare`) and ``--keep-going`` writes every input that
 can be. ``resample`` with ``--tile``, ``--workers`` or ``--scheduler`` is a survey instead
-(:mod:`hgjax._cli_survey`). ``hgjax score`` writes finite scores (:func:`_finite_scores`).
+(:mod:`hgjax.cli._survey`). ``hgjax score`` writes finite scores (:func:`_finite_scores`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from hgjax._cli_common import (
+from hgjax.cli._common import (
     DEFAULT_RATIO,
     BatchFailure,
     UsageError,
@@ -35,7 +35,7 @@ from hgjax._cli_common import (
     _tell,
     count_ratio,
 )
-from hgjax._cli_survey import _resample_survey
+from hgjax.cli._survey import _resample_survey
 
 if TYPE_CHECKING:
     import numpy as np

@@ -16,7 +16,7 @@ import os
 import sys
 from typing import TYPE_CHECKING
 
-from hgjax._cli_common import (
+from hgjax.cli._common import (
     UsageError,
     _check_samples,
     _compute,

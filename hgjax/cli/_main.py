@@ -1,39 +1,4 @@
-"""The ``hgjax`` command line: resample, score, compare and demo.
-
-Every method comes from the registry :data:`hgjax.METHODS`: its neighbourhood kind, which
-end of the score is kept, whether it draws random numbers and which ``-p NAME=VALUE``
-parameters it takes. A scoring method is run as ``neighbourhoods -> score -> keep``, so
-the score is computed once and written next to the kept points.
-
-Points are read in float64 and moved to their local frame (:func:`hgjax.local_frame`) in
-float64 before the library sees them, so georeferenced scans (UTM coordinates of 1e6 m)
-keep their millimetres with every method; outputs keep the original coordinates.
-``--dtype float32`` (default) then computes in float32, and the library's
-:class:`hgjax.PrecisionWarning` about that is silenced because it is the requested
-behaviour; ``--dtype float64`` turns on JAX's x64 mode for the run.
-
-JAX's persistent compilation cache is on, in ``$HGJAX_CACHE_DIR`` (empty: off), else
-``$XDG_CACHE_HOME/hgjax/jax``, else ``~/.cache/hgjax/jax``, so a second run skips the
-compilation of the first. Within one run, files of different sizes share the compiled
-kernels (the library streams fixed-size chunks).
-
-Exit codes: 0 success; 1 failure while computing or writing (with ``--keep-going``: some
-inputs failed, the others were written); 2 invalid arguments or input, detected before any
-computation (bad option, ratio, count, seed or parameter, unreadable input, an attribute
-the output format cannot hold, unwritable output, too many samples for the memory); 130
-interrupted (Ctrl-C), 143 terminated (SIGTERM), with no partial file left. Messages go to
-stderr, tables to stdout; user errors never print a Python traceback. A run's progress goes to
-stderr too (:mod:`hgjax._progress`): its labelled stages with the points done, rate and time
-left, as plain lines where stderr is not a terminal; ``-q`` leaves only warnings and errors,
-``--no-progress`` the summaries, ``-v`` adds each stage's seconds.
-
-This module holds the parser, the run's JAX settings and the dispatch (:func:`main`); the
-commands live in modules of their own, none of which imports NumPy or JAX at module level:
-:mod:`hgjax._cli_common` (errors, inputs and outputs, one method on one cloud),
-:mod:`hgjax._cli_batch` (``resample`` and ``score`` file by file), :mod:`hgjax._cli_survey`
-(``resample`` of a survey in tiles), :mod:`hgjax._cli_compare` (``compare`` and ``demo``) and
-:mod:`hgjax._cli_signals` (SIGINT, SIGTERM and the console script's exit).
-"""
+"""The command line's parser, the run's JAX settings and the dispatch: :func:`main` (:mod:`hgjax.cli`)."""
 
 from __future__ import annotations
 
@@ -46,22 +11,10 @@ import sys
 import warnings
 
 from hgjax import _names, _progress
-from hgjax._cli_batch import cmd_resample, cmd_score
-from hgjax._cli_common import (  # noqa: F401  (re-exported)
-    DEFAULT_RATIO,
-    BatchFailure,
-    UsageError,
-    _available_memory,
-    _check_samples,
-    count_ratio,
-)
-from hgjax._cli_compare import cmd_compare, cmd_demo
-from hgjax._cli_signals import (
-    SIGNAL_EXITS,
-    Terminated,  # noqa: F401  (re-exported)
-    _exit,
-    _signals,
-)
+from hgjax.cli._batch import cmd_resample, cmd_score
+from hgjax.cli._common import DEFAULT_RATIO, BatchFailure, UsageError
+from hgjax.cli._compare import cmd_compare, cmd_demo
+from hgjax.cli._signals import SIGNAL_EXITS, _exit, _signals
 
 EPILOG = """\
 examples:

@@ -6,7 +6,7 @@ the clean-up of partial files runs to its end, and holds a signal that comes ins
 until the import ends. The console script ends the process at once instead
 (:func:`_exit_at_once`, :func:`_exit`): unwinding could free arrays that library threads still
 read. The console script (:func:`hgjax.__main__.console`) calls :func:`exit_on_signals` first,
-before :mod:`hgjax.cli` is imported. This module imports nothing heavy: :func:`hgjax.cli.main`
+before the parser (:mod:`hgjax.cli._main`) is imported. This module imports nothing heavy: :func:`hgjax.cli.main`
 installs the handlers before JAX is imported.
 """
 
@@ -65,7 +65,7 @@ def _at_once(signum, frame) -> None:
 def exit_on_signals() -> None:
     """From now on, SIGINT and SIGTERM end the process at once (:func:`_exit_at_once`), until
     :func:`hgjax.cli.main` installs its own handlers in their place (:func:`_signals`). The console
-    script calls this first, so that a signal while :mod:`hgjax.cli` and the standard library's
+    script calls this first, so that a signal while :mod:`hgjax.cli._main` and the standard library's
     modules it needs are imported prints the run's one line, never a traceback from an import.
     Signals the parent set to be ignored stay ignored."""
     for signum, default in _DEFAULT_HANDLERS:

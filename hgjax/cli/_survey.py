@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 
-from hgjax._cli_common import (
+from hgjax.cli._common import (
     DEFAULT_RATIO,
     BatchFailure,
     UsageError,

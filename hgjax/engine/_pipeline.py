@@ -19,8 +19,8 @@ import numpy as np
 from hgjax import _validate
 from hgjax.neighbours import backend, radius_graph, spatial
 from hgjax._method import Method
-from hgjax._registry import DEFAULT, METHODS, scoring, split
-from hgjax.select import soft_select, top_k
+from hgjax.engine._registry import DEFAULT, METHODS, scoring, split
+from hgjax.engine.select import soft_select, top_k
 
 __all__ = ["capacity", "keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"]
 

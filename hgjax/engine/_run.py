@@ -4,13 +4,13 @@
 :func:`hgjax.tiles.resample` (a grid of tiles, here or on Dask workers),
 :func:`hgjax.survey.resample_files` and the command line. It asks a method only through its
 registry entry: a :class:`hgjax.Method`'s ``tiling`` (:class:`hgjax._method.Tiling`) or a
-:class:`hgjax.Sampler`'s own engine; it holds no method's name.
+:class:`hgjax.Sampler`'s tiles or count (:mod:`hgjax.engine._sampled`); it holds no method's name.
 
-1. **Plan** (:func:`hgjax._tiling.base`, :func:`hgjax._tiling.resolved`): every whole-cloud
+1. **Plan** (:func:`hgjax.engine._plan.base`, :func:`hgjax.engine._plan.resolved`): every whole-cloud
    decision made once.
 2. **Tiles**: each tile's neighbourhoods and scores on its core and a verified halo
-   (:func:`hgjax._tiling.tile_scores`, or the method's ``tiling.scores``).
-3. **Selection** (:func:`hgjax.select.top_pairs`): the top ceil(ratio N) by (score, global
+   (:func:`hgjax.engine._grid.tile_scores`, or the method's two passes: :mod:`hgjax.engine._passes`).
+3. **Selection** (:func:`hgjax.engine.select.top_pairs`): the top ceil(ratio N) by (score, global
    id) over the whole cloud, exactly, from per-tile histograms of order-preserving integer
    keys (or the method's ``tiling.select``: LHF's order statistics, GFR's keyed draw).
 
@@ -27,7 +27,8 @@ import time
 import jax
 import numpy as np
 
-from hgjax import _registry, _stream, _tiling, _validate, pipeline, select
+from hgjax import _stream, _validate
+from hgjax.engine import _grid, _passes, _pipeline, _plan, _registry, _runners, _sampled, select
 from hgjax.neighbours import backend
 from hgjax._method import Method, Sampler
 
@@ -70,14 +71,14 @@ class Run:
 
     idx: np.ndarray
     scores: np.ndarray | None = None
-    plan: _tiling.Plan | None = None
+    plan: _plan.Plan | None = None
     selection: dict = dataclasses.field(default_factory=dict)
     threshold: dict | None = None
 
 
 def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_scores=False, on_stage=None,
         params: dict) -> Run:
-    """Resample ``points`` (an array, an ``np.memmap`` or a lazy :class:`hgjax._tiling.Source`) with ``method``.
+    """Resample ``points`` (an array, an ``np.memmap`` or a lazy :class:`hgjax.engine._grid.Source`) with ``method``.
 
     Every argument is validated here, once (a method's own parameters by its ``tiling.params``).
     ``on_stage(name, seconds)``, when given, is called as each stage ends (:data:`STAGES`).
@@ -97,7 +98,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     params = searched(entry, params)
     _validate.check_stream(params)  # the kernel stream's chunk_size and progress, before any work
     if isinstance(entry, Sampler):
-        return Run(clock("sample", _sample(entry, points, ratio, tile, client, key, params)))
+        return Run(clock("sample", _sampled.sample(entry, points, ratio, tile, client, key, params)))
     if "tau" in params:  # a soft-score parameter resample does not use: still checked
         _validate.check_traced_positive(params["tau"], "tau")
     if whole_cloud(entry, params):
@@ -108,14 +109,14 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     if entry.check_key is not None:
         key = entry.check_key(key, params)
     plan, runner = clock("plan", planned(points, ratio, entry, tile, params, client))
-    if entry.tiling.scores is None:
-        parts = runner.tiles(_tiling.tile_scores, plan, stream)
+    if entry.tiling.passes is None:
+        parts = runner.tiles(_grid.tile_scores, plan, stream)
     else:
-        parts = entry.tiling.scores(runner, plan, stream)
+        parts = _passes.scores(runner, plan, stream)
     clock("tiles")
     if entry.tiling.whole_selection:
-        scores = _tiling.gathered(runner, parts, plan)
-        idx = pipeline.kept(entry, scores, plan.m, key, _registry.split(entry, "select", params))
+        scores = _plan.gathered(runner, parts, plan)
+        idx = _pipeline.kept(entry, scores, plan.m, key, _registry.split(entry, "select", params))
         return Run(clock("keep", idx), scores if return_scores else None, plan)
     if entry.tiling.select is None:
         keyed, selection, largest = runner.each(select.part_keys, parts, entry.largest), {}, entry.largest
@@ -124,7 +125,7 @@ def run(points, ratio, *, method: str, tile=None, client=None, key=None, return_
     idx, (last_key, last_gid) = select.top_pairs(keyed, plan.m, run=runner.run(keyed), boundary=True)
     clock("keep")
     threshold = {"value": select.key_value(last_key, largest=largest), "gid": last_gid}
-    return Run(idx, _tiling.gathered(runner, parts, plan) if return_scores else None, plan, selection, threshold)
+    return Run(idx, _plan.gathered(runner, parts, plan) if return_scores else None, plan, selection, threshold)
 
 
 def searched(entry: Method | Sampler, params: dict) -> dict:
@@ -169,29 +170,22 @@ def checked_tile(entry: Method | Sampler, params: dict, tile, client) -> float |
     return None if tile is None else _validate.check_positive(tile, "tile")
 
 
-def planned(points, ratio, entry: Method, tile, params: dict, client) -> tuple[_tiling.Plan, _tiling.Here]:
+def planned(points, ratio, entry: Method, tile, params: dict, client) -> tuple[_plan.Plan, _runners.Here]:
     """(the resolved plan, the runner of its tiled cloud) of a scoring method's run (``tile`` validated)."""
-    pts = points if isinstance(points, _tiling.Source) else _validate.check_points(points)
-    n = pts.n if isinstance(pts, _tiling.Source) else pts.shape[0]
-    plan, cloud = _tiling.base(pts, _validate.n_keep(n, _validate.check_ratio(ratio)), entry, tile, params, client)
-    runner = _tiling.runner(cloud, client, entry.tiling.reach(plan.build)[0])
-    return _tiling.resolved(plan, runner), runner
-
-
-def _sample(entry: Sampler, points, ratio, tile, client, key, params: dict) -> np.ndarray:
-    """A sampler's indices: its own engine for tiles, a client or a lazy source, else on the whole cloud."""
-    if entry.tiled is not None and (tile is not None or client is not None or isinstance(points, _tiling.Source)):
-        return entry.tiled(points, ratio, tile, client, **({"key": key} if entry.needs_key else {}), **params)
-    return entry.draw(_validate.check_points(points), ratio, key, **params)
+    pts = points if isinstance(points, _grid.Source) else _validate.check_points(points)
+    n = pts.n if isinstance(pts, _grid.Source) else pts.shape[0]
+    plan, cloud = _plan.base(pts, _validate.n_keep(n, _validate.check_ratio(ratio)), entry, tile, params, client)
+    runner = _runners.runner(cloud, client, entry.tiling.reach(plan.build)[0])
+    return _plan.resolved(plan, runner), runner
 
 
 def _whole(points, ratio, entry: Method, key, params: dict, clock: Clock) -> tuple[np.ndarray, np.ndarray]:
     """(kept indices, scores) of a scoring method on the whole cloud at once (GFR's reference)."""
     pts = _validate.check_points(points)
     ratio = _validate.check_ratio(ratio)
-    nb = clock("neighbourhoods", pipeline.neighbourhoods(pts, entry.name, **params))
-    scores = clock("score", np.asarray(pipeline.score(nb, entry.name, **params)))
-    return clock("keep", pipeline.keep(scores, ratio, method=entry.name, key=key, **params)), scores
+    nb = clock("neighbourhoods", _pipeline.neighbourhoods(pts, entry.name, **params))
+    scores = clock("score", np.asarray(_pipeline.score(nb, entry.name, **params)))
+    return clock("keep", _pipeline.keep(scores, ratio, method=entry.name, key=key, **params)), scores
 
 
 def resample(points, ratio: float, *, method: str = _registry.DEFAULT, key=None, return_scores: bool = False, on_stage=None,
@@ -271,8 +265,8 @@ def _pure(points, ratio, entry: Method, return_scores, params: dict):
         raise ValueError(f"method {entry.name!r} selects on the host with these parameters, which a traced resample"
                          f" (traced=True, or points traced by jax.jit) cannot run inside one program{how}")
     return_scores = _validate.check_bool(return_scores, "return_scores")
-    nb = pipeline.neighbourhoods(points, entry.name, **params)
-    scores = pipeline.score(nb, entry.name, **params)
+    nb = _pipeline.neighbourhoods(points, entry.name, **params)
+    scores = _pipeline.score(nb, entry.name, **params)
     m = _validate.n_keep(nb.points.shape[0], _validate.check_ratio(ratio))
     ranked = scores if entry.combine is None else entry.combine(scores, m)
     idx = jax.lax.top_k(ranked if entry.largest else -ranked, m)[1]

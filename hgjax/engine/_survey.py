@@ -27,7 +27,8 @@ import time
 
 import numpy as np
 
-from hgjax import _progress, _registry, _tiling, _validate, engine, io
+from hgjax import _progress, _validate, io
+from hgjax.engine import _grid, _plan, _registry, _run, _runners
 from hgjax.neighbours import spatial
 from hgjax._method import Method
 
@@ -63,7 +64,7 @@ def run_record(inputs, *, method: str, ratio, key=None, params=None, **options) 
         deterministic method.
       params: the method's parameters (the kernel stream's ``chunk_size`` and ``progress`` left out:
         they never change a result; so is a parameter given its default value
-        (:func:`hgjax._registry.defaults`), so ``k=16`` records the run of the default ``k``).
+        (:func:`hgjax.engine._registry.defaults`), so ``k=16`` records the run of the default ``k``).
       **options: anything else that changes the output (a survey's ``tile`` and working
         ``dtype``; the command line's command, count, voxel size, order, samples and seed).
 
@@ -87,11 +88,11 @@ def run_record(inputs, *, method: str, ratio, key=None, params=None, **options) 
               "key": key if _registry.entry(method).needs_key else None, "params": params, **options,
               "inputs": [{"path": os.path.abspath(p), "bytes": None if st is None else st.st_size,
                           "mtime_ns": None if st is None else st.st_mtime_ns} for p, st in zip(inputs, stats)]}
-    return json.loads(json.dumps(record, default=_tiling.jsonable))
+    return json.loads(json.dumps(record, default=_plan.jsonable))
 
 
 def _json(value) -> str:
-    return json.dumps(value, default=_tiling.jsonable, sort_keys=True)
+    return json.dumps(value, default=_plan.jsonable, sort_keys=True)
 
 
 def read_manifest(path) -> dict:
@@ -273,7 +274,7 @@ def _merge_manifest(path: str, entries: list, run: dict | None, fields: dict) ->
         recorded[output] = {**entry, "output": output, "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
     body = {"hgjax": __version__, **({} if run is None else {"run": run}), **fields,
             "outputs": list(recorded.values())}
-    text = json.dumps(body, indent=2, default=_tiling.jsonable).encode()
+    text = json.dumps(body, indent=2, default=_plan.jsonable).encode()
     io._atomic_write(os.path.abspath(path), lambda fh: fh.write(text))
 
 
@@ -289,7 +290,7 @@ class _Source:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Sources(_tiling.Source):
+class _Sources(_grid.Source):
     """A survey's files as one cloud, described by their :class:`_Source` records (no coordinates).
 
     ``progress``: report each finished tile task on stderr.
@@ -311,10 +312,10 @@ class _Sources(_tiling.Source):
         return _Survey(self, origin, lo, hi, tile, client)
 
 
-class _Survey(_tiling.Cloud):
+class _Survey(_grid.Cloud):
     """A survey of files tiled as one cloud, read lazily: a tile reads its core and halo from the files its box meets.
 
-    The grid and ownership are :class:`_tiling.Cloud`'s. The client holds the files' records, each
+    The grid and ownership are :class:`_grid.Cloud`'s. The client holds the files' records, each
     occupied tile's point count and the owners of the sampled ids (:func:`hgjax.neighbours.spatial.sample_ids`),
     taken by one census task per file; never the coordinates. :meth:`gather` reads, one chunk
     at a time, only the files whose exact bounds meet the tile's box, and of a COPC file only
@@ -326,7 +327,7 @@ class _Survey(_tiling.Cloud):
         self.origin, self.lo, self.hi, self.tile, self.files = origin, lo, hi, tile, sources.files
         self.source, self.keep, self._indices, self.n = None, False, {}, sources.n
         self.progress = sources.progress
-        self.shape = (1, 1, 1) if tile is None else _tiling.grid_shape(lo, hi, tile)
+        self.shape = (1, 1, 1) if tile is None else _grid.grid_shape(lo, hi, tile)
         wanted = spatial.sample_ids(self.n)
         counts, self._owners = {}, {}
         tick = _ticker("census", {i: f.count for i, f in enumerate(self.files)}) if self.progress else None
@@ -419,16 +420,16 @@ def _survey_paths(paths) -> list[str]:
     return list(found.values())
 
 
-def _ticker(what: str, sizes: dict, unit: str = "points") -> _tiling.Ticker:
-    """The progress of one stage of a survey's files (:class:`hgjax._tiling.Ticker`)."""
-    return _tiling.Ticker(what, sizes, task="file", unit=unit, prefix="hgjax survey")
+def _ticker(what: str, sizes: dict, unit: str = "points") -> _runners.Ticker:
+    """The progress of one stage of a survey's files (:class:`hgjax.engine._runners.Ticker`)."""
+    return _runners.Ticker(what, sizes, task="file", unit=unit, prefix="hgjax survey")
 
 
 def _each(client, fn, items, *args, tick=None) -> list:
-    """``[fn(item, *args) for item in items]``, as :func:`hgjax._tiling.map_tasks` runs it; ``tick(i)`` as the
+    """``[fn(item, *args) for item in items]``, as :func:`hgjax.engine._runners.map_tasks` runs it; ``tick(i)`` as the
     i-th ends."""
     if tick is None:
-        return _tiling.map_tasks(client, fn, items, *args)
+        return _runners.map_tasks(client, fn, items, *args)
     if client is None:
         out = []
         for i, item in enumerate(items):
@@ -596,7 +597,7 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
     if clash:
         raise ValueError(f"out_dir: the output of {clash[0]} would overwrite it; choose another directory")
     entry = _registry.entry(method)
-    engine.checked_tile(entry, params, tile, client)  # a method that cannot be tiled is refused before any read
+    _run.checked_tile(entry, params, tile, client)  # a method that cannot be tiled is refused before any read
     record = run_record(files, method=method, ratio=ratio, key=key, params=params, tile=tile,
                         dtype="float64" if jax.config.jax_enable_x64 else "float32")
     manifest = os.path.join(out_dir, MANIFEST)
@@ -640,11 +641,11 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
     os.makedirs(out_dir, exist_ok=True)
     clock = _ended(on_stage, "check", clock)
     scoring = isinstance(entry, Method)
-    lazily = entry.refused(params) is None if scoring else entry.lazy
+    lazily = entry.refused(params) is None if scoring else entry.ids is not None
     if progress and client is None and _progress.current() is not None and "progress" in entry.resample_params:
         params = {**params, "progress": True}  # the command line's run counts the rows of each tile's kernels
     if lazily:
-        run = engine.run(survey, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
+        run = _run.run(survey, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
                          on_stage=on_stage, params=dict(params))
     else:  # the methods that need the whole cloud at once read it from a float64 memmap
         work = _temporary(out_dir, "hgjax-survey-xyz.f8")
@@ -659,7 +660,7 @@ def resample_files(paths, out_dir, ratio: float, *, method: str = _registry.DEFA
                     tick(i)
             disk.flush()
             _ended(on_stage, "copy", clock)
-            run = engine.run(disk, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
+            run = _run.run(disk, ratio, method=method, tile=tile, client=client, key=key, return_scores=scoring,
                              on_stage=on_stage, params=dict(params))
             del disk
         finally:

@@ -46,7 +46,7 @@ def top_k(scores, m: int, *, largest: bool = True) -> np.ndarray:
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax.select import top_k
+      >>> from hgjax.engine.select import top_k
       >>> top_k(np.array([0.5, 2.0, 2.0, 1.0]), 2).tolist()
       [1, 2]
       >>> top_k(np.array([0.5, 2.0, 2.0, 1.0]), 2, largest=False).tolist()
@@ -82,7 +82,7 @@ def order_keys(scores, *, largest: bool) -> np.ndarray:
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax.select import order_keys
+      >>> from hgjax.engine.select import order_keys
       >>> np.argsort(order_keys(np.array([0.5, -1.0, 2.0]), largest=True)).tolist()
       [2, 0, 1]
     """
@@ -117,7 +117,7 @@ class ExactSum:
     grouping or order gives the same bits; :meth:`value` rounds once, correctly.
 
     Examples:
-      >>> from hgjax.select import ExactSum
+      >>> from hgjax.engine.select import ExactSum
       >>> (ExactSum.of([1e20, 1.0]) + ExactSum.of([-1e20])).value()
       1.0
     """
@@ -223,7 +223,7 @@ def kth_pair(parts, m: int, *, run=None) -> tuple[int, int]:
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax.select import kth_pair
+      >>> from hgjax.engine.select import kth_pair
       >>> parts = [(np.array([5, 1], np.uint64), np.array([0, 1])), (np.array([1, 9], np.uint64), np.array([2, 3]))]
       >>> kth_pair(parts, 2)
       (1, 2)
@@ -257,7 +257,7 @@ def top_pairs(parts, m: int, *, run=None, boundary: bool = False):
 
     Examples:
       >>> import numpy as np
-      >>> from hgjax.select import top_pairs
+      >>> from hgjax.engine.select import top_pairs
       >>> parts = [(np.array([5, 1], np.uint64), np.array([0, 1])), (np.array([1, 9], np.uint64), np.array([2, 3]))]
       >>> ids, last = top_pairs(parts, 3, boundary=True)
       >>> ids.tolist(), last
@@ -297,7 +297,7 @@ def point_bits(key, gids) -> np.ndarray:
 
     Examples:
       >>> import jax, numpy as np
-      >>> from hgjax.select import point_bits
+      >>> from hgjax.engine.select import point_bits
       >>> a = point_bits(jax.random.key(0), np.array([7, 3]))
       >>> b = point_bits(jax.random.key(0), np.array([3]))
       >>> bool(a[1] == b[0])
@@ -355,7 +355,7 @@ def weighted_sample(key: jax.Array, weights, m: int) -> np.ndarray:
 
     Examples:
       >>> import jax, numpy as np
-      >>> from hgjax.select import weighted_sample
+      >>> from hgjax.engine.select import weighted_sample
       >>> idx = weighted_sample(jax.random.key(0), np.array([0.0, 1.0, 1.0]), 2)
       >>> sorted(idx.tolist())
       [1, 2]

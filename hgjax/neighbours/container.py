@@ -4,7 +4,7 @@
 static, :func:`record`); :func:`stack_neighbourhoods` pads the neighbourhoods of clouds of any
 N and K into one batch for ``jax.vmap``. The builders that fill it live in
 :mod:`hgjax.neighbours.spatial` (the host's k-d tree, which re-exports these names),
-:mod:`hgjax.pipeline` (per method) and the traced search. This module builds on nothing of
+:mod:`hgjax.engine._pipeline` (per method) and the traced search. This module builds on nothing of
 hgjax but :mod:`hgjax._validate`.
 """
 

@@ -46,16 +46,13 @@ from __future__ import annotations
 
 import concurrent.futures
 import functools
-import os
-import pickle
-import shutil
-import tempfile
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _method, _stream, _tiling, _validate, select
+from hgjax import _method, _stream, _validate
+from hgjax.engine import select
 from hgjax.neighbours import backend, radius_graph, spatial
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K
@@ -775,99 +772,43 @@ def _gumbel_keys(part, total: float, n: int, key_data: np.ndarray):
     return select.order_keys(perturbed, largest=True), gids
 
 
-def _tile_graph(cloud: _tiling.Cloud, cell, plan_: _tiling.Plan, with_sums: bool = True) -> dict:
-    """GFR's graph around the core locations of one tile, and its exact pair sums if ``with_sums``
-    (else None) (Chen et al. 2018).
+def _tile_graph(index: spatial.SpatialIndex, rows: np.ndarray, plan_) -> dict:
+    """The first pass of a tile: GFR's graph around its core locations ``rows`` and its exact pair sums
+    (Chen et al. 2018), on a halo verified to hold :func:`_graph_reach` around every core location.
 
     A core location's stored pairs are those it ranks or that rank it, so every location
-    within the radius R of it must see its whole R-ball: the halo is verified to hold 2R
-    around every core location.
+    within the radius R of it must see its whole R-ball: the halo holds 2R.
     """
     b = plan_.build
-    reach = _graph_reach(b["r"])
-    gids, core, index, rows, _ = _tiling.covered(cloud, cell, plan_.halo, True,
-                                                 lambda index, rows: (None, np.full(rows.size, reach)))
-    search = b.get("search", "host")
-    if with_sums:
-        chunks, sums = graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype, search)
-    else:
-        chunks, sums = list(graph_rows(index, rows, b["r"], b["max_nn"], search)), None
-    return {"gids": gids, "core": core, "index": index, "rows": rows, "chunks": chunks, "sums": sums}
+    chunks, sums = graph_sums(index, rows, b["r"], b["max_nn"], plan_.dtype, b.get("search", "host"))
+    return {"chunks": chunks, "sums": sums}
 
 
-def _graph_reach(r: float) -> float:
+def _graph_reach(build: dict) -> float:
     """How far around a core location GFR's tile must hold every point: twice the pair query's bound
-    (its partners' partners), for the squared radius ``r``."""
-    return 2 * np.sqrt(r) * (1 + 1e-5)
+    (its partners' partners), for the squared radius ``build["r"]``."""
+    return 2 * np.sqrt(build["r"]) * (1 + 1e-5)
 
 
 def _tile_sums(graph: dict) -> tuple:
     return graph["sums"]
 
 
-def _tile_norms(graph: dict, plan_: _tiling.Plan, mean_q: float, two_var: float, stream: dict):
-    """(gids, scores) of a tile's core points from its graph and the global weight statistics."""
-    index, rows, core = graph["index"], graph["rows"], graph["core"]
-    lp = graph_norms(index, graph["chunks"], mean_q, two_var, plan_.dtype, **stream)
-    return graph["gids"][core], _tiling.per_point(index, rows, core, lp.astype(plan_.dtype))
+def _moments(sums: list) -> tuple[float, float]:
+    """(mean q, 2 var q) of the whole cloud's stored pairs, from every tile's pair sums."""
+    return moments(summed(sums))
 
 
-def tiled_scores(runner: _tiling.Here, plan_: _tiling.Plan, stream: dict):
-    """GFR scores of every tile's core points: pair sums over all tiles, then the flows (two passes).
-
-    Dask workers and small clouds keep each tile's graph between the passes. A large cloud in
-    this process keeps only each tile's pair sums in memory and writes its graph to a private
-    temporary directory (``tempfile``'s, e.g. ``TMPDIR``) for the second pass, so memory stays
-    bounded by a tile; a tile whose graph the disk has no room for is built again in the second
-    pass (without its pair sums). The scores are the same either way.
-    """
-    if isinstance(runner, _tiling.Dask) or plan_.n <= _tiling.KEEP_POINTS:
-        graphs = runner.tiles(_tile_graph, plan_)
-        mean_q, two_var = moments(summed(runner.gather(runner.each(_tile_sums, graphs))))
-        return runner.each(_tile_norms, graphs, plan_, mean_q, two_var, stream)
-    with tempfile.TemporaryDirectory(prefix="hgjax-gfr-") as spill:
-        mean_q, two_var = moments(summed(runner.tiles(_spilled_sums, plan_, spill)))
-        return runner.tiles(_spilled_tile, plan_, mean_q, two_var, stream, spill)
-
-
-def _spill_path(spill: str, cell) -> str:
-    return os.path.join(spill, "_".join(map(str, cell)) + ".pickle")
-
-
-def _spilled_sums(cloud: _tiling.Cloud, cell, plan_: _tiling.Plan, spill: str) -> tuple:
-    """A tile's pair sums; its graph goes to ``spill`` when the disk has room for twice its arrays."""
-    graph = _tile_graph(cloud, cell, plan_)
-    index = graph["index"]
-    size = sum(own.nbytes + sym.nbytes for own, sym in graph["chunks"]) + 4 * index.points.nbytes
-    path = _spill_path(spill, cell)
-    if shutil.disk_usage(spill).free > 2 * size:
-        try:
-            with open(path, "wb") as f:
-                pickle.dump(graph, f, protocol=pickle.HIGHEST_PROTOCOL)
-        except OSError:
-            os.remove(path)
-    return graph["sums"]
-
-
-def _spilled_tile(cloud: _tiling.Cloud, cell, plan_: _tiling.Plan, mean_q: float, two_var: float, stream: dict, spill: str):
-    path = _spill_path(spill, cell)
-    if not os.path.exists(path):
-        return _tile_norms(_tile_graph(cloud, cell, plan_, with_sums=False), plan_, mean_q, two_var, stream)
-    with open(path, "rb") as f:
-        graph = pickle.load(f)
-    os.remove(path)
-    return _tile_norms(graph, plan_, mean_q, two_var, stream)
+def _tile_norms(index: spatial.SpatialIndex, rows: np.ndarray, graph: dict, plan_, total: tuple, stream: dict):
+    """The second pass of a tile: ||(L P)_i|| of its core ``rows``, given the global weight statistics."""
+    mean_q, two_var = total
+    return graph_norms(index, graph["chunks"], mean_q, two_var, plan_.dtype, **stream).astype(plan_.dtype)
 
 
 def _reach(build: dict) -> tuple[int, int]:
-    """(DEFAULT_K, 1): the sample statistics' reach; the graph's own reach is set by :func:`_first_halo`."""
+    """(DEFAULT_K, 1): the sample statistics' reach; the graph's own is :func:`_graph_reach`."""
     del build
     return DEFAULT_K, 1
-
-
-def _first_halo(build: dict, first: float) -> float:
-    """The first halo of the resolved graph: just wider than the reach its tiles verify (:func:`_graph_reach`)."""
-    return max(first, _graph_reach(build["r"]) * (1 + 1e-3))
 
 
 METHOD = _method.Method(
@@ -876,5 +817,7 @@ METHOD = _method.Method(
     citation="Chen, Tian, Feng, Vetro, Kovacevic, IEEE TSP 66(3), 2018", build=neighbourhoods, score=score,
     soft_score=soft_score,
     select=_select, check_key=check_key, keeps_top={"mode": "top"}, bytes_per_sample=4096,
-    tiling=_method.Tiling(params=tile_params, reach=_reach, resolve=resolve_build, halo=_first_halo,
-                          scores=tiled_scores, select=tiled_select, refused=_untiled))
+    tiling=_method.Tiling(params=tile_params, reach=_reach, resolve=resolve_build,
+                          passes=_method.Passes(reach=_graph_reach, first=_tile_graph, summary=_tile_sums,
+                                                reduce=_moments, second=_tile_norms),
+                          select=tiled_select, refused=_untiled))

@@ -59,7 +59,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hgjax import _exact, _method, _stream, _validate, select, spectrum
+from hgjax import _exact, _method, _stream, _validate, spectrum
+from hgjax.engine import select
 from hgjax.neighbours import backend, nearest, spatial
 from hgjax.scores import _common, eigen
 
@@ -499,7 +500,7 @@ def tiled_select(runner, parts, plan, key=None):
     """Eqs. (15)-(16) over the tiles: the two global order statistics, then each tile's combined gamma.
 
     Gamma_a and Gamma_b are the m-th largest single-length gammas of the whole cloud, found
-    exactly from per-tile histograms (:func:`hgjax.select.kth_pair`).
+    exactly from per-tile histograms (:func:`hgjax.engine.select.kth_pair`).
 
     Returns:
       (parts of combined gamma, their order keys, {"gamma_a", "gamma_b"}, True).

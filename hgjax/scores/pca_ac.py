@@ -37,7 +37,8 @@ import heapq
 
 import numpy as np
 
-from hgjax import _method, _validate, select
+from hgjax import _method, _validate
+from hgjax.engine import select
 from hgjax.neighbours import nearest
 from hgjax.scores import ea
 
