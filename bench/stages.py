@@ -45,9 +45,9 @@ ENGINE_STAGES = [("plan (bounds, grid, resolved parameters)", "plan"), ("tiles (
 # of a call; they name the library's current internals and move with them.
 PUBLIC = "public build: `hgjax.neighbourhoods(p, m)`, its own call after the resample"
 STAGES = [
-    ("resample (whole call)", "hgjax.engine", "run", 0),
+    ("resample (whole call)", "hgjax.engine._run", "run", 0),
     ("sample statistics (d_factor)", "hgjax.neighbours.spatial", "nearest_distances", 1),
-    ("tile_scores (index, neighbourhoods, kernel)", "hgjax.engine", "tile_scores", 1),
+    ("tile_scores (index, neighbourhoods, kernel)", "hgjax.engine._grid", "tile_scores", 1),
     ("gather (tile points in the frame, float64)", "hgjax.engine._grid.Cloud", "gather", 2),
     ("SpatialIndex (Morton sort, dedupe, tree)", "hgjax.neighbours.spatial.SpatialIndex", "__init__", 2),
     ("spatial_order (Morton codes and sort)", "hgjax.neighbours.spatial", "spatial_order", 3),
@@ -79,7 +79,7 @@ STAGES = [
     ("_tile_norms (GFR flows and row sums)", "hgjax.scores.gfr", "_tile_norms", 1),
     ("laplacian_norms (flow kernel, rows summed on the device)", "hgjax.scores.gfr", "laplacian_norms", 2),
     ("row_sums (rows summed in global-id order on the host)", "hgjax.scores.gfr", "row_sums", 3),
-    ("per_point (scores of the core points)", "hgjax.engine", "per_point", 2),
+    ("per_point (scores of the core points)", "hgjax.engine._grid", "per_point", 2),
     ("LHF tiled_select (Gamma_a, Gamma_b, mix)", "hgjax.scores.lhf", "tiled_select", 1),
     ("selection (exact top-k)", "hgjax.engine.select", "top_pairs", 1),
 ]
@@ -138,6 +138,10 @@ def _install(totals: dict, cpu: dict) -> None:
             if tiling is None:
                 continue
             hooks = {f.name: wrapped for f in dataclasses.fields(tiling) if getattr(tiling, f.name) is fn}
+            passes = tiling.passes
+            if passes is not None and any(getattr(passes, f.name) is fn for f in dataclasses.fields(passes)):
+                hooks["passes"] = dataclasses.replace(passes, **{f.name: wrapped for f in dataclasses.fields(passes)
+                                                                 if getattr(passes, f.name) is fn})
             if hooks:
                 methods[name] = dataclasses.replace(entry, tiling=dataclasses.replace(tiling, **hooks))
 

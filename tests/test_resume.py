@@ -14,7 +14,9 @@ import pytest
 
 import hgjax
 from fixtures import box_union
-from hgjax import engine, io, survey
+from hgjax import io, survey
+from hgjax.engine import _run
+from hgjax.engine import _survey as engine_survey
 from hgjax.cli import main
 
 pytestmark = pytest.mark.usefixtures("cli_cache")
@@ -264,7 +266,7 @@ def test_an_interrupted_whole_cloud_survey_leaves_nothing(tmp_path, monkeypatch,
         seen.append((type(points), [f for f in os.listdir(out) if f.startswith(".")], set(io.OPEN_TEMPORARIES)))
         raise stop()
 
-    monkeypatch.setattr(engine, "run", interrupted)
+    monkeypatch.setattr(_run, "run", interrupted)
     with pytest.raises(stop):
         survey.resample_files(paths, out, 0.2, method="voxel")
     (kind, temporaries, registered), = seen
@@ -276,7 +278,7 @@ def test_an_interrupted_whole_cloud_survey_leaves_nothing(tmp_path, monkeypatch,
 def test_a_killed_surveys_temporary_is_removed_by_the_next_run(tmp_path):
     paths, out = _inputs(tmp_path / "src"), tmp_path / "out"
     out.mkdir()
-    parts = os.path.basename(survey._temporary(str(out), "hgjax-survey-xyz.f8")).split(".")
+    parts = os.path.basename(engine_survey._temporary(str(out), "hgjax-survey-xyz.f8")).split(".")
     parts[-3] = "999999999"  # the pid of a process that no longer runs
     stale = out / ".".join(parts)
     stale.write_bytes(bytes(48))
