@@ -66,7 +66,7 @@ class Cloud:
     every tile's host index once built, instead of only the last one, until :meth:`release`.
     """
 
-    progress = False  # a survey reports each finished tile on stderr (:class:`Ticker`)
+    progress = False  # a survey reports each finished tile on stderr (:class:`hgjax.engine._runners.Ticker`)
 
     def __init__(self, points: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  tile: float | None, source=None):
@@ -232,9 +232,9 @@ def tile_scores(cloud: Cloud, cell, plan_, stream: dict | None = None) -> tuple[
     """Scores of the core points of one tile, computed on the tile and a verified halo.
 
     Args:
-      cloud: the tiled cloud :func:`plan` returned.
+      cloud: the tiled cloud :func:`hgjax.tiles.plan` returned.
       cell: the tile's grid cell (i, j, k).
-      plan_: the resolved :class:`Plan`.
+      plan_: the resolved :class:`hgjax.engine.Plan`.
       stream: ``chunk_size`` and ``progress`` of the kernel stream; never change results.
 
     Returns:

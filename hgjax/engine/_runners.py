@@ -16,7 +16,7 @@ from hgjax.engine import _grid, select
 
 __all__ = ["Dask", "Here", "Ticker", "runner"]
 
-KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's index (or GFR graph) between passes
+KEEP_POINTS = 4_000_000  # up to this N, a run in this process keeps each tile's index (or its two-pass state)
 GATHER_BATCH = 64  # per-tile summaries (65,536-bin histograms) a Dask client holds at once in a selection
 TASK_BYTES = 32  # per neighbour of a core point in a tile task: an int64 index and three float64 offsets
 
@@ -128,7 +128,7 @@ class Here:
         return values
 
     def run(self, parts):
-        """``run`` of :func:`hgjax.select.kth_pair`: each part's result as it is computed."""
+        """``run`` of :func:`hgjax.engine.select.kth_pair`: each part's result as it is computed."""
         return select.run_here(parts)
 
 
@@ -211,7 +211,7 @@ class Dask(Here):
         return futures
 
     def run(self, parts):
-        """``run`` of :func:`hgjax.select.kth_pair`: every part's task submitted at once, the results
+        """``run`` of :func:`hgjax.engine.select.kth_pair`: every part's task submitted at once, the results
         gathered GATHER_BATCH at a time, so the client holds one batch of summaries, not every tile's."""
         def results(fn, *args):
             futures = self.each(fn, parts, *args)

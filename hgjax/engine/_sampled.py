@@ -40,7 +40,8 @@ def _tiled(entry: Sampler, points, ratio, tile, client, params: dict) -> np.ndar
     context = entry.tiles.plan(pts, m, **params)
     bmin, bmax = _plan.bounds(pts)
     origin = spatial.frame_origin(bmin, bmax, np.float64)
-    cloud = _grid.Cloud(pts, origin, bmin - origin, bmax - origin, tile, points if isinstance(points, np.memmap) else None)
+    source = points if isinstance(points, np.memmap) else None  # travels to Dask workers as its file
+    cloud = _grid.Cloud(pts, origin, bmin - origin, bmax - origin, tile, source)
     runner = _runners.runner(cloud, client, 1)  # a task holds its tile's points, no neighbours
     parts = runner.tiles(_part, entry.tiles, context)
     v = sum(runner.gather(runner.each(_count, parts)))
