@@ -259,6 +259,15 @@ def _check_real(value: Any, name: str, *, strict: bool) -> float:
     return value
 
 
+VARIANTS = ("invariant", "reference")
+"""Every method's ``variant``: scale-invariant (default), or the paper's (or the authors' code's) rules."""
+
+
+def check_variant(variant: Any) -> str:
+    """Return ``variant`` after checking it is one of :data:`VARIANTS`."""
+    return check_choice(variant, "variant", VARIANTS)
+
+
 def check_choice(value: Any, name: str, choices: Iterable[str]) -> str:
     """Return ``value`` after checking it is one of ``choices``."""
     choices = sorted(choices)

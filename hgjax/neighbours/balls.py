@@ -112,7 +112,7 @@ def build_params(*, variant: str = "invariant", d_factor: float | None = None, k
     Raises:
       TypeError, ValueError: invalid arguments.
     """
-    variant = _validate.check_choice(variant, "variant", ("invariant", "reference"))
+    variant = _validate.check_variant(variant)
     return {
         "variant": variant,
         "d_factor": None if d_factor is None else _validate.check_positive(d_factor, "d_factor"),

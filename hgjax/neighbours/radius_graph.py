@@ -61,7 +61,6 @@ from hgjax.neighbours import backend, cells, spatial
 __all__ = ["MAX_NN", "RADIUS_FACTOR", "build", "graph", "graph_params", "index_location_rows", "location_rows",
            "reference_ball", "squared_radius"]
 
-GFR_VARIANTS = ("invariant", "reference")
 MAX_NN = 100
 RADIUS_FACTOR = 10.0
 SKIP_SQ_DIST = 1e-10  # reference: points with a neighbour this close (squared) do not set minNN
@@ -498,7 +497,7 @@ def graph_params(variant: str, radius_factor: float | None, max_nn: int) -> tupl
       TypeError, ValueError: unknown variant, invalid radius_factor or max_nn, or
         radius_factor given with the reference variant.
     """
-    variant = _validate.check_choice(variant, "variant", GFR_VARIANTS)
+    variant = _validate.check_variant(variant)
     max_nn = _validate.check_int(max_nn, "max_nn", minimum=1)
     if variant == "reference":
         if radius_factor is not None:

@@ -1,4 +1,4 @@
-"""Pieces shared by the per-method score modules: variant check, safe arithmetic, exact scaling."""
+"""Pieces shared by the per-method score modules: safe arithmetic, exact scaling."""
 
 from __future__ import annotations
 
@@ -6,14 +6,6 @@ import functools
 
 import jax
 import jax.numpy as jnp
-
-from hgjax import _validate
-
-VARIANTS = ("invariant", "reference")
-
-
-def check_variant(variant: str) -> str:
-    return _validate.check_choice(variant, "variant", VARIANTS)
 
 
 def matmul(*factors: jax.Array) -> jax.Array:

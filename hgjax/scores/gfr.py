@@ -309,7 +309,7 @@ def score(nb, *, variant: str = "invariant", chunk_size: int | None = None, prog
       >>> s.shape, bool((s > 0).all())
       ((200,), True)
     """
-    variant = _validate.check_choice(variant, "variant", radius_graph.GFR_VARIANTS)
+    variant = _validate.check_variant(variant)
     return high_pass(nb.points, nb.idx, first=nb.first, weights_dtype=_weights_dtype(variant), chunk_size=chunk_size,
                      progress=progress)
 
@@ -669,7 +669,7 @@ def soft_score(nb, *, variant: str = "invariant"):
       >>> hgjax.scores.gfr.soft_score(nb).shape
       (100,)
     """
-    variant = _validate.check_choice(variant, "variant", radius_graph.GFR_VARIANTS)
+    variant = _validate.check_variant(variant)
     points, idx = jnp.asarray(nb.points), jnp.asarray(nb.idx)
     _validate.check_graph(points, idx, nb.first, _weights_dtype(variant))
     return _soft(points, idx, nb.first, weights_dtype=_weights_dtype(variant))

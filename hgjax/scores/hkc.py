@@ -119,7 +119,7 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
       >>> hgjax.scores.hkc.score(nb).shape
       (200,)
     """
-    variant = _common.check_variant(variant)
+    variant = _validate.check_variant(variant)
     kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,), chunk_size=chunk_size,
@@ -147,7 +147,7 @@ def soft_score(nb, *, tau=0.1, variant: str = "invariant", kernel_size: int = 3)
       >>> bool(((s >= 0) & (s <= 1)).all())
       True
     """
-    variant = _common.check_variant(variant)
+    variant = _validate.check_variant(variant)
     kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkc")
     tau = _validate.check_traced_positive(tau, "tau")

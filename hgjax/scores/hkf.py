@@ -88,7 +88,7 @@ def score(nb, *, variant: str = "invariant", kernel_size: int = 3, chunk_size: i
       >>> bool(((s >= 0) & (s <= 1)).all())
       True
     """
-    variant = _common.check_variant(variant)
+    variant = _validate.check_variant(variant)
     kernel_size = _validate.check_kernel_size(kernel_size)
     _validate.check_scale(nb, "hkf")
     return _stream.map_neighbourhoods(_kernel(kernel_size, variant), nb, row_args=(nb.scale,),

@@ -378,7 +378,7 @@ def build_params(*, lengths=DEFAULT_LENGTHS, variant: str = "invariant", dedupe:
       TypeError, ValueError: invalid arguments.
     """
     lengths = _validate.check_lengths(lengths)
-    variant = _common.check_variant(variant)
+    variant = _validate.check_variant(variant)
     dedupe = variant == "invariant" if dedupe is None else _validate.check_bool(dedupe, "dedupe")
     return {"lengths": lengths, "variant": variant, "dedupe": dedupe}
 
@@ -439,7 +439,7 @@ def single(nb, *, lengths=DEFAULT_LENGTHS, variant: str = "invariant", solver: s
       (100, 1)
     """
     lengths = tuple(_validate.check_int(n, "lengths", minimum=3) for n in lengths)
-    variant = _common.check_variant(variant)
+    variant = _validate.check_variant(variant)
     solver = _validate.check_choice(solver, "solver", SOLVERS)
     _validate.check_columns(nb, max(lengths), f"LHF with length {max(lengths)}")
     out = _stream.map_neighbourhoods(_kernel(lengths, variant, solver), nb, chunk_size=chunk_size, progress=progress)
