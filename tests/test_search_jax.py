@@ -58,7 +58,7 @@ def cut(idx, n):
 @functools.lru_cache(maxsize=None)
 def traced_knn(k, dedupe, x64, metric="l2"):
     """One jitted search per case (``radius`` inf: no bound; one program with and without)."""
-    fn = jax.jit(lambda p, count, radius: search.knn(p, k, dedupe=dedupe, slots=SLOTS, count=count,
+    fn = jax.jit(lambda p, count, radius: search.traced_knn(p, k, dedupe=dedupe, slots=SLOTS, count=count,
                                                      radius=radius, metric=metric))
     return lambda p, count, radius=np.inf: fn(p, count, radius)
 
@@ -188,7 +188,7 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
     float64), the ball of sqrt(3) k / 2 f times it, shrunk below 256 points; the same bits."""
     factor = np.sqrt(3.0) * 3 / 2 * 1.6
     with x64_mode(True):
-        spacing = jax.jit(lambda p, c: balls.local_spacing(search.knn(p, 17, dedupe=True, slots=SLOTS,
+        spacing = jax.jit(lambda p, c: balls.local_spacing(search.traced_knn(p, 17, dedupe=True, slots=SLOTS,
                                                                        count=c)))
         ball = traced_within(256, "l2", True, 256, True)  # a sparse point's ball holds up to 255
         for name in ("quantised_1mm", "duplicated", "mixed_density", "georeferenced"):
@@ -211,8 +211,8 @@ def test_hkc_invariant_neighbourhoods_compose_to_the_hosts_bits():
 @pytest.mark.full
 def test_jit_equals_eager():
     p = CLOUDS["quantised_1mm"][:64].astype(np.float32)
-    eager = search.knn(p, 8, dedupe=True, slots=8)
-    jitted = jax.jit(lambda p: search.knn(p, 8, dedupe=True, slots=8))(p)
+    eager = search.traced_knn(p, 8, dedupe=True, slots=8)
+    jitted = jax.jit(lambda p: search.traced_knn(p, 8, dedupe=True, slots=8))(p)
     np.testing.assert_array_equal(eager.idx, jitted.idx)
     np.testing.assert_array_equal(eager.dist, jitted.dist)
     assert not bool(eager.overflow)
@@ -226,7 +226,7 @@ def test_vmap_over_a_padded_batch_equals_the_loop():
     with x64_mode(True):
         batch = [padded(CLOUDS[name], np.float32) for name in names]
         points, counts = np.stack([b[0] for b in batch]), np.array([b[1] for b in batch])
-        found = jax.jit(jax.vmap(lambda p, c: search.knn(p, K, dedupe=True, slots=SLOTS, count=c)))(
+        found = jax.jit(jax.vmap(lambda p, c: search.traced_knn(p, K, dedupe=True, slots=SLOTS, count=c)))(
             points, counts)
         assert found.idx.shape == (3, ROWS, K) and not np.asarray(found.overflow).any()
         for i, name in enumerate(names):
@@ -234,7 +234,7 @@ def test_vmap_over_a_padded_batch_equals_the_loop():
             np.testing.assert_array_equal(cut(found.idx[i], len(CLOUDS[name])),
                                           nearest.knn(CLOUDS[name].astype(np.float32), K, dedupe=True).idx)
         same = np.stack([uniform_cloud(300, seed=s) for s in (7, 8)])
-        stacked = jax.jit(jax.vmap(lambda p: search.knn(p, 8)))(same)
+        stacked = jax.jit(jax.vmap(lambda p: search.traced_knn(p, 8)))(same)
         assert not np.asarray(stacked.overflow).any()
         for i in range(2):
             np.testing.assert_array_equal(stacked.idx[i], nearest.knn(same[i], 8).idx)
@@ -245,7 +245,7 @@ def test_gradients_flow_through_the_points_not_the_choice():
     p = jnp.asarray(CLOUDS["random"][:300])
 
     def spread(p):
-        found = search.knn(p, 8)
+        found = search.traced_knn(p, 8)
         nbr = p[found.idx]  # (N, 8, 3); every row is full here
         return jnp.sum((nbr - p[:, None, :]) ** 2), found.idx
 
@@ -262,13 +262,13 @@ def test_blocks_are_read_whole_however_few_slots_and_a_small_edge_is_flagged_and
     p = CLOUDS["random"][:300]
     want = nearest.knn(p, 8).idx
     with x64_mode(True):
-        fn = jax.jit(lambda p, e: search.knn(p, 8, slots=2, edge=e, spill=0))
+        fn = jax.jit(lambda p, e: search.traced_knn(p, 8, slots=2, edge=e, spill=0))
         dense = fn(p, 0.4)  # blocks of about 200 points, read two at a time
         assert not bool(dense.overflow)
         np.testing.assert_array_equal(dense.idx, want)
         tiny = fn(p, 1e-3)
         assert bool(tiny.overflow) and bool(tiny.uncovered) and float(tiny.edge_needed) > 1e-3
-        wider = search.grown(search.knn, p, 8, slots=2, edge=1e-3, spill=0)  # the edge grows
+        wider = search.grown(search.traced_knn, p, 8, slots=2, edge=1e-3, spill=0)  # the edge grows
         assert not bool(wider.overflow) and float(wider.edge) > 1e-3
         np.testing.assert_array_equal(wider.idx, want)
 
@@ -280,11 +280,11 @@ def test_rows_missed_by_the_edge_are_searched_again_under_jit():
     p = CLOUDS["mixed_density"]
     want = nearest.knn(p, K).idx
     with x64_mode(True):
-        fn = jax.jit(lambda p, e: search.knn(p, K, slots=SLOTS, edge=e, spill=400))
+        fn = jax.jit(lambda p, e: search.traced_knn(p, K, slots=SLOTS, edge=e, spill=400))
         found = fn(p, 0.3)  # right for the dense sphere, too small for the sparse points around it
         assert not bool(found.overflow) and float(found.edge) == 0.3
         np.testing.assert_array_equal(found.idx, want)
-        none = jax.jit(lambda p, e: search.knn(p, K, slots=SLOTS, edge=e, spill=0))(p, 0.3)
+        none = jax.jit(lambda p, e: search.traced_knn(p, K, slots=SLOTS, edge=e, spill=0))(p, 0.3)
         assert bool(none.overflow) and bool(none.uncovered) and float(none.edge_needed) > 0.3
 
 
@@ -311,7 +311,7 @@ def test_a_sparse_2km_tile_needs_no_dense_grid():
     p = np.concatenate(patches) + np.array([700000.0, 5600000.0, 300.0])
     want = nearest.knn(p, K).idx
     with x64_mode(True):
-        found = search.grown(search.knn, p, K)
+        found = search.grown(search.traced_knn, p, K)
     assert float(found.edge) < 1.0
     np.testing.assert_array_equal(found.idx, want)
 
@@ -319,8 +319,8 @@ def test_a_sparse_2km_tile_needs_no_dense_grid():
 def test_invalid_arguments_raise():
     p = np.zeros((10, 3), np.float32)
     with pytest.raises(ValueError, match=r"shape \(N, 3\)"):
-        search.knn(np.zeros((10, 2)), 4)
+        search.traced_knn(np.zeros((10, 2)), 4)
     with pytest.raises(ValueError, match="unknown metric"):
-        search.knn(p, 4, metric="l1")
+        search.traced_knn(p, 4, metric="l1")
     with pytest.raises(ValueError, match="slots"):
-        jax.jit(lambda p: search.knn(p, 4, slots=0))(p)
+        jax.jit(lambda p: search.traced_knn(p, 4, slots=0))(p)

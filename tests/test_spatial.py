@@ -282,7 +282,7 @@ def test_knn_batches_queried_ahead_are_the_whole_query(monkeypatch):
     rows = np.random.default_rng(7).permutation(index.n)[:900]
     parts = list(spatial.knn_batches(index, 9, rows))
     assert [part for part, _, _ in parts] == spatial.batches(rows.size)
-    want_idx, want_reach = index.knn(9, rows)
+    want_idx, want_reach = index.neighbours(9, rows)
     np.testing.assert_array_equal(np.concatenate([idx for _, idx, _ in parts]), want_idx)
     np.testing.assert_array_equal(np.concatenate([reach for _, _, reach in parts]), want_reach)
 

@@ -196,7 +196,7 @@ def test_knn_ties_are_broken_by_global_id(offset):
     p = grid((6, 6, 6))  # a lattice: ties everywhere
     gid = np.random.default_rng(0).permutation(len(p)) + offset
     index = spatial.SpatialIndex(p, gid=gid)
-    idx, reach = index.knn(9, np.arange(index.n))
+    idx, reach = index.neighbours(9, np.arange(index.n))
     dist = np.sqrt(((index.points[:, None] - index.points[None]) ** 2).sum(-1))
     g_sorted = index.gid[:-1]
     for i in range(index.n):

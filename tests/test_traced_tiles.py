@@ -30,11 +30,11 @@ def test_the_traced_index_query_is_the_host_query(index):
     deduped = index(True)
     rows = np.arange(0, deduped.n, 2)
     for k in (8, 17):
-        host, traced = deduped.knn(k, rows), nearest.index_knn(deduped, k, rows)
+        host, traced = deduped.neighbours(k, rows), nearest.index_knn(deduped, k, rows)
         np.testing.assert_array_equal(traced[0], host[0])
         np.testing.assert_array_equal(traced[1], host[1])
     small = spatial.SpatialIndex(deduped.points[:10])  # fewer points than k: padded with n, reach inf
-    for got, want in zip(nearest.index_knn(small, 16, np.arange(10)), small.knn(16, np.arange(10))):
+    for got, want in zip(nearest.index_knn(small, 16, np.arange(10)), small.neighbours(16, np.arange(10))):
         np.testing.assert_array_equal(got, want)
 
 

@@ -214,7 +214,7 @@ def index_balls(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
         if local_k < 1:
             res, reach = np.ones(n), np.zeros(n)
         else:
-            near = backend.index_search(index, cells.knn, local_k + 1)
+            near = backend.index_search(index, cells.traced_knn, local_k + 1)
             res, reach = spatial.spacing_of(near.reach[near.idx], near.reach)
         if n <= LOCAL_K:  # the estimate read fewer neighbours than the whole cloud may hold
             reach = np.full(n, np.inf)
@@ -455,15 +455,15 @@ def _balls(p, cell_edge, *, metric: str, widen: float, kernel_size: int, d_facto
     # the spacing and the d factor
     near = None
     if isinstance(spacing, str) and spacing == "local":
-        near = searches.knn(local_k + 1, dedupe)
+        near = searches.nearest(local_k + 1, dedupe)
         res, res_lo = _local_spacing(p, near, local_k, dedupe, spacing_k, x64)
     elif isinstance(spacing, str):
-        other = searches.knn(2, False)
+        other = searches.nearest(2, False)
         res, res_lo = _mean_other(p, other, x64)
     else:
         res, res_lo = spacing, None
     if d_factor is None:
-        distinct = near if near is not None and dedupe else searches.knn(2, True)
+        distinct = near if near is not None and dedupe else searches.nearest(2, True)
         factor, factor_lo = _ramped(p, distinct, ramp, x64)
         base = widen * kernel_size / 2  # the host's (widen * k / 2) * d_factor
         if x64:
@@ -504,8 +504,8 @@ class _Searches:
         self.overflow = jnp.where((self.overflow < 0) | (this < 0), -1, jnp.maximum(self.overflow, this))
         return found
 
-    def knn(self, k: int, dedupe: bool):
-        return self._run(cells.knn, k, dedupe=dedupe)
+    def nearest(self, k: int, dedupe: bool):
+        return self._run(cells.traced_knn, k, dedupe=dedupe)
 
     def within(self, radius, radius_lo, columns: int, metric: str, dedupe: bool, max_count):
         # A default edge from most rows' radius, not the largest (a sparse point's ball would make every
@@ -527,7 +527,7 @@ def local_spacing(found: cells.Found):
     spacing is the host's to the last bit.
 
     Args:
-      found: :func:`hgjax.neighbours.cells.knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
+      found: :func:`hgjax.neighbours.cells.traced_knn` of the cloud with k + 1 columns and ``dedupe=True`` (the host's
         ``LOCAL_K + 1`` = 17); the cloud must hold at least k + 1 distinct locations (the
         host then lowers k; this does not).
 
@@ -540,7 +540,7 @@ def local_spacing(found: cells.Found):
       >>> import numpy as np
       >>> from hgjax.neighbours import balls, cells
       >>> p = np.c_[np.mgrid[0:8, 0:8].reshape(2, -1).T, np.zeros(64)].astype(np.float32)
-      >>> s, _ = balls.local_spacing(cells.knn(p, 17, dedupe=True))
+      >>> s, _ = balls.local_spacing(cells.traced_knn(p, 17, dedupe=True))
       >>> round(float(s[27]), 3)  # inside an 8 x 8 grid of spacing 1
       0.991
     """

@@ -53,7 +53,7 @@ Same answers as the host, bit for bit, by the exact arithmetic of :mod:`hgjax._e
 
 HKC/HKF's per-point spacing (:func:`hgjax.neighbours.spatial.local_spacing`) is
 :func:`hgjax.neighbours.balls.local_spacing` of a 17-nearest search, in the host's float64 operations and order (NumPy's pairwise mean); their
-ball is :func:`within` with ``max_count``; GFR's capped radius graph is :func:`knn` with
+ball is :func:`within` with ``max_count``; GFR's capped radius graph is :func:`traced_knn` with
 ``metric="l2sq"`` and ``radius``.
 
 On a CPU the k-d tree stays the default (``bench/results/device_search.md``): the selection
@@ -86,7 +86,7 @@ from jax import lax
 from hgjax import _exact
 from hgjax.neighbours import spatial
 
-__all__ = ["Found", "grown", "knn", "within"]
+__all__ = ["Found", "grown", "traced_knn", "within"]
 
 SENTINEL_CELL = np.iinfo(np.int32).max  # cell of a padding row or of a point that is no candidate
 MAX_CELL = 1 << 30  # cell coordinates are clipped here (never reached by a sensible edge)
@@ -119,9 +119,9 @@ class Found:
       dist: (N, K) the distances of ``idx`` (0 for the point itself; inf at padding): the
         host's float64 values under x64, float32 approximations without it. Squared for
         ``metric="l2sq"``, Chebyshev for ``"linf"``.
-      reach: (N,) per row: the k-th distance (:func:`knn`; inf where fewer than k points
+      reach: (N,) per row: the k-th distance (:func:`traced_knn`; inf where fewer than k points
         exist) or the radius used (:func:`within`, shrunk by ``max_count``).
-      columns_needed: int32 scalar, the widest row (:func:`within`; ``k`` or fewer for knn).
+      columns_needed: int32 scalar, the widest row (:func:`within`; ``k`` or fewer for traced_knn).
       uncovered: bool scalar, True when some row's reach still passed the boundary of its
         27-cell block after the last level (points outside it may belong to the row).
       edge: scalar, the first level's cell edge (the one to pass again).
@@ -663,7 +663,7 @@ def _found(cloud: _Cloud, out, slots: int, columns_needed, empty_reach) -> Found
 
 # ----------------------------------------------------------------------------- public queries
 
-def knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, count=None, gid=None,
+def traced_knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, count=None, gid=None,
         radius=None, metric: str = "l2", chunk: int | None = None, spill: int | None = None,
         frame: bool = True) -> Found:
     """The point itself and its k - 1 nearest points by (distance, global id): :func:`hgjax.neighbours.nearest.knn`, traced.
@@ -710,7 +710,7 @@ def knn(points, k: int, *, dedupe: bool = False, slots: int = SLOTS, edge=None, 
       >>> import numpy as np, jax
       >>> from hgjax.neighbours import balls, cells, nearest
       >>> p = np.random.default_rng(0).random((200, 3)).astype(np.float32)
-      >>> found = jax.jit(lambda p: cells.knn(p, 8))(p)
+      >>> found = jax.jit(lambda p: cells.traced_knn(p, 8))(p)
       >>> found.idx.shape, bool(found.overflow), bool((found.idx[:, 0] == np.arange(200)).all())
       ((200, 8), False, True)
     """
@@ -751,8 +751,8 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
         float dtype (float64 under x64). With ``dedupe`` every copy uses its location's first
         copy's radius (the host queries each location once).
       columns: columns K of ``idx`` (static); a wider row is reported (``columns_needed``).
-      dedupe, edge, count, gid, chunk, spill, frame: as :func:`knn`.
-      slots: as :func:`knn`; a ball reads at least twice its columns (with ``max_count``, the
+      dedupe, edge, count, gid, chunk, spill, frame: as :func:`traced_knn`.
+      slots: as :func:`traced_knn`; a ball reads at least twice its columns (with ``max_count``, the
         larger of the two) per step, so that a step is not mostly the running selection. The default edge is the
         largest radius times 1.1 (traced).
       metric: ``"l2"``, ``"l2sq"`` (``radius`` is then a squared radius) or ``"linf"`` (static).
@@ -827,7 +827,7 @@ def within(points, radius, *, columns: int, dedupe: bool = False, slots: int = S
 # ----------------------------------------------------------------------------- eager regrowth
 
 def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Found:
-    """Run ``query`` (:func:`knn` or :func:`within`) eagerly until it does not overflow (host loop, not jittable).
+    """Run ``query`` (:func:`traced_knn` or :func:`within`) eagerly until it does not overflow (host loop, not jittable).
 
     Each round is one jitted call; a round that overflows is run again with the columns (of
     :func:`within`) that it reports needed, rounded up to a power of two, or with the edge it
@@ -835,8 +835,8 @@ def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Fo
     truncated: the result is the traced query's exact answer.
 
     Args:
-      query: :func:`knn` or :func:`within`.
-      points, *args, **kwargs: the query's arguments (``k`` of :func:`knn` and ``radius`` of
+      query: :func:`traced_knn` or :func:`within`.
+      points, *args, **kwargs: the query's arguments (``k`` of :func:`traced_knn` and ``radius`` of
         :func:`within` may be positional).
       edge: the first round's edge (default: the query's own default).
       max_rounds: rounds before giving up.
@@ -855,7 +855,7 @@ def grown(query, points, *args, edge=None, max_rounds: int = 12, **kwargs) -> Fo
       >>> bool(found.overflow), found.idx.shape[1] >= int(found.columns_needed)
       (False, True)
     """
-    first = "k" if query is knn else "radius"
+    first = "k" if query is traced_knn else "radius"
     if args:
         kwargs[first] = args[0]
     static = {name: kwargs.pop(name) for name in ("k", "columns", "dedupe", "metric", "max_count", "chunk", "spill",

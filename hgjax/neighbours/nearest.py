@@ -1,7 +1,7 @@
 """k-nearest neighbourhoods (EA, PCA-AC, LHF, MSS) by either search, and their tiled builds.
 
 :func:`knn` is the host's (a k-d tree; :class:`hgjax.neighbours.spatial.SpatialIndex`), :func:`traced`
-the traced search's (:func:`hgjax.neighbours.cells.knn`: pure JAX, under ``jax.jit`` with static N,
+the traced search's (:func:`hgjax.neighbours.cells.traced_knn`: pure JAX, under ``jax.jit`` with static N,
 k and columns, ``jax.vmap`` and inside ``jax.grad``; the choice of neighbours is discrete, so no
 gradient flows through it), :func:`build` the one dispatch on ``search``. The traced search has
 no capacity: it reads every candidate a query's cells hold, so nothing is truncated and nothing
@@ -63,8 +63,8 @@ def build(points, k: int, *, dedupe: bool, capacity: int | None, search: str = "
 
     Args:
       points: (N, 3) float32 or float64; may be a tracer with ``search="jax"``.
-      k, dedupe, capacity: as :func:`hgjax.neighbours.spatial.knn`.
-      search: ``"host"`` (:func:`hgjax.neighbours.spatial.knn`, SciPy; not jittable) or ``"jax"``
+      k, dedupe, capacity: as :func:`knn`.
+      search: ``"host"`` (:func:`knn`, SciPy; not jittable) or ``"jax"``
         (:func:`traced`: jit, vmap, grad; the same neighbourhoods, exact for any cloud with no
         sizes passed).
       cell_slots: candidates the traced search reads per step (static; default
@@ -90,7 +90,7 @@ def build(points, k: int, *, dedupe: bool, capacity: int | None, search: str = "
 
 def traced(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: int = backend.CELL_SLOTS, cell_edge=None,
         params: dict) -> Neighbourhoods:
-    """k-nearest neighbourhoods as :func:`hgjax.neighbours.spatial.knn` builds them, by the traced search.
+    """k-nearest neighbourhoods as :func:`knn` builds them, by the traced search.
 
     Args:
       points: (N, 3) float32 or float64 (a tracer under ``jit``).
@@ -112,10 +112,10 @@ def traced(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: in
     n = p.shape[0]
     if _stream.is_traced(p):
         local, lo = backend.traced_frame(p)
-        found = cells.knn(p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
+        found = cells.traced_knn(p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
     else:
         local, lo = backend.host_frame(points)
-        found = cells.grown(cells.knn, p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
+        found = cells.grown(cells.traced_knn, p, k, dedupe=dedupe, slots=cell_slots, edge=cell_edge)
     overflow = backend.guard(jnp.where(found.overflow, -1, 0).astype(jnp.int32))
     idx = found.idx.astype(jnp.int32)
     cap = k if capacity is None else capacity
@@ -125,8 +125,8 @@ def traced(points, k: int, *, dedupe: bool, capacity: int | None, cell_slots: in
 
 
 def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:meth:`hgjax.neighbours.spatial.SpatialIndex.knn` of sorted-frame ``rows`` by the traced search (a tile's build,
-    :func:`hgjax.neighbours.backend.index_search`: the host's neighbourhoods bit for bit).
+    """:meth:`hgjax.neighbours.spatial.SpatialIndex.neighbours` of sorted-frame ``rows`` by the traced search (a
+    tile's build, :func:`hgjax.neighbours.backend.index_search`: the host's neighbourhoods bit for bit).
 
     Returns:
       (idx, reach): idx (R, k) int32 sorted-frame rows, column 0 the point itself, padded
@@ -137,7 +137,7 @@ def index_knn(index: spatial.SpatialIndex, k: int, rows: np.ndarray) -> tuple[np
       ValueError: global ids beyond int32 (the traced search's tie key).
     """
     n, k_eff = index.n, min(k, index.n)
-    found = backend.index_search(index, cells.knn, k_eff)
+    found = backend.index_search(index, cells.traced_knn, k_eff)
     idx, reach = found.idx[rows], found.reach[rows]
     idx = np.pad(idx, ((0, 0), (0, k - k_eff)), constant_values=n)
     return idx, (reach if k_eff == k else np.full(reach.shape, np.inf))

@@ -17,7 +17,7 @@ graph is discrete: no gradient flows through its choice). Both graphs of
 * ``"invariant"``: the squared radius (``radius_factor`` x resolution)^2, the resolution the
   median nearest-distinct distance over the seeded sample :func:`hgjax.neighbours.spatial.sample_ids`
   (static ids: N is static), computed traced; each location keeps its ``max_nn`` nearest other
-  locations with 0 < q < r by (q, global id) (:func:`hgjax.neighbours.cells.knn` with ``dedupe``,
+  locations with 0 < q < r by (q, global id) (:func:`hgjax.neighbours.cells.traced_knn` with ``dedupe``,
   ``metric="l2sq"`` and ``radius``); a pair is stored between the first points of its two
   locations, in the row of the smaller index, when either end keeps the other (one sort of
   the kept pairs, then a scatter into static columns).
@@ -239,7 +239,7 @@ def index_location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want
     order within a row, which no sum over a row reads), a tiled run's build.
 
     What every location keeps is one capped k-nearest search over the whole index
-    (:func:`hgjax.neighbours.backend.index_search` of :func:`hgjax.neighbours.cells.knn` with
+    (:func:`hgjax.neighbours.backend.index_search` of :func:`hgjax.neighbours.cells.traced_knn` with
     ``metric="l2sq"`` and ``radius`` r: the host's q and (q, gid) order bit for bit); a wanted row's
     partners are what it keeps and the rows that keep it.
 
@@ -247,7 +247,7 @@ def index_location_rows(index: spatial.SpatialIndex, r: float, max_nn: int, want
       (own, sym) as :func:`location_rows`: each row's partners ascending.
     """
     m = index.n
-    kept = backend.index_search(index, cells.knn, min(max_nn + 1, m), radius=r, metric="l2sq").idx[:, 1:]
+    kept = backend.index_search(index, cells.traced_knn, min(max_nn + 1, m), radius=r, metric="l2sq").idx[:, 1:]
     a = np.broadcast_to(np.arange(m)[:, None], kept.shape)[kept < m]
     b = kept[kept < m].astype(np.int64)
     rows, cols = np.concatenate([a, b]), np.concatenate([b, a])
@@ -746,7 +746,7 @@ def _invariant_lists(points, edge_near, edge_main, slots: int, factor: float, ma
     and the two searches' :class:`Found`."""
     n = points.shape[0]
     x64 = cells._x64()
-    near = cells.knn(points, min(2, n), dedupe=True, slots=slots, edge=edge_near)
+    near = cells.traced_knn(points, min(2, n), dedupe=True, slots=slots, edge=edge_near)
     ids = spatial.sample_ids(n)  # static: N is
     if n >= 2:
         j = near.idx[ids, 1]
@@ -766,7 +766,7 @@ def _invariant_lists(points, edge_near, edge_main, slots: int, factor: float, ma
         rh, rl = _exact.pair_square(th, tl)
         radius = rh * (1 + RADIUS_MARGIN)  # a superset; the exact pair test below
     k = min(max_nn + 1, n)
-    main = cells.knn(points, k, dedupe=True, slots=slots, edge=edge_main, radius=radius, metric="l2sq")
+    main = cells.traced_knn(points, k, dedupe=True, slots=slots, edge=edge_main, radius=radius, metric="l2sq")
     kept = main.idx
     if not x64:
         rows = jnp.arange(n, dtype=jnp.int32)
@@ -810,7 +810,7 @@ def _reference_lists(points, edge_near, edge_main, slots: int, ball_columns: int
     else:
         p32 = backend.traced_frame(points)[0].astype(jnp.float32)
     k = min(3, n)
-    near = cells.knn(p32, k, slots=slots, edge=edge_near)
+    near = cells.traced_knn(p32, k, slots=slots, edge=edge_near)
     if k > 1:
         js = near.idx[:, 1:]
         q = _q32(p32[:, None, :], p32[jnp.minimum(js, n - 1)])

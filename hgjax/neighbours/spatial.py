@@ -248,7 +248,7 @@ class SpatialIndex:
         gid = self.gid[np.minimum(idx, self.n)]
         return ((dist[:, 1:] == dist[:, :-1]) & (gid[:, 1:] < gid[:, :-1])).any(axis=1)
 
-    def knn(self, k: int, rows: slice | np.ndarray = slice(None), *,
+    def neighbours(self, k: int, rows: slice | np.ndarray = slice(None), *,
             query: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The point itself and its k - 1 nearest neighbours by (distance, global id), sorted frame.
 
@@ -307,7 +307,7 @@ class SpatialIndex:
     def nearest(self, rows: slice | np.ndarray, k: int, bound: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """The raw tree query of ``rows``: (R, k) distances and indices (sorted frame), k <= n.
 
-        Sorted by distance, equal distances in the tree's order; :meth:`knn` and :meth:`cube`
+        Sorted by distance, equal distances in the tree's order; :meth:`neighbours` and :meth:`cube`
         turn it into their exact neighbourhoods, so one query can serve both. With ``bound``,
         only points nearer than it: the missing ones at distance inf and index n (GFR's balls).
         """
@@ -574,15 +574,15 @@ def nearest_distances(index: SpatialIndex, rows: np.ndarray) -> tuple[np.ndarray
 
 
 def sample_offsets(index: SpatialIndex, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The ``SAMPLE_K`` nearest locations of sorted-frame ``rows`` (R,) minus the row's own (:meth:`SpatialIndex.knn`).
+    """The ``SAMPLE_K`` nearest locations of sorted-frame ``rows`` (R,) minus the row's own (:meth:`SpatialIndex.neighbours`).
 
     Returns:
       (offsets, valid, reach): offsets (R, SAMPLE_K, 3) float64, row 0 the point itself (0),
       zero where ``valid`` (R, SAMPLE_K) is False (fewer locations in the index); reach (R,)
-      as :meth:`SpatialIndex.knn`.
+      as :meth:`SpatialIndex.neighbours`.
     """
     rows = np.asarray(rows, dtype=np.int64)
-    idx, reach = index.knn(SAMPLE_K, rows)
+    idx, reach = index.neighbours(SAMPLE_K, rows)
     idx = np.pad(idx, ((0, 0), (0, SAMPLE_K - idx.shape[1])), constant_values=index.n)
     valid = idx < index.n
     near = np.take(index.points, np.where(valid, idx, 0), axis=0) - np.take(index.points, rows, axis=0)[:, None, :]
@@ -664,7 +664,7 @@ def local_spacing(index: SpatialIndex, rows: np.ndarray, k: int = 16, *,
     k = min(k, index.n - 1)
     if k < 1:
         return np.ones(rows.size), np.zeros(rows.size)
-    nbrs, reach = chunked_knn(index, k + 1, rows) if query is None else index.knn(k + 1, rows, query=query)
+    nbrs, reach = chunked_knn(index, k + 1, rows) if query is None else index.neighbours(k + 1, rows, query=query)
     rk = np.full(index.n, np.nan) if rk is None else rk
     rk[rows] = reach
     extra = np.unique(nbrs[np.isnan(rk[nbrs])])
@@ -682,20 +682,20 @@ def spacing_of(rk_near: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):
-    """:meth:`SpatialIndex.knn` of sorted-frame ``rows`` (R,), batch by batch (:func:`batches`).
+    """:meth:`SpatialIndex.neighbours` of sorted-frame ``rows`` (R,), batch by batch (:func:`batches`).
 
     The tree queries of the next QUERIES_AHEAD batches are queued in a background thread
     (the query releases the GIL) while this one is ranked and consumed, so each query starts
     as soon as the one before it ends, whether or not the host work on the earlier batches
-    is done. Results are those of :meth:`SpatialIndex.knn` on each batch.
+    is done. Results are those of :meth:`SpatialIndex.neighbours` on each batch.
 
     Yields:
       (part, idx, reach): part a slice of ``rows``; idx (r, k) int32 and reach (r,) as
-      :meth:`SpatialIndex.knn`.
+      :meth:`SpatialIndex.neighbours`.
     """
     rows = np.asarray(rows, dtype=np.int64)
     parts = batches(rows.size)
-    width = min(k + 1, index.n)  # the columns knn reads
+    width = min(k + 1, index.n)  # the columns neighbours reads
     with concurrent.futures.ThreadPoolExecutor(1) as ahead:
         pending = collections.deque(ahead.submit(index.nearest, rows[part], width)
                                     for part in parts[:QUERIES_AHEAD])
@@ -703,11 +703,11 @@ def knn_batches(index: SpatialIndex, k: int, rows: np.ndarray):
             query = pending.popleft().result()
             if i + QUERIES_AHEAD < len(parts):
                 pending.append(ahead.submit(index.nearest, rows[parts[i + QUERIES_AHEAD]], width))
-            yield (part, *index.knn(k, rows[part], query=query))
+            yield (part, *index.neighbours(k, rows[part], query=query))
 
 
 def chunked_knn(index: SpatialIndex, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:meth:`SpatialIndex.knn` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
+    """:meth:`SpatialIndex.neighbours` of ``rows`` in batches of QUERY_ROWS (bounds the query's memory)."""
     parts = list(knn_batches(index, k, rows))
     if not parts:
         return np.zeros((0, k), np.int32), np.zeros(0)
