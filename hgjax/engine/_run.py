@@ -1,4 +1,4 @@
-"""The engine of every resample: plan -> tiles -> neighbourhoods -> score -> global selection.
+"""The composition of every resample, :func:`run`: plan -> tiles -> neighbourhoods -> score -> global selection.
 
 :func:`run` is the one composition behind :func:`hgjax.resample` (one tile),
 :func:`hgjax.tiles.resample` (a grid of tiles, here or on Dask workers),
