@@ -14,7 +14,7 @@ bounding-box centre subtracted) with the centre carried exactly (TwoSum), so the
 coordinates equal the host's float64 subtraction rounded once, up to a double rounding at an
 exact midpoint; under x64 the subtraction is the host's own.
 
-A tiled run (:mod:`hgjax._tiling`) builds each tile by either search: with ``search="jax"`` every
+A tiled run (:mod:`hgjax.engine`) builds each tile by either search: with ``search="jax"`` every
 kind's tile build (k nearest, cubes and balls, GFR's graph) runs the traced search on the tile's
 host index (:func:`index_search`), whose rows are the host's bit for bit, so a core point's
 neighbourhood and score do not depend on the search nor on the tile that holds it.
@@ -127,7 +127,7 @@ def default_search() -> str:
 
 
 def index_search(index: spatial.SpatialIndex, query, *args, radius=None, **kwargs) -> cells.Found:
-    """``query`` (:func:`hgjax.neighbours.cells.knn` or :func:`hgjax.neighbours.cells.within`) over every row of a
+    """``query`` (:func:`hgjax.neighbours.cells.traced_knn` or :func:`hgjax.neighbours.cells.within`) over every row of a
     tile's host index, grown until nothing overflows (:func:`hgjax.neighbours.cells.grown`): a tiled run's build.
 
     The search runs on the index's own float64 coordinates with x64 enabled for this call only
