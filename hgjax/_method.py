@@ -161,6 +161,9 @@ class Method:
         keeps the m top ranked values, ties by index (as :func:`hgjax.top_k`), so that a traced
         resample (``search="jax"``) may rank with ``jax.lax.top_k`` instead (GFR's
         ``{"mode": "top"}``); None: never.
+      traced_columns: ``traced_columns(points, nb) -> int``: the columns a traced build of
+        ``points`` needs where that is more than the host's widest row of ``nb`` (GFR's
+        reference search reads a ball a hair wider than its rows); None: the host's rows.
 
     Examples:
       >>> import hgjax
@@ -186,6 +189,7 @@ class Method:
     check_key: Callable | None = None
     ranks_as: tuple | None = None
     keeps_top: dict | None = None
+    traced_columns: Callable | None = None
 
     @property
     def params(self) -> dict:

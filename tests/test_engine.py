@@ -36,9 +36,9 @@ def test_the_search_picks_the_neighbours_only(cloud, method):
 
 def test_either_search_runs_in_tiles(cloud):
     stages = []
-    idx = hgjax.tiles.resample(cloud, 0.2, method="hkf", search="jax", tile=2.5,
+    idx = hgjax.tiles.resample(cloud, 0.2, method="ea", search="jax", tile=2.5,
                                on_stage=lambda name, _: stages.append(name))
-    np.testing.assert_array_equal(idx, hgjax.resample(cloud, 0.2, method="hkf"))
+    np.testing.assert_array_equal(idx, hgjax.resample(cloud, 0.2, method="ea"))
     assert stages == ["plan", "tiles", "keep"]
 
 

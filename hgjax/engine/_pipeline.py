@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hgjax import _validate
-from hgjax.neighbours import backend, radius_graph, spatial
+from hgjax.neighbours import backend, spatial
 from hgjax._method import Method
 from hgjax.engine._registry import DEFAULT, METHODS, scoring, split
 from hgjax.engine.select import soft_select, top_k
@@ -74,8 +74,8 @@ def capacity(points, method: str, **params) -> int:
     error naming the capacity needed. This counts them directly, without compiling anything:
     the host's build of the same neighbourhoods (SciPy's k-d tree; the traced search's sets),
     its fullest row rounded up to a power of two (at least 8), the shape bucket of
-    :func:`neighbourhoods`, and for GFR's reference variant its search's fullest ball
-    (:func:`hgjax.neighbours.radius_graph.reference_ball`). The k-nearest methods need no
+    :func:`neighbourhoods`, or what the method's traced search reads where that is wider
+    (:attr:`hgjax.Method.traced_columns`: GFR's reference ball). The k-nearest methods need no
     sizing: their capacity is their k.
 
     Args:
@@ -102,8 +102,8 @@ def capacity(points, method: str, **params) -> int:
     build = {k: v for k, v in split(entry, "build", params).items() if k != "search"}
     nb = entry.build(points, **build)
     width = nb.idx.shape[-1]
-    if entry.kind == "graph" and dict(nb.params).get("variant") == "reference":
-        width = max(width, spatial.bucket(radius_graph.reference_ball(_validate.check_points(points))))
+    if entry.traced_columns is not None:
+        width = max(width, spatial.bucket(entry.traced_columns(_validate.check_points(points), nb)))
     return int(width)
 
 

@@ -117,6 +117,12 @@ def _reference_radius(p32: np.ndarray, index: spatial.SpatialIndex) -> float:
     return float(min(10 * min_nn, 2 * max_nn))
 
 
+def traced_columns(points, nb) -> int:
+    """The columns a traced build of ``points`` reads where its host rows ``nb`` hold fewer: the reference
+    variant's ball (:func:`reference_ball`); 1 for the others (their rows are what the traced search reads)."""
+    return reference_ball(points) if dict(nb.params).get("variant") == "reference" else 1
+
+
 def reference_ball(points) -> int:
     """The fullest ball of the reference graph's traced search (:func:`build`): the points within the
     reference radius of each point, itself included, counted by the host's k-d tree (the columns
