@@ -59,7 +59,7 @@ from hgjax import _exact, _stream, _validate
 from hgjax.neighbours import backend, cells, spatial
 
 __all__ = ["MAX_NN", "RADIUS_FACTOR", "build", "graph", "graph_params", "index_location_rows", "location_rows",
-           "reference_ball", "squared_radius"]
+           "reference_ball", "squared_radius", "traced_columns"]
 
 MAX_NN = 100
 RADIUS_FACTOR = 10.0
