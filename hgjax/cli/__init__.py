@@ -35,25 +35,12 @@ One room: :mod:`hgjax.cli._main` holds the parser, the run's JAX settings and th
 :mod:`hgjax.cli._signals` (SIGINT, SIGTERM and the console script's exit).
 """
 
-import importlib
+import lazy_loader
 
 # Loaded on first use, so that ``import hgjax.cli`` imports nothing but this file and the console
 # script installs its signal handlers (:func:`exit_on_signals`) before the parser is imported.
 _EXPORTS = {
-    "hgjax.cli._main": ("COMMANDS", "build_parser", "main"),
-    "hgjax.cli._signals": ("exit_on_signals",),
+    "_main": ["COMMANDS", "build_parser", "main"],
+    "_signals": ["exit_on_signals"],
 }
-_SOURCE = {name: module for module, names in _EXPORTS.items() for name in names}
-
-__all__ = sorted(_SOURCE)
-
-
-def __getattr__(name: str):
-    if name not in _SOURCE:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = globals()[name] = getattr(importlib.import_module(_SOURCE[name]), name)
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs=_EXPORTS)

@@ -20,30 +20,15 @@ engine only for the names below (each loaded on first use, as :mod:`hgjax` loads
 * :mod:`hgjax.engine._survey`: files as one cloud, and the manifest of a run.
 """
 
-import importlib
+import lazy_loader
 
 _EXPORTS = {
-    "hgjax.engine._run": ("STAGES", "Run", "checked_tile", "first_stage", "keeps_top", "planned", "resample", "run",
-                          "searched"),
-    "hgjax.engine._registry": ("DEFAULT", "METHODS", "entry"),
-    "hgjax.engine._pipeline": ("capacity", "keep", "neighbourhoods", "score", "soft_resample", "soft_score",
-                               "soft_weights"),
-    "hgjax.engine._plan": ("Plan",),
-    "hgjax.engine._grid": ("Cloud", "Source", "tile_scores"),
-    "hgjax.engine._survey": ("MANIFEST", "ManifestError", "SurveyResult", "read_manifest", "resample_files", "reusable",
-                             "run_record", "write_manifest"),
+    "_run": ["STAGES", "Run", "checked_tile", "first_stage", "keeps_top", "planned", "resample", "run", "searched"],
+    "_registry": ["DEFAULT", "METHODS", "entry"],
+    "_pipeline": ["capacity", "keep", "neighbourhoods", "score", "soft_resample", "soft_score", "soft_weights"],
+    "_plan": ["Plan"],
+    "_grid": ["Cloud", "Source", "tile_scores"],
+    "_survey": ["MANIFEST", "ManifestError", "SurveyResult", "read_manifest", "resample_files", "reusable",
+                "run_record", "write_manifest"],
 }
-_SOURCE = {name: module for module, names in _EXPORTS.items() for name in names}
-
-__all__ = sorted(_SOURCE)
-
-
-def __getattr__(name: str):
-    if name not in _SOURCE:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = globals()[name] = getattr(importlib.import_module(_SOURCE[name]), name)
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__, __all__ = lazy_loader.attach(__name__, submod_attrs=_EXPORTS)
