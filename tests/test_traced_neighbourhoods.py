@@ -92,7 +92,7 @@ def test_a_jitted_training_step_rebuilds_neighbourhoods_and_compiles_once(clouds
 
 @pytest.mark.parametrize("call", [
     lambda p: hgjax.resample(p, 0.2, method="pca_ac", traced=True),
-    lambda p: hgjax.tiles.resample(p, 0.2, method="hkc", tile=1.0, search="jax"),
+    lambda p: hgjax.resample(p, 0.2, method="gfr", traced=True),
 ])
 def test_what_the_traced_search_does_not_cover_is_refused(clouds, call):
     with pytest.raises((ValueError, TypeError)):
