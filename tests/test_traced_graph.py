@@ -104,7 +104,7 @@ def test_jitted_graph_without_duplicates_scores_as_the_host(clouds, built):
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_rows_in_blocks_give_the_same_graph(clouds, built, monkeypatch, variant):
     """The per-row work in blocks of rows (the last one padded) as in one block."""
-    monkeypatch.setattr(hgjax.neighbours.radius_graph, "ROW_BLOCK", 500)
+    monkeypatch.setattr(hgjax.neighbours.traced_graph, "ROW_BLOCK", 500)
     host, eager = built["smooth", variant]
     settings = _searched(eager)
     jitted = jax.jit(lambda q: hgjax.neighbourhoods(q, "gfr", variant=variant, search="jax", **settings))

@@ -6,7 +6,8 @@ and ``grad``) behind one ``build``:
 
 * the kinds: :mod:`~hgjax.neighbours.nearest` (k nearest: EA, PCA-AC, LHF, MSS),
   :mod:`~hgjax.neighbours.balls` (HKC/HKF's cubes and balls, the voxel spacing) and
-  :mod:`~hgjax.neighbours.radius_graph` (GFR's graph);
+  :mod:`~hgjax.neighbours.radius_graph` (GFR's graph; its traced build in
+  :mod:`~hgjax.neighbours.traced_graph`);
 * :mod:`~hgjax.neighbours.container`: the :class:`hgjax.Neighbourhoods` pytree every score reads;
 * :mod:`~hgjax.neighbours.precision`: the host's local float frame and the working dtype;
 * :mod:`~hgjax.neighbours.kdtree` and :mod:`~hgjax.neighbours.spatial`: the host's tree and its

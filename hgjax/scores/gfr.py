@@ -53,7 +53,7 @@ import numpy as np
 
 from hgjax import _method, _stream, _validate
 from hgjax.engine import select
-from hgjax.neighbours import backend, radius_graph, spatial
+from hgjax.neighbours import backend, radius_graph, spatial, traced_graph
 from hgjax.scores import _common
 from hgjax.scores.eigen import DEFAULT_K
 
@@ -265,8 +265,8 @@ def neighbourhoods(points, *, variant: str = "invariant", radius_factor: float |
       (100, True)
     """
     if _validate.check_choice(search, "search", backend.SEARCHES) == "jax":
-        return radius_graph.build(points, variant=variant, radius_factor=radius_factor, max_nn=max_nn,
-                                   capacity=capacity, cell_slots=cell_slots, cell_edge=cell_edge)
+        return traced_graph.build(points, variant=variant, radius_factor=radius_factor, max_nn=max_nn,
+                                  capacity=capacity, cell_slots=cell_slots, cell_edge=cell_edge)
     pts = _validate.check_points(points)
     local = spatial.local_frame(pts)[0]
     if capacity is not None:
