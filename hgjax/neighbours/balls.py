@@ -69,7 +69,7 @@ __all__ = ["COLUMNS", "build", "build_params", "cube", "default_d_factor", "inde
 
 COLUMNS = 128
 """Columns of a traced cube's ``idx`` under ``jit`` when neither ``capacity`` nor ``max_count`` sets them."""
-FIRST_COLUMNS = 32  # columns of an eager build's first round (grown to the fullest row's bucket)
+FIRST_COLUMNS = 32  # columns of a tile's traced reference search's first round (grown to the fullest row's bucket)
 EDGE_QUANTILE = 90  # percent: a ball's default cell edge covers this share of the radii (the rest spill)
 
 
@@ -232,9 +232,9 @@ def index_balls(index: spatial.SpatialIndex, rows: np.ndarray, params: dict):
 
 
 def build(points, *, variant: str = "invariant", d_factor: float | None = None, kernel_size: int = 3,
-                   resolution: float | None = None, dedupe: bool | None = None,
-                   capacity: int | None = None, search: str = "host", cell_slots: int | None = None,
-                   cell_edge=None) -> Neighbourhoods:
+          resolution: float | None = None, dedupe: bool | None = None,
+          capacity: int | None = None, search: str = "host", cell_slots: int | None = None,
+          cell_edge=None) -> Neighbourhoods:
     """Cube neighbourhoods of HKC/HKF and the voxel spacing d of each point (host; jittable with ``search="jax"``).
 
     The ROI of point i is the axis-aligned cube of half-width k d_i / 2 (Fig. 2), with
